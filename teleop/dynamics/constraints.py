@@ -1,0 +1,397 @@
+"""Constraints on a rigid tool, defined once on its pose and twist.
+
+Every constraint works on the pose ``(p, R)`` of a body frame B (``p``: origin in world, m;
+``R = R_WB``) and on the twist ``nu = (v, w)``: the world velocity of B's origin (m/s) and the world
+angular velocity (rad/s), Pinocchio's LOCAL_WORLD_ALIGNED convention. A constraint gives
+
+* ``jacobian(p, R)``: G, shape (rows, 6), the rows of the Pfaffian form  G @ nu = 0;
+* ``bias(p, R, v, w)``: d/dt(G) @ nu, shape (rows,), so that  d/dt(G nu) = G @ nudot + bias;
+* ``residual(p, R)``: h, shape (rows,), for holonomic constraints (h = 0 on the manifold).
+
+Rows are normalised so that the multiplier of each row is a force in N (rows acting on ``v``) or a
+torque in N*m (rows acting on ``w`` only); ``units`` names them. The same objects constrain the
+master's reference tool (mapped to Euler-angle coordinates by the engine) and the slave arm's tool
+frame (mapped through the arm's frame Jacobian by the QP follower).
+"""
+
+from __future__ import annotations
+
+from abc import ABC, abstractmethod
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from teleop.dynamics.rotations import cross
+from teleop.errors import ConfigError
+
+
+def _unit(v, name: str) -> np.ndarray:
+    v = np.asarray(v, dtype=float).reshape(-1)
+    n = float(np.linalg.norm(v)) if v.shape == (3,) else 0.0
+    if not np.isfinite(n) or n < 1e-12:
+        raise ConfigError(f"{name}: expected a finite non-zero 3-vector, got {v.tolist()}")
+    return v / n
+
+
+def _vec3(v, name: str) -> np.ndarray:
+    v = np.asarray(v, dtype=float).reshape(-1)
+    if v.shape != (3,) or not np.all(np.isfinite(v)):
+        raise ConfigError(f"{name}: expected a finite 3-vector, got {np.asarray(v).tolist()}")
+    return v
+
+
+def _positive(x: float, name: str) -> float:
+    x = float(x)
+    if not np.isfinite(x) or x <= 0.0:
+        raise ConfigError(f"{name}: expected a finite positive number, got {x}")
+    return x
+
+
+def plane_tangents(n: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Two unit tangents (t1, t2) with t1 x t2 = n, for a unit normal ``n``.
+
+    For n = +z they are world x and y, so a horizontal plane gives the paper's rows (eqs. 14-15).
+    """
+    if n[2] > 1.0 - 1e-12:
+        return np.array([1.0, 0.0, 0.0]), np.array([0.0, 1.0, 0.0])
+    helper = np.array([1.0, 0.0, 0.0]) if abs(n[0]) < 0.9 else np.array([0.0, 1.0, 0.0])
+    t1 = helper - (helper @ n) * n
+    t1 /= np.linalg.norm(t1)
+    return t1, cross(n, t1)
+
+
+class Constraint(ABC):
+    """A block of Pfaffian rows on a rigid body's twist. Subclasses fill three pure methods."""
+
+    name: str = "constraint"
+    holonomic: bool = True
+    rows: int = 1
+    units: tuple[str, ...] = ("N",)
+
+    @abstractmethod
+    def jacobian(self, p: np.ndarray, R: np.ndarray) -> np.ndarray:
+        """G (rows, 6) acting on the twist (v, w)."""
+
+    @abstractmethod
+    def bias(self, p: np.ndarray, R: np.ndarray, v: np.ndarray, w: np.ndarray) -> np.ndarray:
+        """d/dt(G) @ (v, w), shape (rows,), in m/s^2 or rad/s^2."""
+
+    def residual(self, p: np.ndarray, R: np.ndarray) -> np.ndarray:
+        """h (rows,) in m or rad; zero on the constraint manifold. Nonholonomic rows have none."""
+        raise ConfigError(f"constraint {self.name!r} is nonholonomic: it has no residual h(q)")
+
+
+@dataclass(frozen=True, eq=False)
+class PlaneHeight(Constraint):
+    """Body origin at ``height`` (m) above a plane through ``origin`` with unit ``normal``."""
+
+    origin: np.ndarray = field(default_factory=lambda: np.zeros(3))
+    normal: np.ndarray = field(default_factory=lambda: np.array([0.0, 0.0, 1.0]))
+    height: float = 0.0
+    name: str = "plane_height"
+
+    holonomic = True
+    rows = 1
+    units = ("N",)
+
+    def __post_init__(self):
+        object.__setattr__(self, "origin", _vec3(self.origin, f"{self.name}.origin"))
+        object.__setattr__(self, "normal", _unit(self.normal, f"{self.name}.normal"))
+        G = np.zeros((1, 6))
+        G[0, :3] = self.normal
+        object.__setattr__(self, "_G", G)
+
+    def residual(self, p, R):
+        return np.array([self.normal @ (p - self.origin) - self.height])
+
+    def jacobian(self, p, R):
+        return self._G
+
+    def bias(self, p, R, v, w):
+        return np.zeros(1)
+
+
+@dataclass(frozen=True, eq=False)
+class AxisInPlane(Constraint):
+    """Body axis ``axis_B`` (unit, body frame) stays perpendicular to ``normal``: a disk upright.
+
+    h = n . (R a_B) (dimensionless, ~rad). Its multiplier is a torque (N*m) about (R a_B) x n.
+    """
+
+    axis_B: np.ndarray = field(default_factory=lambda: np.array([0.0, 0.0, 1.0]))
+    normal: np.ndarray = field(default_factory=lambda: np.array([0.0, 0.0, 1.0]))
+    name: str = "axis_in_plane"
+
+    holonomic = True
+    rows = 1
+    units = ("N*m",)
+
+    def __post_init__(self):
+        object.__setattr__(self, "axis_B", _unit(self.axis_B, f"{self.name}.axis"))
+        object.__setattr__(self, "normal", _unit(self.normal, f"{self.name}.normal"))
+
+    def residual(self, p, R):
+        return np.array([self.normal @ (R @ self.axis_B)])
+
+    def jacobian(self, p, R):
+        G = np.zeros((1, 6))
+        G[0, 3:] = cross(R @ self.axis_B, self.normal)
+        return G
+
+    def bias(self, p, R, v, w):
+        a = R @ self.axis_B
+        return np.array([self.normal @ cross(w, cross(w, a))])
+
+
+@dataclass(frozen=True, eq=False)
+class RollingWithoutSlip(Constraint):
+    """Nonholonomic: the contact point of an upright disk (radius m) does not slide on the plane.
+
+    The contact point is ``p - radius * normal`` (valid while the disk is held upright), and its
+    velocity along both plane tangents is zero: rows [t_i, -radius (n x t_i)], the paper's eqs. 14-15.
+    """
+
+    radius: float = 0.03
+    normal: np.ndarray = field(default_factory=lambda: np.array([0.0, 0.0, 1.0]))
+    name: str = "rolling_without_slip"
+
+    holonomic = False
+    rows = 2
+    units = ("N", "N")
+
+    def __post_init__(self):
+        _positive(self.radius, f"{self.name}.radius")
+        n = _unit(self.normal, f"{self.name}.normal")
+        object.__setattr__(self, "normal", n)
+        t1, t2 = plane_tangents(n)
+        G = np.zeros((2, 6))
+        for i, t in enumerate((t1, t2)):
+            G[i, :3] = t
+            G[i, 3:] = -self.radius * cross(n, t)
+        object.__setattr__(self, "_G", G)
+
+    def jacobian(self, p, R):
+        return self._G
+
+    def bias(self, p, R, v, w):
+        return np.zeros(2)
+
+
+@dataclass(frozen=True, eq=False)
+class SphereContact(Constraint):
+    """The body origin stays on a sphere (centre m, radius m), the body axis ``normal_B`` radial.
+
+    h = p - c - radius * R n_B (3 rows, m). Its multipliers are the world force (N) the sphere
+    applies, the paper's eqs. 21-24.
+    """
+
+    center: np.ndarray = field(default_factory=lambda: np.zeros(3))
+    radius: float = 0.05
+    normal_B: np.ndarray = field(default_factory=lambda: np.array([0.0, 0.0, 1.0]))
+    name: str = "sphere_contact"
+
+    holonomic = True
+    rows = 3
+    units = ("N", "N", "N")
+
+    def __post_init__(self):
+        object.__setattr__(self, "center", _vec3(self.center, f"{self.name}.center"))
+        _positive(self.radius, f"{self.name}.radius")
+        object.__setattr__(self, "normal_B", _unit(self.normal_B, f"{self.name}.normal"))
+
+    def residual(self, p, R):
+        return p - self.center - self.radius * (R @ self.normal_B)
+
+    def jacobian(self, p, R):
+        b = R @ self.normal_B
+        r = self.radius
+        G = np.zeros((3, 6))
+        G[0, 0] = G[1, 1] = G[2, 2] = 1.0
+        # d/dt(-r R n_B) = -r w x b = r [b]x w
+        G[0, 4], G[0, 5] = -r * b[2], r * b[1]
+        G[1, 3], G[1, 5] = r * b[2], -r * b[0]
+        G[2, 3], G[2, 4] = -r * b[1], r * b[0]
+        return G
+
+    def bias(self, p, R, v, w):
+        b = R @ self.normal_B
+        return self.radius * cross(cross(w, b), w)
+
+
+@dataclass(frozen=True, eq=False)
+class PointDepth(Constraint):
+    """A body point ``point_B`` (m, body frame) held ``depth`` (m) below a plane (unit normal out).
+
+    h = n . (p + R d - o) + depth. The scalpel's blade tip at a fixed cutting depth.
+    """
+
+    origin: np.ndarray = field(default_factory=lambda: np.zeros(3))
+    normal: np.ndarray = field(default_factory=lambda: np.array([0.0, 0.0, 1.0]))
+    depth: float = 0.005
+    point_B: np.ndarray = field(default_factory=lambda: np.zeros(3))
+    name: str = "point_depth"
+
+    holonomic = True
+    rows = 1
+    units = ("N",)
+
+    def __post_init__(self):
+        object.__setattr__(self, "origin", _vec3(self.origin, f"{self.name}.origin"))
+        object.__setattr__(self, "normal", _unit(self.normal, f"{self.name}.normal"))
+        object.__setattr__(self, "point_B", _vec3(self.point_B, f"{self.name}.point"))
+        if not np.isfinite(self.depth):
+            raise ConfigError(f"{self.name}.depth: expected a finite number, got {self.depth}")
+
+    def residual(self, p, R):
+        return np.array([self.normal @ (p + R @ self.point_B - self.origin) + self.depth])
+
+    def jacobian(self, p, R):
+        G = np.zeros((1, 6))
+        G[0, :3] = self.normal
+        G[0, 3:] = cross(R @ self.point_B, self.normal)
+        return G
+
+    def bias(self, p, R, v, w):
+        d = R @ self.point_B
+        return np.array([self.normal @ cross(w, cross(w, d))])
+
+
+@dataclass(frozen=True, eq=False)
+class AxisAlong(Constraint):
+    """Body axis ``axis_B`` stays parallel to the world ``direction``: two rows (N*m).
+
+    h_i = t_i . (R a_B) for the two tangents t_i of ``direction``. Keeps a blade normal to tissue.
+    """
+
+    axis_B: np.ndarray = field(default_factory=lambda: np.array([0.0, 0.0, 1.0]))
+    direction: np.ndarray = field(default_factory=lambda: np.array([0.0, 0.0, -1.0]))
+    name: str = "axis_along"
+
+    holonomic = True
+    rows = 2
+    units = ("N*m", "N*m")
+
+    def __post_init__(self):
+        object.__setattr__(self, "axis_B", _unit(self.axis_B, f"{self.name}.axis"))
+        d = _unit(self.direction, f"{self.name}.direction")
+        object.__setattr__(self, "direction", d)
+        object.__setattr__(self, "_T", np.array(plane_tangents(d)))
+
+    def residual(self, p, R):
+        return self._T @ (R @ self.axis_B)
+
+    def jacobian(self, p, R):
+        a = R @ self.axis_B
+        G = np.zeros((2, 6))
+        G[0, 3:] = cross(a, self._T[0])
+        G[1, 3:] = cross(a, self._T[1])
+        return G
+
+    def bias(self, p, R, v, w):
+        a = R @ self.axis_B
+        return self._T @ cross(w, cross(w, a))
+
+
+@dataclass(frozen=True, eq=False)
+class KnifeEdge(Constraint):
+    """Nonholonomic: a body point ``point_B`` has no velocity along the body axis ``side_B``.
+
+    The scalpel's blade cannot slip sideways: s . (v + w x R d) = 0 with s = R side_B (N).
+    """
+
+    point_B: np.ndarray = field(default_factory=lambda: np.zeros(3))
+    side_B: np.ndarray = field(default_factory=lambda: np.array([0.0, 1.0, 0.0]))
+    name: str = "knife_edge"
+
+    holonomic = False
+    rows = 1
+    units = ("N",)
+
+    def __post_init__(self):
+        object.__setattr__(self, "point_B", _vec3(self.point_B, f"{self.name}.point"))
+        object.__setattr__(self, "side_B", _unit(self.side_B, f"{self.name}.side"))
+
+    def jacobian(self, p, R):
+        s = R @ self.side_B
+        G = np.zeros((1, 6))
+        G[0, :3] = s
+        G[0, 3:] = cross(R @ self.point_B, s)
+        return G
+
+    def bias(self, p, R, v, w):
+        s = R @ self.side_B
+        d = R @ self.point_B
+        v_point = v + cross(w, d)
+        return np.array([cross(w, s) @ v_point + s @ cross(w, cross(w, d))])
+
+
+@dataclass(frozen=True, eq=False)
+class RemoteCenter(Constraint):
+    """A trocar (remote centre of motion): the tool shaft, the line through the body point
+    ``point_B`` along body axis ``axis_B``, passes through the world point ``center`` (m).
+
+    Two rows (N): the shaft's velocity at the trocar, perpendicular to the shaft, is zero. The
+    residual is the trocar's offset from the shaft line along the two shaft normals.
+    """
+
+    center: np.ndarray = field(default_factory=lambda: np.zeros(3))
+    point_B: np.ndarray = field(default_factory=lambda: np.zeros(3))
+    axis_B: np.ndarray = field(default_factory=lambda: np.array([0.0, 0.0, 1.0]))
+    name: str = "remote_center"
+
+    holonomic = True
+    rows = 2
+    units = ("N", "N")
+
+    def __post_init__(self):
+        object.__setattr__(self, "center", _vec3(self.center, f"{self.name}.center"))
+        object.__setattr__(self, "point_B", _vec3(self.point_B, f"{self.name}.point"))
+        object.__setattr__(self, "axis_B", _unit(self.axis_B, f"{self.name}.axis"))
+        a = self.axis_B
+        helper = np.array([1.0, 0.0, 0.0]) if abs(a[0]) < 0.9 else np.array([0.0, 1.0, 0.0])
+        n1 = helper - (helper @ a) * a
+        n1 /= np.linalg.norm(n1)
+        object.__setattr__(self, "_N_B", np.array([n1, cross(a, n1)]))
+
+    def residual(self, p, R):
+        # offset of the shaft from the trocar, along the shaft's two body normals (m)
+        return (self._N_B @ R.T) @ (p + R @ self.point_B - self.center)
+
+    def jacobian(self, p, R):
+        # material point of the shaft at the trocar: r = c - p (world), moving at v + w x r
+        r = self.center - p
+        G = np.zeros((2, 6))
+        for i in range(2):
+            n = R @ self._N_B[i]
+            G[i, :3] = n
+            G[i, 3:] = cross(r, n)
+        return G
+
+    def bias(self, p, R, v, w):
+        r = self.center - p
+        out = np.empty(2)
+        for i in range(2):
+            n = R @ self._N_B[i]
+            v_r = v + cross(w, r)
+            # d/dt[n . (v + w x r)] with rdot = -v: (w x n).(v + w x r) + n.(w x -v)
+            out[i] = cross(w, n) @ v_r - n @ cross(w, v)
+        return out
+
+
+def stack_jacobian(constraints, p, R) -> np.ndarray:
+    """Stack the rows of every constraint into G, shape (sum rows, 6)."""
+    if not constraints:
+        return np.zeros((0, 6))
+    return np.vstack([c.jacobian(p, R) for c in constraints])
+
+
+def stack_bias(constraints, p, R, v, w) -> np.ndarray:
+    if not constraints:
+        return np.zeros(0)
+    return np.concatenate([c.bias(p, R, v, w) for c in constraints])
+
+
+def stack_residual(constraints, p, R) -> np.ndarray:
+    """Residuals of the holonomic constraints only, stacked (m or rad)."""
+    hol = [c.residual(p, R) for c in constraints if c.holonomic]
+    return np.concatenate(hol) if hol else np.zeros(0)

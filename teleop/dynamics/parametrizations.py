@@ -1,0 +1,233 @@
+"""Parametric descriptions q = psi(z) of constraint manifolds (the paper's §II-D, eqs. 10-11).
+
+A parametrization gives, in an Euler chart, psi(z) -> q (6,), its Jacobian Psi = dpsi/dz (6, k),
+the curvature term zd^T (d2psi/dz2) zd (6,), and the inverse map (q, qd) -> (z, zd). The chart is
+part of the state: parametrizations marked ``rechartable`` accept any chart placement R0, so the
+engine can move the chart away from a singularity (the pole of eq. 25) without leaving the manifold.
+"""
+
+from __future__ import annotations
+
+import math
+from abc import ABC, abstractmethod
+
+import numpy as np
+
+from teleop.dynamics.rotations import EulerChart, axis_rotation, cross
+from teleop.errors import ConfigError
+
+
+class Parametrization(ABC):
+    """q = psi(z) for one family of holonomic constraints."""
+
+    dim: int = 6
+    rechartable: bool = False
+
+    @abstractmethod
+    def initial_chart(self) -> EulerChart:
+        """The chart this parametrization is written in."""
+
+    @abstractmethod
+    def psi(self, chart: EulerChart, z: np.ndarray) -> np.ndarray:
+        """q (6,) for parameters z (dim,)."""
+
+    @abstractmethod
+    def jacobian(self, chart: EulerChart, z: np.ndarray) -> np.ndarray:
+        """Psi = dpsi/dz, shape (6, dim)."""
+
+    @abstractmethod
+    def curvature(self, chart: EulerChart, z: np.ndarray, zd: np.ndarray) -> np.ndarray:
+        """zd^T (d2psi/dz2) zd, shape (6,)."""
+
+    @abstractmethod
+    def from_q(self, chart: EulerChart, q: np.ndarray, qd: np.ndarray):
+        """(z, zd) of a configuration on the manifold and a velocity tangent to it."""
+
+
+class Identity(Parametrization):
+    """No holonomic constraint: z = q in any chart."""
+
+    dim = 6
+    rechartable = True
+
+    def __init__(self, sequence: str = "ZYX"):
+        self._chart = EulerChart(sequence)
+
+    def initial_chart(self):
+        return self._chart
+
+    def psi(self, chart, z):
+        return np.array(z, dtype=float)
+
+    def jacobian(self, chart, z):
+        return np.eye(6)
+
+    def curvature(self, chart, z, zd):
+        return np.zeros(6)
+
+    def from_q(self, chart, q, qd):
+        return np.array(q, dtype=float), np.array(qd, dtype=float)
+
+
+def plane_frame(normal: np.ndarray) -> np.ndarray:
+    """Rotation (3, 3) whose columns are (t1, t2, n) for the plane tangents of the unit normal n."""
+    from teleop.dynamics.constraints import plane_tangents
+
+    t1, t2 = plane_tangents(normal)
+    return np.column_stack([t1, t2, normal])
+
+
+class UprightDisk(Parametrization):
+    """Example 1 (eq. 17): a disk of radius r upright on a plane. z = (x, y, heading, spin).
+
+    Chart ZXZ placed on the plane: theta = (heading, tilt = pi/2, spin). The paper orders the
+    angles (heading q4, spin q5, tilt q6); here the chart order is (heading, tilt, spin).
+    """
+
+    dim = 4
+
+    def __init__(self, radius: float, origin: np.ndarray, normal: np.ndarray):
+        self.r = float(radius)
+        self.o = np.asarray(origin, dtype=float)
+        self.R_plane = plane_frame(np.asarray(normal, dtype=float))
+        P = np.zeros((6, 4))
+        P[:3, 0] = self.R_plane[:, 0]
+        P[:3, 1] = self.R_plane[:, 1]
+        P[3, 2] = 1.0
+        P[5, 3] = 1.0
+        self._P = P
+
+    def initial_chart(self):
+        return EulerChart("ZXZ", self.R_plane)
+
+    def psi(self, chart, z):
+        q = np.empty(6)
+        q[:3] = self.o + z[0] * self.R_plane[:, 0] + z[1] * self.R_plane[:, 1] + self.r * self.R_plane[:, 2]
+        q[3], q[4], q[5] = z[2], math.pi / 2, z[3]
+        return q
+
+    def jacobian(self, chart, z):
+        return self._P
+
+    def curvature(self, chart, z, zd):
+        return np.zeros(6)
+
+    def from_q(self, chart, q, qd):
+        d = q[:3] - self.o
+        z = np.array([d @ self.R_plane[:, 0], d @ self.R_plane[:, 1], q[3], q[5]])
+        zd = np.array([qd[:3] @ self.R_plane[:, 0], qd[:3] @ self.R_plane[:, 1], qd[3], qd[5]])
+        return z, zd
+
+
+class SphereSurface(Parametrization):
+    """Example 2 (eq. 25): body origin on a sphere, body z axis radial. z = (t1, t2, t3) = theta.
+
+    Chart ZXZ: the radial unit vector is R0 n(t1, t2), n = Rz(t1) Rx(t2) e_z, and t3 spins about it.
+    psi loses rank at the chart's poles (sin t2 = 0); the engine re-charts before it gets there.
+    """
+
+    dim = 3
+    rechartable = True
+
+    def __init__(self, center: np.ndarray, radius: float):
+        self.c = np.asarray(center, dtype=float)
+        self.r = float(radius)
+
+    def initial_chart(self):
+        return EulerChart("ZXZ")
+
+    @staticmethod
+    def _n(a, b):
+        sa, ca, sb, cb = math.sin(a), math.cos(a), math.sin(b), math.cos(b)
+        n = np.array([sa * sb, -ca * sb, cb])
+        na = np.array([ca * sb, sa * sb, 0.0])
+        nb = np.array([sa * cb, -ca * cb, -sb])
+        naa = np.array([-sa * sb, ca * sb, 0.0])
+        nab = np.array([ca * cb, sa * cb, 0.0])
+        nbb = np.array([-sa * sb, ca * sb, -cb])
+        return n, na, nb, naa, nab, nbb
+
+    def _check(self, chart):
+        if chart.sequence != "ZXZ":
+            raise ConfigError(f"sphere parametrization needs a ZXZ chart, got {chart.sequence}")
+
+    def psi(self, chart, z):
+        n = self._n(z[0], z[1])[0]
+        q = np.empty(6)
+        q[:3] = self.c + self.r * (chart.R0 @ n)
+        q[3:] = z
+        return q
+
+    def jacobian(self, chart, z):
+        _, na, nb, *_ = self._n(z[0], z[1])
+        P = np.zeros((6, 3))
+        P[:3, 0] = self.r * (chart.R0 @ na)
+        P[:3, 1] = self.r * (chart.R0 @ nb)
+        P[3, 0] = P[4, 1] = P[5, 2] = 1.0
+        return P
+
+    def curvature(self, chart, z, zd):
+        _, _, _, naa, nab, nbb = self._n(z[0], z[1])
+        out = np.zeros(6)
+        a, b = zd[0], zd[1]
+        out[:3] = self.r * (chart.R0 @ (naa * a * a + 2.0 * nab * a * b + nbb * b * b))
+        return out
+
+    def from_q(self, chart, q, qd):
+        return np.array(q[3:], dtype=float), np.array(qd[3:], dtype=float)
+
+
+class ScalpelPlane(Parametrization):
+    """The scalpel fixture: blade tip (body point d) at a depth below a plane, blade axis (body z)
+    along the inward normal. z = (tip u, tip v, yaw) (m, m, rad), chart ZYX placed at
+    R0 = R_plane Rx(pi) so that theta = (yaw, 0, 0) points the blade into the tissue.
+    """
+
+    dim = 3
+
+    def __init__(self, origin, normal, depth: float, tip_B):
+        self.o = np.asarray(origin, dtype=float)
+        self.R_plane = plane_frame(np.asarray(normal, dtype=float))
+        self.depth = float(depth)
+        self.d = np.asarray(tip_B, dtype=float)
+        self.R0 = self.R_plane @ axis_rotation(0, math.pi)
+        self._ez = np.array([0.0, 0.0, 1.0])
+
+    def initial_chart(self):
+        return EulerChart("ZYX", self.R0)
+
+    def _rot(self, yaw):
+        return self.R0 @ axis_rotation(2, yaw)
+
+    def psi(self, chart, z):
+        R = self._rot(z[2])
+        q = np.zeros(6)
+        t1, t2, n = self.R_plane[:, 0], self.R_plane[:, 1], self.R_plane[:, 2]
+        q[:3] = self.o + z[0] * t1 + z[1] * t2 - self.depth * n - R @ self.d
+        q[3] = z[2]
+        return q
+
+    def jacobian(self, chart, z):
+        R = self._rot(z[2])
+        P = np.zeros((6, 3))
+        P[:3, 0] = self.R_plane[:, 0]
+        P[:3, 1] = self.R_plane[:, 1]
+        P[:3, 2] = -R @ cross(self._ez, self.d)
+        P[3, 2] = 1.0
+        return P
+
+    def curvature(self, chart, z, zd):
+        R = self._rot(z[2])
+        out = np.zeros(6)
+        out[:3] = -R @ cross(self._ez, cross(self._ez, self.d)) * zd[2] ** 2
+        return out
+
+    def from_q(self, chart, q, qd):
+        R = self._rot(q[3])
+        tip = q[:3] + R @ self.d
+        w = R @ (self._ez * qd[3])
+        v_tip = qd[:3] + cross(w, R @ self.d)
+        t1, t2 = self.R_plane[:, 0], self.R_plane[:, 1]
+        z = np.array([t1 @ (tip - self.o), t2 @ (tip - self.o), q[3]])
+        zd = np.array([t1 @ v_tip, t2 @ v_tip, qd[3]])
+        return z, zd

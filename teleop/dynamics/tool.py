@@ -1,0 +1,179 @@
+"""The reference tool: the paper's physics simulation (§II) behind one ``step()``.
+
+``ReferenceTool`` owns a :class:`ConstrainedBody`, an integrator and the state. ``step`` never
+raises: a singular or non-finite evaluation holds the last valid pose, zeroes the velocity (the safe
+state for an admittance display) and reports a status other than ``"ok"``.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from teleop.dynamics.body import Kinematics, RigidBody, kinetic_energy
+from teleop.dynamics.constraints import stack_residual
+from teleop.dynamics.fixtures import Fixture
+from teleop.dynamics.integrators import (
+    Integrator,
+    Parametric,
+    ToolState,
+    make_integrator,
+    project_position,
+    project_velocity,
+)
+from teleop.dynamics.model import ConstrainedBody
+from teleop.dynamics.rotations import EulerChart, chart_conditioning, rechart
+from teleop.errors import ConfigError, TeleopError
+
+#: Re-chart when the Euler chart's conditioning (|sin| or |cos| of the middle angle) drops below this.
+RECHART_BELOW = 0.25
+
+STATUS_OK = "ok"
+STATUS_NAN = "nan"
+STATUS_SINGULAR = "singular"
+
+
+class ReferenceTool:
+    """A rigid tool under a fixture's constraints and a scene's effects.
+
+    ``integrator``: a name from :data:`teleop.dynamics.integrators.INTEGRATORS` or an instance.
+    ``chart``: the Euler chart of the coordinates; defaults to the fixture parametrization's chart.
+    """
+
+    def __init__(
+        self,
+        body: RigidBody,
+        fixture: Fixture,
+        effects=(),
+        integrator: str | Integrator = "parametric",
+        coriolis: bool = True,
+        chart: EulerChart | None = None,
+    ):
+        self.body = body
+        self.fixture = fixture
+        self.model = ConstrainedBody(body, fixture.constraints, effects, coriolis=coriolis)
+        self.integrator = make_integrator(integrator) if isinstance(integrator, str) else integrator
+        param = fixture.parametrization
+        if chart is None:
+            chart = param.initial_chart() if param is not None else EulerChart("ZYX")
+        self._rechartable = param is None or param.rechartable or not isinstance(
+            self.integrator, Parametric
+        )
+        self.state = ToolState(chart, np.zeros(6), np.zeros(6))
+        self.status = STATUS_OK
+        self.lam = np.zeros(self.model.m)
+        self.rank = self.model.m
+        self.wrench_W = np.zeros(6)
+        self.constraint_wrench_W = np.zeros(6)
+        self.recharts = 0
+        self.acceleration_W = np.zeros(6)
+
+    # -- set-up -------------------------------------------------------------------------------------
+    def reset(self, q0=None, qd0=None, t0: float = 0.0) -> None:
+        """Place the tool at q0 (6,) with rates qd0 (6,), projected onto the constraints."""
+        q0 = np.zeros(6) if q0 is None else np.array(q0, dtype=float).reshape(-1)
+        qd0 = np.zeros(6) if qd0 is None else np.array(qd0, dtype=float).reshape(-1)
+        if q0.shape != (6,) or qd0.shape != (6,) or not (np.all(np.isfinite(q0)) and np.all(np.isfinite(qd0))):
+            raise ConfigError("initial state: expected finite q0 and qd0 of 6 values each")
+        self.state.q, self.state.qd, self.state.t = q0, qd0, float(t0)
+        self.status = STATUS_OK
+        project_position(self.model, self.state)
+        project_velocity(self.model, self.state)
+        self.integrator.reset(self.model, self.state, self.fixture.parametrization)
+        if isinstance(self.integrator, Parametric):
+            self.integrator.sync(self.state)
+
+    # -- one step -----------------------------------------------------------------------------------
+    def step(self, h: float, operator_W=None) -> str:
+        """Advance by h s under the operator wrench (6,: N, N*m, world, at the body origin)."""
+        s = self.state
+        saved = (s.chart, s.q.copy(), s.qd.copy(), s.t, s.z, s.zd)
+        if operator_W is not None and not np.all(np.isfinite(operator_W)):
+            operator_W = None  # a non-finite input never reaches the math
+            self.status = STATUS_NAN
+        try:
+            with np.errstate(all="raise"):
+                ev = self.integrator.step(self.model, s, h, operator_W)
+            ok = np.all(np.isfinite(s.q)) and np.all(np.isfinite(s.qd)) and np.all(np.isfinite(ev.lam))
+        except (TeleopError, FloatingPointError, np.linalg.LinAlgError, ValueError):
+            ok, ev = False, None
+        if not ok:
+            self._safe_state(saved)
+            return self.status
+        s.t += h
+        self.lam, self.rank, self.wrench_W = ev.lam, ev.rank, ev.wrench_W
+        self.acceleration_W = self._twist_acceleration(ev)
+        self.constraint_wrench_W = ev.G.T @ ev.lam if self.model.m else np.zeros(6)
+        self._maybe_rechart()
+        if operator_W is not None or self.status != STATUS_NAN:
+            self.status = STATUS_OK
+        return self.status
+
+    @staticmethod
+    def _twist_acceleration(ev) -> np.ndarray:
+        """(vdot m/s^2, wdot rad/s^2) in world, the feedforward of eq. 19, from either evaluation."""
+        if hasattr(ev, "nudot"):
+            return np.array(ev.nudot)
+        k = ev.kin
+        out = np.empty(6)
+        out[:3] = ev.qdd[:3]
+        out[3:] = k.R @ (k.E_B @ ev.qdd[3:] + k.Edq)
+        return out
+
+    def _safe_state(self, saved) -> None:
+        s = self.state
+        s.chart, s.q, s.qd, s.t, s.z, s.zd = saved
+        s.qd = np.zeros(6)
+        if s.zd is not None:
+            s.zd = np.zeros_like(s.zd)
+        self.integrator.reset(self.model, s, self.fixture.parametrization)
+        self.status = STATUS_SINGULAR
+        self.lam = np.zeros(self.model.m)
+        self.acceleration_W = np.zeros(6)
+
+    def _maybe_rechart(self) -> None:
+        s = self.state
+        if not self._rechartable or chart_conditioning(s.chart, s.q[3:]) >= RECHART_BELOW:
+            return
+        s.chart, theta, thetad = rechart(s.chart, s.q[3:], s.qd[3:])
+        s.q = np.concatenate([s.q[:3], theta])
+        s.qd = np.concatenate([s.qd[:3], thetad])
+        self.recharts += 1
+        if isinstance(self.integrator, Parametric):
+            self.integrator.reset(self.model, s, self.fixture.parametrization)
+            self.integrator.sync(s)
+
+    # -- read-outs ----------------------------------------------------------------------------------
+    @property
+    def q(self) -> np.ndarray:
+        return self.state.q
+
+    @property
+    def qd(self) -> np.ndarray:
+        return self.state.qd
+
+    @property
+    def t(self) -> float:
+        return self.state.t
+
+    def kinematics(self) -> Kinematics:
+        return Kinematics(self.state.chart, self.state.q, self.state.qd)
+
+    def pose(self):
+        """(p (3,) m, R_WB (3, 3)) of the body frame."""
+        k = self.kinematics()
+        return k.p.copy(), k.R
+
+    def twist(self):
+        """(v (3,) m/s, w (3,) rad/s), world frame."""
+        k = self.kinematics()
+        return k.v.copy(), k.w
+
+    def residual(self) -> np.ndarray:
+        """Holonomic residuals (m or rad) at the current pose."""
+        p, R = self.pose()
+        return stack_residual(self.model.constraints, p, R)
+
+    def energy(self) -> float:
+        """Kinetic plus potential energy of the conservative effects (J)."""
+        k = self.kinematics()
+        return kinetic_energy(self.body, k) + sum(e.potential_energy(k.p, k.R) for e in self.model.effects)
