@@ -91,7 +91,7 @@ class ReferenceTool:
             operator_W = None  # a non-finite input never reaches the math
             self.status = STATUS_NAN
         try:
-            with np.errstate(all="raise"):
+            with np.errstate(over="raise", invalid="raise", divide="raise", under="ignore"):
                 ev = self.integrator.step(self.model, s, h, operator_W)
             ok = np.all(np.isfinite(s.q)) and np.all(np.isfinite(s.qd)) and np.all(np.isfinite(ev.lam))
         except (TeleopError, FloatingPointError, np.linalg.LinAlgError, ValueError):

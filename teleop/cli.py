@@ -1,0 +1,104 @@
+"""The ``teleop`` command: ``run``, ``list``.
+
+    teleop run [NAME_OR_PATH] [--master ideal|cobot] [--headless] [--duration S] [--seed N]
+               [--integrator NAME] [--dt S] [--json PATH] [--out DIR]
+    teleop list
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+
+from teleop.errors import TeleopError
+
+DEFAULT_SCENE = "scalpel_fixture"
+
+
+def _progress(i: int, n: int) -> None:
+    width = 30
+    done = int(width * i / max(n, 1))
+    sys.stderr.write(f"\r[{'#' * done}{'.' * (width - done)}] {100 * i // max(n, 1):3d}%")
+    sys.stderr.flush()
+
+
+def _summary_text(s: dict) -> str:
+    lines = [
+        f"scene      {s['scenario']}   master={s['master']}  integrator={s['integrator']}  seed={s['seed']}",
+        f"status     {s['status']}   steps={s['steps']}  dt={s['dt_s'] * 1e3:g} ms  simulated={s['duration_s']:g} s  nan={s['nan']}",
+        f"tick       median {s['tick_us']['median']:.1f} us   p99 {s['tick_us']['p99']:.1f} us",
+    ]
+    for k, v in s["metrics"].items():
+        lines.append(f"  {k:34s} {v:.4g}")
+    for k in ("can_bus_load_pct", "can_frames_lost", "watchdog_trips"):
+        if k in s:
+            lines.append(f"  {k:34s} {s[k]}")
+    return "\n".join(lines)
+
+
+def cmd_run(args) -> int:
+    from teleop.runtime import run_scene
+    from teleop.scenario.schema import load_scene
+
+    scene = load_scene(args.scene or DEFAULT_SCENE).with_overrides(
+        duration_s=args.duration, seed=args.seed, master=args.master, integrator=args.integrator, dt_s=args.dt
+    )
+    show = sys.stderr.isatty() and scene.duration_s / scene.dt_s > 5000
+    result = run_scene(scene, progress=_progress if show else None)
+    if show:
+        sys.stderr.write("\r" + " " * 40 + "\r")
+    if args.json:
+        result.write_json(args.json)
+    if args.out:
+        from pathlib import Path
+
+        out = Path(args.out)
+        result.write_json(out / "metrics.json")
+        result.write_log(out / "log.npz")
+        from teleop.plots import plot_log
+
+        plot_log(out / "log.npz", out)
+    print(_summary_text(result.summary))
+    return 0 if result.summary["status"] == "ok" and not result.summary["nan"] else 1
+
+
+def cmd_list(args) -> int:
+    from teleop.scenario.schema import list_scenes, load_scene
+
+    for name in list_scenes():
+        scene = load_scene(name)
+        print(f"{name:28s} {scene.description}")
+    return 0
+
+
+def build_parser() -> argparse.ArgumentParser:
+    ap = argparse.ArgumentParser(prog="teleop", description="Constrained teleoperation of surgical-style robots")
+    sub = ap.add_subparsers(dest="command", required=True)
+    run = sub.add_parser("run", help="run a scene (default: the scripted surgical cut)")
+    run.add_argument("scene", nargs="?", help="scene name (see 'teleop list') or path to a .toml file")
+    run.add_argument("--master", choices=["ideal", "cobot"], help="ideal: wrench straight to the tool; cobot: the CAN device")
+    view = run.add_mutually_exclusive_group()
+    view.add_argument("--headless", action="store_true", default=True, help="no viewer (default)")
+    run.add_argument("--duration", type=float, help="simulated seconds (overrides the scene)")
+    run.add_argument("--seed", type=int, help="random seed (overrides the scene)")
+    run.add_argument("--integrator", help="integrator name (overrides the scene)")
+    run.add_argument("--dt", type=float, help="control period in s (overrides the scene)")
+    run.add_argument("--json", help="write the run summary as JSON here")
+    run.add_argument("--out", help="write metrics.json, log.npz and PNG plots into this folder")
+    run.set_defaults(func=cmd_run)
+    ls = sub.add_parser("list", help="list the scenes")
+    ls.set_defaults(func=cmd_list)
+    return ap
+
+
+def main(argv=None) -> int:
+    args = build_parser().parse_args(argv)
+    try:
+        return args.func(args)
+    except TeleopError as e:
+        print(f"teleop: error: {e}", file=sys.stderr)
+        return 2
+
+
+if __name__ == "__main__":  # pragma: no cover
+    sys.exit(main())

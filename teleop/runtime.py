@@ -1,0 +1,135 @@
+"""One control tick and the loop: operator -> master -> reference tool -> metrics (-> slave later).
+
+Simulated time by default: the loop advances ``dt_s`` per tick with no wall clock, so a run is a
+pure function of its scene and seed. Every tick is timed (CPU ``perf_counter_ns``) for ``tick_us``.
+The loop never raises mid-flight: a fault ends the run with a status and the tool in a safe state.
+"""
+
+from __future__ import annotations
+
+import json
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from teleop.scenario.build import ScriptedWrench, build_tool
+from teleop.scenario.metrics import make_metrics
+from teleop.scenario.schema import Scene
+
+
+@dataclass
+class RunResult:
+    """What a run produced: the JSON summary and the per-tick log arrays."""
+
+    summary: dict
+    log: dict = field(default_factory=dict)
+
+    def write_json(self, path) -> None:
+        Path(path).parent.mkdir(parents=True, exist_ok=True)
+        Path(path).write_text(json.dumps(self.summary, indent=2, sort_keys=False) + "\n")
+
+    def write_log(self, path) -> None:
+        Path(path).parent.mkdir(parents=True, exist_ok=True)
+        np.savez_compressed(path, **self.log, summary=json.dumps(self.summary))
+
+
+class IdealMaster:
+    """The operator's wrench goes straight to the reference tool; the virtual tool *is* the reference."""
+
+    def __init__(self, tool, dt_s: float):
+        self.tool, self.dt = tool, dt_s
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc):
+        self.close()
+
+    def close(self) -> None:
+        pass
+
+    def step(self, hand_wrench_W, contact_wrench_W=None) -> str:
+        w = hand_wrench_W if contact_wrench_W is None else hand_wrench_W + contact_wrench_W
+        return self.tool.step(self.dt, w)
+
+    def virtual_pose(self):
+        return self.tool.pose()
+
+    def virtual_twist(self):
+        return self.tool.twist()
+
+    def stats(self) -> dict:
+        return {}
+
+
+def make_master(scene: Scene, tool, rng: np.random.Generator):
+    if scene.master == "cobot":
+        from teleop.master import CobotConfig, CobotMaster
+
+        return CobotMaster(tool, CobotConfig.from_dict(scene.master_config, "cobot"), scene.dt_s, rng)
+    return IdealMaster(tool, scene.dt_s)
+
+
+def run_scene(scene: Scene, progress=None) -> RunResult:
+    """Run a scene headless in simulated time. ``progress(i, n)`` is called now and then."""
+    rng = np.random.default_rng(scene.seed)
+    tool = build_tool(scene)
+    operator = ScriptedWrench(scene.operator, scene.fixture)
+    n = int(round(scene.duration_s / scene.dt_s))
+    metrics = make_metrics(scene.fixture, n, tool.body.mass_kg)
+    log = {
+        "t": np.zeros(n), "q_r": np.zeros((n, 6)), "q_v_p": np.zeros((n, 3)),
+        "lam": np.zeros((n, tool.model.m)), "operator_W": np.zeros((n, 6)),
+        "constraint_W": np.zeros((n, 6)), "tick_us": np.zeros(n),
+    }
+    status, steps, nan = "ok", 0, False
+    with make_master(scene, tool, rng) as master:
+        for i in range(n):
+            t0 = time.perf_counter_ns()
+            p_v, R_v = master.virtual_pose()
+            v_v, w_v = master.virtual_twist()
+            wrench = operator.wrench(i * scene.dt_s, p_v, R_v)
+            st = master.step(wrench, None)
+            t1 = time.perf_counter_ns()
+            nan = nan or not (np.all(np.isfinite(tool.q)) and np.all(np.isfinite(p_v)))
+            # the tick's state, the wrench applied over it and the constraint force it produced
+            metrics.update(p_v, R_v, v_v, w_v, wrench, tool.constraint_wrench_W)
+            log["t"][i] = tool.t
+            log["q_r"][i] = tool.q
+            log["q_v_p"][i] = p_v
+            log["lam"][i] = tool.lam
+            log["operator_W"][i] = wrench
+            log["constraint_W"][i] = tool.constraint_wrench_W
+            log["tick_us"][i] = (t1 - t0) * 1e-3
+            steps = i + 1
+            if st != "ok":
+                status = st
+                break
+            if progress is not None and i % 1000 == 0:
+                progress(i, n)
+        stats = master.stats()
+    log = {k: v[:steps] for k, v in log.items()}
+    log.update({f"m_{k}": v for k, v in metrics.trimmed().items()})
+    ticks = log["tick_us"]
+    summary = {
+        "scenario": scene.name,
+        "status": status,
+        "steps": steps,
+        "dt_s": scene.dt_s,
+        "duration_s": steps * scene.dt_s,
+        "nan": bool(nan),
+        "tick_us": {
+            "median": float(np.median(ticks)) if steps else 0.0,
+            "p99": float(np.percentile(ticks, 99)) if steps else 0.0,
+        },
+        "integrator": scene.integrator,
+        "master": scene.master,
+        "seed": scene.seed,
+        "effects": list(scene.effects),
+        "metrics": metrics.result(),
+        "engine": {"rank_min": int(tool.rank), "recharts": tool.recharts},
+    }
+    summary.update(stats)
+    return RunResult(summary, log)

@@ -1,0 +1,177 @@
+"""Scene metrics, computed every tick from the *virtual* tool (what the encoders measure; for an
+ideal master the reference tool itself), as in the paper's Figures 8 and 10.
+
+Each metric set keeps per-tick series for the figures and reduces them to maxima for the JSON.
+"""
+
+from __future__ import annotations
+
+import math
+from abc import ABC, abstractmethod
+
+import numpy as np
+
+from teleop.dynamics.rotations import cross
+from teleop.scenario.schema import FixtureSpec
+
+#: Rolling-error regulariser of Figure 8 D: 1 mm/s.
+ROLLING_EPS_M_S = 1e-3
+
+
+def _unit(v) -> np.ndarray:
+    v = np.asarray(v, dtype=float)
+    return v / np.linalg.norm(v)
+
+
+class MetricSet(ABC):
+    """Collects named per-tick series; ``result()`` reduces them."""
+
+    names: tuple = ()
+
+    def __init__(self, spec: FixtureSpec, n: int, mass_kg: float):
+        self.spec, self.mass = spec, mass_kg
+        self.n = 0
+        self.series = {k: np.zeros(n) for k in self.names}
+
+    def record(self, **values) -> None:
+        i = self.n
+        for k, v in values.items():
+            self.series[k][i] = v
+        self.n += 1
+
+    def trimmed(self) -> dict:
+        return {k: v[: self.n] for k, v in self.series.items()}
+
+    @abstractmethod
+    def update(self, p, R, v, w, operator_W, constraint_W) -> None:
+        """Record one tick from the virtual tool pose (p, R), twist (v, w) and the wrenches (6,)."""
+
+    def result(self) -> dict:
+        return {}
+
+
+class RollingDiskMetrics(MetricSet):
+    """Figure 8: height error, upright error, rolling velocity V, rolling error (percent)."""
+
+    names = ("height_error_m", "upright_error_rad", "rolling_velocity_m_s", "rolling_error_pct")
+
+    def __init__(self, spec, n, mass_kg):
+        super().__init__(spec, n, mass_kg)
+        self.nrm = _unit(spec.plane_normal)
+        self.o = np.array(spec.plane_origin_m)
+
+    def update(self, p, R, v, w, operator_W, constraint_W):
+        axle = R[:, 2]
+        forward = cross(self.nrm, axle)
+        nf = np.linalg.norm(forward)
+        forward = forward / nf if nf > 1e-12 else forward
+        V = float(forward @ v)
+        r_omega = -self.spec.radius_m * float(w @ axle)  # the paper's r*omega = -r qdot_5
+        self.record(
+            height_error_m=float(self.nrm @ (p - self.o)) - self.spec.radius_m,
+            upright_error_rad=math.asin(max(-1.0, min(1.0, float(self.nrm @ axle)))),
+            rolling_velocity_m_s=V,
+            rolling_error_pct=100.0 * abs(V - r_omega) / (abs(V) + ROLLING_EPS_M_S),
+        )
+
+    def result(self):
+        s = self.trimmed()
+        return {
+            "height_error_max_m": float(np.abs(s["height_error_m"]).max(initial=0.0)),
+            "upright_error_max_rad": float(np.abs(s["upright_error_rad"]).max(initial=0.0)),
+            "rolling_error_max_pct": float(s["rolling_error_pct"].max(initial=0.0)),
+            "rolling_velocity_max_m_s": float(np.abs(s["rolling_velocity_m_s"]).max(initial=0.0)),
+        }
+
+
+class SphereMetrics(MetricSet):
+    """Figure 10: deviation from the sphere, normal angle error, normal force along the normal.
+
+    ``normal_force_N`` is the constraint force along the outward normal (what the master renders);
+    ``normal_force_expected_N`` is the operator's push into the sphere minus m v_t^2 / r (the
+    centripetal term): the value Newton predicts for that force.
+    """
+
+    names = ("sphere_deviation_m", "normal_angle_error_rad", "normal_force_N", "normal_force_expected_N", "push_N")
+
+    def __init__(self, spec, n, mass_kg):
+        super().__init__(spec, n, mass_kg)
+        self.c = np.array(spec.center_m)
+
+    def update(self, p, R, v, w, operator_W, constraint_W):
+        d = p - self.c
+        dist = float(np.linalg.norm(d))
+        n = d / dist
+        b = R[:, 2]
+        angle = math.atan2(float(np.linalg.norm(cross(n, b))), float(n @ b))
+        vt = v - (v @ n) * n
+        push = -float(operator_W[:3] @ n)
+        self.record(
+            sphere_deviation_m=dist - self.spec.radius_m,
+            normal_angle_error_rad=angle,
+            normal_force_N=float(constraint_W[:3] @ n),
+            normal_force_expected_N=push - self.mass * float(vt @ vt) / self.spec.radius_m,
+            push_N=push,
+        )
+
+    def result(self):
+        s = self.trimmed()
+        i = int(np.argmax(s["normal_force_N"])) if self.n else 0
+        return {
+            "sphere_deviation_max_m": float(np.abs(s["sphere_deviation_m"]).max(initial=0.0)),
+            "normal_angle_error_max_rad": float(np.abs(s["normal_angle_error_rad"]).max(initial=0.0)),
+            "normal_force_max_N": float(s["normal_force_N"].max(initial=0.0)),
+            "normal_force_expected_at_max_N": float(s["normal_force_expected_N"][i]) if self.n else 0.0,
+            "push_max_N": float(s["push_N"].max(initial=0.0)),
+        }
+
+
+class ScalpelMetrics(MetricSet):
+    """The scalpel fixture: blade-tip depth error, blade tilt from the normal, sideways slip speed."""
+
+    names = ("depth_error_m", "blade_tilt_rad", "sideslip_m_per_s", "cut_speed_m_per_s")
+
+    def __init__(self, spec, n, mass_kg):
+        super().__init__(spec, n, mass_kg)
+        self.nrm = _unit(spec.plane_normal)
+        self.o = np.array(spec.plane_origin_m)
+        self.tip = np.array(spec.tip_m)
+
+    def update(self, p, R, v, w, operator_W, constraint_W):
+        d = R @ self.tip
+        tip = p + d
+        v_tip = v + cross(w, d)
+        blade = R[:, 2]
+        tilt = math.atan2(float(np.linalg.norm(cross(blade, -self.nrm))), float(blade @ -self.nrm))
+        self.record(
+            depth_error_m=float(self.nrm @ (tip - self.o)) + self.spec.depth_m,
+            blade_tilt_rad=tilt,
+            sideslip_m_per_s=float(R[:, 1] @ v_tip),
+            cut_speed_m_per_s=float(R[:, 0] @ v_tip),
+        )
+
+    def result(self):
+        s = self.trimmed()
+        return {
+            "depth_error_max_m": float(np.abs(s["depth_error_m"]).max(initial=0.0)),
+            "blade_tilt_max_rad": float(np.abs(s["blade_tilt_rad"]).max(initial=0.0)),
+            "sideslip_max_m_per_s": float(np.abs(s["sideslip_m_per_s"]).max(initial=0.0)),
+            "cut_speed_max_m_per_s": float(np.abs(s["cut_speed_m_per_s"]).max(initial=0.0)),
+        }
+
+
+class FreeMetrics(MetricSet):
+    names = ("speed_m_s",)
+
+    def update(self, p, R, v, w, operator_W, constraint_W):
+        self.record(speed_m_s=float(np.linalg.norm(v)))
+
+    def result(self):
+        return {"speed_max_m_s": float(self.trimmed()["speed_m_s"].max(initial=0.0))}
+
+
+METRICS = {"rolling_disk": RollingDiskMetrics, "sphere": SphereMetrics, "scalpel": ScalpelMetrics, "free": FreeMetrics}
+
+
+def make_metrics(spec: FixtureSpec, n: int, mass_kg: float) -> MetricSet:
+    return METRICS[spec.type](spec, n, mass_kg)
