@@ -83,11 +83,17 @@ def compute_mass_matrix(body: RigidBody, kin: Kinematics) -> np.ndarray:
     return M
 
 
-def compute_coriolis(body: RigidBody, kin: Kinematics) -> np.ndarray:
-    """C(q, qd) qd (6,), in N and N*m per generalized coordinate."""
+def compute_coriolis(body: RigidBody, kin: Kinematics, gyroscopic: bool = True) -> np.ndarray:
+    """C(q, qd) qd (6,), in N and N*m per generalized coordinate.
+
+    ``gyroscopic=False`` drops the w_B x J w_B torque (the scene effect "coriolis" switched off);
+    the chart term E_B^T J Edot_B thetadot stays, since it is kinematics, not an effect.
+    """
     out = np.zeros(6)
-    Jw = body.J @ kin.w_B
-    out[3:] = kin.E_B.T @ (body.J @ kin.Edq + cross(kin.w_B, Jw))
+    tq = body.J @ kin.Edq
+    if gyroscopic:
+        tq = tq + cross(kin.w_B, body.J @ kin.w_B)
+    out[3:] = kin.E_B.T @ tq
     return out
 
 

@@ -20,10 +20,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from teleop.dynamics.body import Kinematics, compute_mass_matrix, constraint_matrix
 from teleop.dynamics.constraints import stack_jacobian, stack_residual
 from teleop.dynamics.model import ConstrainedBody
-from teleop.dynamics.multipliers import cholesky, cho_solve, solve_delassus
+from teleop.dynamics.multipliers import solve_delassus
+from teleop.dynamics.body import Kinematics
 from teleop.dynamics.rotations import EulerChart, euler_from_rotation, rate_map
 from teleop.errors import ConfigError
 
@@ -58,32 +58,25 @@ class Integrator(ABC):
 
 # -- projections ------------------------------------------------------------------------------------
 def project_position(model: ConstrainedBody, state: ToolState) -> None:
-    """Newton iterations on h(q) = 0 with the M^-1-weighted minimum-norm correction."""
+    """Newton iterations on h(q) = 0: the M-weighted minimum-norm twist correction, mapped to q."""
     if not model.holonomic:
         return
-    zero = np.zeros(6)
+    rhs = np.zeros(model.m)
     for _ in range(PROJECTION_ITERS):
-        kin = Kinematics(state.chart, state.q, zero)
-        h = stack_residual(model.holonomic, kin.p, kin.R)
+        pt = model.pose_terms(state.chart, state.q)
+        h = stack_residual(model.holonomic, pt.p, pt.R)
         if float(np.abs(h).max()) < PROJECTION_TOL:
             return
-        Ah = constraint_matrix(stack_jacobian(model.holonomic, kin.p, kin.R), kin)
-        L = cholesky(compute_mass_matrix(model.body, kin))
-        MinvAt = cho_solve(L, Ah.T)
-        mu, _ = solve_delassus(Ah @ MinvAt, h)
-        state.q = state.q - MinvAt @ mu
+        rhs[model.holonomic_mask] = h
+        state.q = state.q - model.rates(pt, pt.MinvGt @ pt.K.solve(rhs))
 
 
 def project_velocity(model: ConstrainedBody, state: ToolState) -> None:
-    """qd <- qd - M^-1 A^T (A M^-1 A^T)^+ A qd: the closest admissible velocity in kinetic energy."""
+    """qd <- the admissible rates closest to qd in kinetic energy (all constraint rows)."""
     if not model.m:
         return
-    kin = Kinematics(state.chart, state.q, state.qd)
-    A = constraint_matrix(stack_jacobian(model.constraints, kin.p, kin.R), kin)
-    L = cholesky(compute_mass_matrix(model.body, kin))
-    MinvAt = cho_solve(L, A.T)
-    mu, _ = solve_delassus(A @ MinvAt, A @ state.qd)
-    state.qd = state.qd - MinvAt @ mu
+    pt = model.pose_terms(state.chart, state.q)
+    state.qd = model.rates(pt, model.project_twist(pt, model.twist(pt, state.qd)))
 
 
 # -- integrators ------------------------------------------------------------------------------------
@@ -147,7 +140,9 @@ class RK4(Integrator):
 
 
 class Parametric(Integrator):
-    """Eqs. 10-11: zdd = Psi^+ (qdd - zd^T psi_zz zd); semi-implicit Euler on z; q = psi(z)."""
+    """Eqs. 10-11: zdd = Psi^+ (qdd - zd^T psi_zz zd); semi-implicit Euler on z; q = psi(z); then zd
+    is projected onto the nonholonomic rows in the kinetic-energy metric (the holonomic rows hold
+    by construction). The pose work of that projection is reused by the next step's evaluation."""
 
     name = "parametric"
 
@@ -159,40 +154,40 @@ class Parametric(Integrator):
                 f"({names}); this fixture has none. Choose 'projection', 'rk4' or 'lie_group'."
             )
         self.param = parametrization
+        self._pinv = None
+        if getattr(parametrization, "constant_jacobian", False):
+            self._P = parametrization.jacobian(state.chart, None)
+            self._pinv = np.linalg.pinv(self._P)
         state.z, state.zd = parametrization.from_q(state.chart, state.q, state.qd)
+
+    def _jac(self, chart, z):
+        if self._pinv is not None:
+            return self._P, self._pinv
+        P = self.param.jacobian(chart, z)
+        return P, np.linalg.solve(P.T @ P, P.T)  # the pseudo-inverse of eq. 11
 
     def sync(self, state: ToolState) -> None:
         """q, qd from z, zd (after a step or a re-chart)."""
-        P = self.param.jacobian(state.chart, state.z)
+        P, _ = self._jac(state.chart, state.z)
         state.q = self.param.psi(state.chart, state.z)
         state.qd = P @ state.zd
 
     def step(self, model, state, h, operator_W):
         param, chart = self.param, state.chart
         ev = model.evaluate(chart, state.q, state.qd, state.t, operator_W)
-        P = param.jacobian(chart, state.z)
-        rhs = ev.qdd - param.curvature(chart, state.z, state.zd)
-        zdd = np.linalg.solve(P.T @ P, P.T @ rhs)  # the pseudo-inverse of eq. 11
+        _, Pinv = self._jac(chart, state.z)
+        zdd = Pinv @ (ev.qdd - param.curvature(chart, state.z, state.zd))
         state.zd = state.zd + h * zdd
         state.z = state.z + h * state.zd
-        self._project_nonholonomic(model, state)
-        self.sync(state)
+        P, Pinv = self._jac(chart, state.z)
+        state.q = param.psi(chart, state.z)
+        state.qd = P @ state.zd
+        if model.nonholonomic:
+            pt = model.pose_terms(chart, state.q)
+            qd = model.rates(pt, model.project_twist(pt, model.twist(pt, state.qd)))
+            state.zd = Pinv @ qd
+            state.qd = P @ state.zd
         return ev
-
-    def _project_nonholonomic(self, model, state):
-        """zd <- closest zd (in the reduced metric Psi^T M Psi) with A_nh Psi zd = 0."""
-        if not model.nonholonomic:
-            return
-        chart, param = state.chart, self.param
-        q = param.psi(chart, state.z)
-        P = param.jacobian(chart, state.z)
-        kin = Kinematics(chart, q, P @ state.zd)
-        Az = constraint_matrix(stack_jacobian(model.nonholonomic, kin.p, kin.R), kin) @ P
-        Mz = P.T @ compute_mass_matrix(model.body, kin) @ P
-        L = cholesky(Mz)
-        MinvAt = cho_solve(L, Az.T)
-        mu, _ = solve_delassus(Az @ MinvAt, Az @ state.zd)
-        state.zd = state.zd - MinvAt @ mu
 
 
 class LieGroup(Integrator):

@@ -1,8 +1,16 @@
 """The constrained rigid tool as a dynamical system: one evaluation of eqs. 5-9.
 
-:class:`ConstrainedBody` owns the body, the constraint stack and the effect list, and evaluates the
-constrained acceleration either in Euler-chart coordinates (the paper's formulation) or in twist
-space (used by the Lie-group integrator; identical physics, no chart).
+Eq. 7 factors as M(q) = T^T M_nu T with T = blockdiag(I3, R E_B) and M_nu = blockdiag(m I3, R J R^T)
+(see :mod:`teleop.dynamics.body`). With A = G T this gives A M^-1 A^T = G M_nu^-1 G^T, so eq. 8 is
+solved through that factorization: the Delassus matrix is built from the block-diagonal M_nu, whose
+inverse is exact (1/m and R J^-1 R^T), and never from the Euler-chart M(q), which becomes
+ill-conditioned near gimbal lock. The multipliers are the same; the acceleration of eq. 9 is then
+mapped to the chart, qdd = T^-1 (nudot - Tdot qd). :func:`evaluate_literal` keeps the textbook
+chart-coordinate evaluation of eqs. 8-9 for reference and tests.
+
+Everything that depends on the pose only (R, E_B, G, the inverse inertia, the factored Delassus
+matrix) is cached in :class:`PoseTerms`, so a step that ends with a velocity projection hands its
+pose work to the next evaluation.
 """
 
 from __future__ import annotations
@@ -23,40 +31,36 @@ from teleop.dynamics.body import (
 from teleop.dynamics.constraints import stack_bias, stack_jacobian, stack_residual
 from teleop.dynamics.effects import total_wrench
 from teleop.dynamics.multipliers import (
+    ConstrainedAcceleration,
+    DelassusFactor,
     compute_constrained_acceleration,
-    solve_delassus,
 )
-from teleop.dynamics.rotations import EulerChart, cross
+from teleop.dynamics.rotations import EulerChart, cross, inverse3, rate_map_terms
+
+
+class PoseTerms:
+    """Pose-only quantities at (chart, q): p, R, E_B, E_B^-1, the Edot pieces, G, I_W, I_W^-1,
+    M_nu^-1 G^T and the factored Delassus matrix K = G M_nu^-1 G^T."""
+
+    __slots__ = ("key", "p", "R", "E_B", "E_inv", "dE", "G", "I_W", "Iinv_W", "MinvGt", "K")
 
 
 @dataclass(frozen=True, eq=False)
 class Evaluation:
-    """One evaluation at (q, qd): acceleration qdd (6,), multipliers lam (m,), rank of A M^-1 A^T,
-    the applied external wrench wrench_W (6,), and the kinematics, M (6, 6), A (m, 6), G (m, 6)."""
+    """One evaluation at (q, qd): qdd (6,) chart accel., nudot (6,) world (vdot, wdot), lam (m,),
+    rank of the Delassus matrix, the applied external wrench (6,), G (m, 6) and the pose terms."""
 
-    kin: Kinematics
-    M: np.ndarray
-    A: np.ndarray
-    G: np.ndarray
     qdd: np.ndarray
-    lam: np.ndarray
-    rank: int
-    wrench_W: np.ndarray
-
-
-@dataclass(frozen=True, eq=False)
-class TwistEvaluation:
-    """Twist-space evaluation: nudot = (vdot, wdot) (6,), lam (m,), rank, wrench_W (6,), G (m, 6)."""
-
-    G: np.ndarray
     nudot: np.ndarray
     lam: np.ndarray
     rank: int
     wrench_W: np.ndarray
+    G: np.ndarray
+    pose: PoseTerms
 
 
 class ConstrainedBody:
-    """Body + constraints + effects. ``coriolis=False`` drops C(q, qd) qd (a scene-level effect)."""
+    """Body + constraints + effects. ``coriolis=False`` drops the gyroscopic torque w x I_W w."""
 
     def __init__(self, body: RigidBody, constraints=(), effects=(), coriolis: bool = True):
         self.body = body
@@ -70,52 +74,139 @@ class ConstrainedBody:
         self.holonomic_mask = np.array(mask, dtype=bool)
         self.holonomic = tuple(c for c in self.constraints if c.holonomic)
         self.nonholonomic = tuple(c for c in self.constraints if not c.holonomic)
-        self._zeros6 = np.zeros(6)
+        self._cache: PoseTerms | None = None
+        self._inv_m = 1.0 / body.mass_kg
 
-    # -- Euler-chart coordinates (the paper's eqs. 5-9) -------------------------------------------
+    # -- pose-only terms --------------------------------------------------------------------------
+    def pose_terms(self, chart: EulerChart, q: np.ndarray) -> PoseTerms:
+        key = (id(chart), q.tobytes())
+        c = self._cache
+        if c is not None and c.key == key:
+            return c
+        pt = PoseTerms()
+        pt.key = key
+        pt.R, pt.E_B, pt.dE = rate_map_terms(chart, q[3:])
+        pt.p = q[:3]
+        pt.E_inv = inverse3(pt.E_B)
+        R = pt.R
+        pt.I_W = R @ self.body.J @ R.T
+        pt.Iinv_W = R @ self.body.J_inv @ R.T
+        if self.m:
+            G = np.empty((self.m, 6))
+            i = 0
+            for c in self.constraints:
+                G[i : i + c.rows] = c.jacobian(pt.p, R)
+                i += c.rows
+            MinvGt = np.empty((6, self.m))
+            MinvGt[:3] = G[:, :3].T * self._inv_m
+            MinvGt[3:] = pt.Iinv_W @ G[:, 3:].T
+            pt.G, pt.MinvGt = G, MinvGt
+            pt.K = DelassusFactor(G @ MinvGt)
+        else:
+            pt.G, pt.MinvGt, pt.K = np.zeros((0, 6)), np.zeros((6, 0)), None
+        self._cache = pt
+        return pt
+
+    def twist(self, pt: PoseTerms, qd: np.ndarray) -> np.ndarray:
+        """nu = T qd = (v, R E_B thetadot) (6,)."""
+        nu = np.empty(6)
+        nu[:3] = qd[:3]
+        nu[3:] = pt.R @ (pt.E_B @ qd[3:])
+        return nu
+
+    def rates(self, pt: PoseTerms, nu: np.ndarray) -> np.ndarray:
+        """qd = T^-1 nu (6,)."""
+        qd = np.empty(6)
+        qd[:3] = nu[:3]
+        qd[3:] = pt.E_inv @ (pt.R.T @ nu[3:])
+        return qd
+
+    # -- eqs. 8-9 ------------------------------------------------------------------------------------
     def evaluate(self, chart: EulerChart, q, qd, t: float, operator_W=None, stabilize=None) -> Evaluation:
-        """Eqs. 8-9 at (q, qd). ``stabilize=(alpha, beta)`` adds Baumgarte terms 2a A qd + b^2 h."""
-        kin = Kinematics(chart, q, qd)
-        M = compute_mass_matrix(self.body, kin)
-        Cqd = compute_coriolis(self.body, kin) if self.coriolis else self._zeros6
-        F = total_wrench(self.effects, kin.p, kin.R, kin.v, kin.w, t, operator_W)
-        tau = generalized_force(kin, F)
-        G = stack_jacobian(self.constraints, kin.p, kin.R)
-        A = constraint_matrix(G, kin)
-        Adq = constraint_bias(G, stack_bias(self.constraints, kin.p, kin.R, kin.v, kin.w), kin)
-        if stabilize is not None and self.m:
-            alpha, beta = stabilize
-            Adq = Adq + 2.0 * alpha * (A @ qd)
-            h = np.zeros(self.m)
-            h[self.holonomic_mask] = stack_residual(self.constraints, kin.p, kin.R)
-            Adq = Adq + beta * beta * h
-        res = compute_constrained_acceleration(M, Cqd, tau, A, Adq)
-        return Evaluation(kin, M, A, G, res.qdd, res.lam, res.rank, F)
+        """Eqs. 8-9 at (q, qd). ``stabilize=(alpha, beta)`` adds Baumgarte terms 2a G nu + b^2 h."""
+        pt = self.pose_terms(chart, q)
+        thd = qd[3:]
+        d1, d2, d3 = thd[0], thd[1], thd[2]
+        a1, u, a2 = pt.dE
+        Edq = -(d1 * d3) * a1 - (d1 * d2) * u - (d2 * d3) * a2
+        v = qd[:3]
+        w = pt.R @ (pt.E_B @ thd)
+        F = np.zeros(6) if operator_W is None else np.array(operator_W, dtype=float)
+        for e in self.effects:
+            e.add_wrench(pt.p, pt.R, v, w, t, F)
+        free = np.empty(6)
+        free[:3] = F[:3] * self._inv_m
+        tq = F[3:] - cross(w, pt.I_W @ w) if self.coriolis else F[3:]
+        free[3:] = pt.Iinv_W @ tq
+        if self.m:
+            b = np.empty(self.m)
+            i = 0
+            for c in self.constraints:
+                b[i : i + c.rows] = c.bias(pt.p, pt.R, v, w)
+                i += c.rows
+            if stabilize is not None:
+                alpha, beta = stabilize
+                nu = np.concatenate([v, w])
+                h = np.zeros(self.m)
+                h[self.holonomic_mask] = stack_residual(self.constraints, pt.p, pt.R)
+                b = b + 2.0 * alpha * (pt.G @ nu) + beta * beta * h
+            lam = pt.K.solve(-b - pt.G @ free)
+            nudot = free + pt.MinvGt @ lam
+            rank = pt.K.rank
+        else:
+            lam, nudot, rank = np.zeros(0), free, 0
+        qdd = np.empty(6)
+        qdd[:3] = nudot[:3]
+        qdd[3:] = pt.E_inv @ (pt.R.T @ nudot[3:] - Edq)
+        return Evaluation(qdd, nudot, lam, rank, F, pt.G, pt)
 
-    # -- twist space (Lie group), also the Newton-Euler oracle --------------------------------------
-    def evaluate_twist(self, p, R, v, w, t: float, operator_W=None) -> TwistEvaluation:
-        """Newton-Euler with constraints: m vdot = f + lam_f, I_W wdot + w x I_W w = tau + lam_tau."""
+    def project_twist(self, pt: PoseTerms, nu: np.ndarray) -> np.ndarray:
+        """The admissible twist closest to nu in kinetic energy: nu - M^-1 G^T K^+ G nu."""
+        if not self.m:
+            return nu
+        return nu - pt.MinvGt @ pt.K.solve(pt.G @ nu)
+
+    # -- Lie group: no chart ----------------------------------------------------------------------
+    def evaluate_twist(self, p, R, v, w, t: float, operator_W=None) -> Evaluation:
+        """Newton-Euler with constraints at pose (p, R), twist (v, w): no Euler chart involved."""
         body = self.body
         F = total_wrench(self.effects, p, R, v, w, t, operator_W)
         I_W = R @ body.J @ R.T
         Iinv_W = R @ body.J_inv @ R.T
-        rhs = np.empty(6)
-        rhs[:3] = F[:3] / body.mass_kg
-        tq = F[3:] - (cross(w, I_W @ w) if self.coriolis else 0.0)
-        rhs[3:] = Iinv_W @ tq
+        free = np.empty(6)
+        free[:3] = F[:3] * self._inv_m
+        free[3:] = Iinv_W @ (F[3:] - cross(w, I_W @ w) if self.coriolis else F[3:])
         if not self.m:
-            return TwistEvaluation(np.zeros((0, 6)), rhs, np.zeros(0), 0, F)
+            return Evaluation(free, free, np.zeros(0), 0, F, np.zeros((0, 6)), None)
         G = stack_jacobian(self.constraints, p, R)
         b = stack_bias(self.constraints, p, R, v, w)
         MinvGt = np.empty((6, self.m))
-        MinvGt[:3] = G[:, :3].T / body.mass_kg
+        MinvGt[:3] = G[:, :3].T * self._inv_m
         MinvGt[3:] = Iinv_W @ G[:, 3:].T
-        lam, rank = solve_delassus(G @ MinvGt, -b - G @ rhs)
-        return TwistEvaluation(G, rhs + MinvGt @ lam, lam, rank, F)
+        K = DelassusFactor(G @ MinvGt)
+        lam = K.solve(-b - G @ free)
+        nudot = free + MinvGt @ lam
+        return Evaluation(nudot, nudot, lam, K.rank, F, G, None)
 
     def twist_mass_inverse(self, R) -> np.ndarray:
         """blockdiag(I3/m, R J^-1 R^T) (6, 6)."""
         Minv = np.zeros((6, 6))
-        Minv[0, 0] = Minv[1, 1] = Minv[2, 2] = 1.0 / self.body.mass_kg
+        Minv[0, 0] = Minv[1, 1] = Minv[2, 2] = self._inv_m
         Minv[3:, 3:] = R @ self.body.J_inv @ R.T
         return Minv
+
+
+def evaluate_literal(model: ConstrainedBody, chart: EulerChart, q, qd, t: float, operator_W=None) -> ConstrainedAcceleration:
+    """Eqs. 8-9 exactly as printed, in chart coordinates: M(q), C(q,qd)qd, A(q), Adot qd.
+
+    The reference the fast path is tested against; also what a reader of the paper expects to see.
+    """
+    kin = Kinematics(chart, q, qd)
+    M = compute_mass_matrix(model.body, kin)
+    Cqd = compute_coriolis(model.body, kin, gyroscopic=model.coriolis)
+    F = total_wrench(model.effects, kin.p, kin.R, kin.v, kin.w, t, operator_W)
+    tau = generalized_force(kin, F)
+    G = stack_jacobian(model.constraints, kin.p, kin.R)
+    A = constraint_matrix(G, kin)
+    Adq = constraint_bias(G, stack_bias(model.constraints, kin.p, kin.R, kin.v, kin.w), kin)
+    return compute_constrained_acceleration(M, Cqd, tau, A, Adq)

@@ -69,6 +69,33 @@ def solve_delassus(K: np.ndarray, rhs: np.ndarray) -> tuple[np.ndarray, int]:
     return lam, int(keep.sum())
 
 
+class DelassusFactor:
+    """A factored symmetric PSD matrix K (m, m): Cholesky when well conditioned, otherwise a
+    truncated eigendecomposition (minimum-norm / least-squares solves). ``rank`` is numerical."""
+
+    __slots__ = ("L", "V", "w", "rank")
+
+    def __init__(self, K: np.ndarray):
+        m = K.shape[0]
+        self.L = self.V = self.w = None
+        L, info = dpotrf(K, lower=1, clean=1, overwrite_a=0)
+        if info == 0:
+            d = L.diagonal()  # positive for a successful Cholesky
+            if d.min() ** 2 > RANK_RTOL * d.max() ** 2:
+                self.L, self.rank = L, m
+                return
+        w, V = np.linalg.eigh(K)
+        keep = w > RANK_RTOL * max(w[-1], 0.0)
+        self.V, self.w, self.rank = V[:, keep], w[keep], int(keep.sum())
+
+    def solve(self, rhs: np.ndarray) -> np.ndarray:
+        if self.L is not None:
+            return dpotrs(self.L, rhs, lower=1)[0]
+        if rhs.ndim == 1:
+            return self.V @ ((self.V.T @ rhs) / self.w)
+        return self.V @ ((self.V.T @ rhs) / self.w[:, None])
+
+
 def compute_constrained_acceleration(
     M: np.ndarray, Cqd: np.ndarray, tau: np.ndarray, A: np.ndarray, Adot_qd: np.ndarray
 ) -> ConstrainedAcceleration:

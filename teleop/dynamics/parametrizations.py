@@ -22,6 +22,8 @@ class Parametrization(ABC):
 
     dim: int = 6
     rechartable: bool = False
+    #: True when Psi does not depend on z (then ``jacobian`` may be called with z=None).
+    constant_jacobian: bool = False
 
     @abstractmethod
     def initial_chart(self) -> EulerChart:
@@ -49,6 +51,7 @@ class Identity(Parametrization):
 
     dim = 6
     rechartable = True
+    constant_jacobian = True
 
     def __init__(self, sequence: str = "ZYX"):
         self._chart = EulerChart(sequence)
@@ -85,6 +88,7 @@ class UprightDisk(Parametrization):
     """
 
     dim = 4
+    constant_jacobian = True
 
     def __init__(self, radius: float, origin: np.ndarray, normal: np.ndarray):
         self.r = float(radius)

@@ -47,6 +47,16 @@ def cross(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     )
 
 
+def inverse3(E: np.ndarray) -> np.ndarray:
+    """Inverse of a 3x3 matrix by cross products (rows of the adjugate over the determinant)."""
+    c0, c1, c2 = E[:, 0], E[:, 1], E[:, 2]
+    r0, r1, r2 = cross(c1, c2), cross(c2, c0), cross(c0, c1)
+    det = float(c0 @ r0)
+    out = np.empty((3, 3))
+    out[0], out[1], out[2] = r0, r1, r2
+    return out / det
+
+
 @dataclass(frozen=True, eq=False)
 class EulerChart:
     """An intrinsic Euler sequence placed in the world by ``R0`` (3x3 rotation, world <- chart).
@@ -123,6 +133,26 @@ def rate_map(chart: EulerChart, theta: np.ndarray, theta_dot: np.ndarray):
     dcol1 = -d3 * cross(ec, col1) - d2 * (RcT @ cross(eb, RbT_ea))
     dcol2 = -d3 * cross(ec, col2)
     return R, E, d1 * dcol1 + d2 * dcol2
+
+
+def rate_map_terms(chart: EulerChart, theta: np.ndarray):
+    """Pose-only pieces of :func:`rate_map`: ``(R_WB, E_B, (a1, u, a2))`` such that
+
+        d/dt(E_B) thetadot = -(d1 d3) a1 - (d1 d2) u - (d2 d3) a2   for rates (d1, d2, d3),
+
+    so a caller can cache them per pose and get Edot qd for any rates with three scalings.
+    """
+    a, b, c = chart.axes
+    Rb, Rc = axis_rotation(b, theta[1]), axis_rotation(c, theta[2])
+    R = chart.R0 @ axis_rotation(a, theta[0]) @ Rb @ Rc
+    RcT = Rc.T
+    ec = _E[c]
+    RbT_ea = Rb.T[:, a]
+    E = np.empty((3, 3))
+    E[:, 0] = col1 = RcT @ RbT_ea
+    E[:, 1] = col2 = RcT[:, b]
+    E[:, 2] = ec
+    return R, E, (cross(ec, col1), RcT @ cross(_E[b], RbT_ea), cross(ec, col2))
 
 
 def euler_from_rotation(chart: EulerChart, R_WB: np.ndarray) -> np.ndarray:

@@ -37,6 +37,9 @@ class Table:
         'list'. ``check(value) -> bool`` with ``why`` explains a range failure."""
         self._read.add(k)
         if k not in self.data:
+            typo = self._typo_of(k)
+            if typo is not None:
+                raise self.error(typo, f"unknown key; did you mean {k!r}?")
             if default is _MISSING:
                 raise self.error(k, "required key is missing")
             return default
@@ -45,10 +48,21 @@ class Table:
             raise self.error(k, f"{why or 'value out of range'} (got {self.data[k]!r})")
         return value
 
+    def _typo_of(self, k: str) -> str | None:
+        """An unread key of this table that looks like a misspelling of ``k``."""
+        import difflib
+
+        spare = [x for x in self.data if x not in self._read and isinstance(x, str)]
+        match = difflib.get_close_matches(k, spare, n=1, cutoff=0.8)
+        return match[0] if match else None
+
     def sub(self, k: str, default: Any = _MISSING) -> "Table | None":
         """A nested table, or ``default`` when absent (pass ``None`` for optional tables)."""
         self._read.add(k)
         if k not in self.data:
+            typo = self._typo_of(k)
+            if typo is not None:
+                raise self.error(typo, f"unknown key; did you mean {k!r}?")
             if default is _MISSING:
                 raise self.error(k, "required table is missing")
             return default

@@ -1,0 +1,44 @@
+"""The `teleop` command as a user types it: run, list, errors."""
+
+import json
+import subprocess
+import sys
+
+import pytest
+
+from teleop.cli import main
+from teleop.scenario.schema import list_scenes
+
+KEYS = {"scenario", "status", "steps", "dt_s", "duration_s", "nan", "tick_us", "metrics"}
+
+
+@pytest.mark.parametrize("name", ["paper_rolling_disk", "paper_disk_on_sphere", "scalpel_fixture"])
+def test_run_writes_the_json_summary(tmp_path, name):
+    out = tmp_path / "out.json"
+    rc = main(["run", name, "--master", "ideal", "--headless", "--json", str(out), "--duration", "0.2"])
+    assert rc == 0
+    s = json.loads(out.read_text())
+    assert KEYS <= set(s)
+    assert s["scenario"] == name and s["status"] == "ok" and s["nan"] is False
+    assert s["steps"] == 200 and s["dt_s"] == 0.001
+    assert s["tick_us"]["median"] > 0 and s["tick_us"]["p99"] >= s["tick_us"]["median"]
+
+
+def test_console_entry_point_and_list():
+    r = subprocess.run([sys.executable, "-m", "teleop.cli", "list"], capture_output=True, text=True, check=True)
+    for name in list_scenes():
+        assert name in r.stdout
+
+
+def test_unknown_scene_is_a_clear_error(capsys):
+    assert main(["run", "no_such_scene", "--duration", "0.1"]) == 2
+    err = capsys.readouterr().err
+    assert "no_such_scene" in err and "known scenes" in err
+
+
+def test_run_out_dir_writes_log_and_plots(tmp_path):
+    rc = main(["run", "paper_disk_on_sphere", "--duration", "0.3", "--out", str(tmp_path)])
+    assert rc == 0
+    assert (tmp_path / "metrics.json").exists() and (tmp_path / "log.npz").exists()
+    pngs = sorted(p.name for p in tmp_path.glob("*.png"))
+    assert pngs and all((tmp_path / p).stat().st_size > 5000 for p in pngs)
