@@ -1,0 +1,103 @@
+"""Benchmarks: microseconds per step, median and p99, against a yardstick timed in the same run.
+
+    python tools/bench.py [--json OUT.json] [--steps N]
+
+The machine is shared and noisy, so every figure is taken in interleaved blocks with the
+yardstick, one ``pinocchio.aba`` of example-robot-data's Panda (``pin_aba_us``); compare ratios.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+
+
+def _stats(samples_ns) -> dict:
+    a = np.asarray(samples_ns, dtype=float) * 1e-3
+    return {"median": round(float(np.median(a)), 2), "p99": round(float(np.percentile(a, 99)), 2)}
+
+
+class Yardstick:
+    """pinocchio.aba on the Panda at random states."""
+
+    def __init__(self, seed: int = 0):
+        import example_robot_data
+        import pinocchio as pin
+
+        self.pin = pin
+        robot = example_robot_data.load("panda")
+        self.model, self.data = robot.model, robot.model.createData()
+        rng = np.random.default_rng(seed)
+        self.states = [(pin.randomConfiguration(self.model), rng.normal(size=self.model.nv), rng.normal(size=self.model.nv)) for _ in range(64)]
+        self.samples: list[int] = []
+
+    def block(self, n: int) -> None:
+        aba, m, d = self.pin.aba, self.model, self.data
+        for i in range(n):
+            q, v, tau = self.states[i % 64]
+            t0 = time.perf_counter_ns()
+            aba(m, d, q, v, tau)
+            self.samples.append(time.perf_counter_ns() - t0)
+
+
+def bench_integrators(steps: int, yard: Yardstick) -> dict:
+    """Every integrator on Example 1 (the rolling disk with its parallel-parking operator)."""
+    from teleop.dynamics.integrators import INTEGRATORS
+    from teleop.scenario.build import ScriptedWrench, build_tool
+    from teleop.scenario.schema import load_scene
+
+    scene = load_scene("paper_rolling_disk")
+    out = {}
+    for name in INTEGRATORS:
+        sc = scene.with_overrides(integrator=name)
+        tool = build_tool(sc)
+        op = ScriptedWrench(sc.operator, sc.fixture)
+        samples, block = [], 500
+        for start in range(0, steps, block):
+            yard.block(block // 5)
+            for i in range(start, min(start + block, steps)):
+                p, R = tool.pose()
+                w = op.wrench(i * sc.dt_s, p, R)
+                t0 = time.perf_counter_ns()
+                tool.step(sc.dt_s, w)
+                samples.append(time.perf_counter_ns() - t0)
+        out[name] = _stats(samples)
+    return out
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--json", help="write the figures here")
+    ap.add_argument("--steps", type=int, default=20_000, help="steps per integrator (default 20000)")
+    args = ap.parse_args(argv)
+
+    yard = Yardstick()
+    yard.block(2000)  # warm-up
+    yard.samples.clear()
+    integrators = bench_integrators(args.steps, yard)
+    aba = _stats(yard.samples)
+    result = {
+        "pin_aba_us": aba,
+        "integrator_step_us": integrators,
+        "reference_step_us": integrators["parametric"],
+        "reference_over_aba": round(integrators["parametric"]["median"] / aba["median"], 1),
+    }
+    print(f"{'pin_aba_us (Panda, yardstick)':34s} median {aba['median']:8.2f}  p99 {aba['p99']:8.2f}")
+    for name, s in integrators.items():
+        ratio = s["median"] / aba["median"]
+        print(f"step_us {name:26s} median {s['median']:8.2f}  p99 {s['p99']:8.2f}   ({ratio:5.1f}x aba)")
+    print(f"reference_step_us / pin_aba_us = {result['reference_over_aba']} (target <= 15)")
+    if args.json:
+        Path(args.json).write_text(json.dumps(result, indent=2) + "\n")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
