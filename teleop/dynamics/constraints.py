@@ -67,6 +67,8 @@ class Constraint(ABC):
     holonomic: bool = True
     rows: int = 1
     units: tuple[str, ...] = ("N",)
+    #: G does not depend on the pose and the bias is zero (the engine then evaluates them once).
+    constant: bool = False
 
     @abstractmethod
     def jacobian(self, p: np.ndarray, R: np.ndarray) -> np.ndarray:
@@ -93,6 +95,7 @@ class PlaneHeight(Constraint):
     holonomic = True
     rows = 1
     units = ("N",)
+    constant = True
 
     def __post_init__(self):
         object.__setattr__(self, "origin", _vec3(self.origin, f"{self.name}.origin"))
@@ -158,6 +161,7 @@ class RollingWithoutSlip(Constraint):
     holonomic = False
     rows = 2
     units = ("N", "N")
+    constant = True
 
     def __post_init__(self):
         _positive(self.radius, f"{self.name}.radius")

@@ -39,10 +39,10 @@ from teleop.dynamics.rotations import EulerChart, cross, inverse3, rate_map_term
 
 
 class PoseTerms:
-    """Pose-only quantities at (chart, q): p, R, E_B, E_B^-1, the Edot pieces, G, I_W, I_W^-1,
+    """Pose-only quantities at (chart, q): p, R, E_B, E_B^-1, the Edot pieces, G, I_W^-1,
     M_nu^-1 G^T and the factored Delassus matrix K = G M_nu^-1 G^T."""
 
-    __slots__ = ("key", "p", "R", "E_B", "E_inv", "dE", "G", "I_W", "Iinv_W", "MinvGt", "K")
+    __slots__ = ("key", "p", "R", "E_B", "E_inv", "dE", "G", "Iinv_W", "MinvGt", "K")
 
 
 @dataclass(frozen=True, eq=False)
@@ -76,6 +76,16 @@ class ConstrainedBody:
         self.nonholonomic = tuple(c for c in self.constraints if not c.holonomic)
         self._cache: PoseTerms | None = None
         self._inv_m = 1.0 / body.mass_kg
+        # rows of constant constraints are filled once; only the others are evaluated per pose
+        self._G_template = np.zeros((self.m, 6))
+        self._varying = []
+        i = 0
+        for c in self.constraints:
+            if c.constant:
+                self._G_template[i : i + c.rows] = c.jacobian(np.zeros(3), np.eye(3))
+            else:
+                self._varying.append((i, i + c.rows, c))
+            i += c.rows
 
     # -- pose-only terms --------------------------------------------------------------------------
     def pose_terms(self, chart: EulerChart, q: np.ndarray) -> PoseTerms:
@@ -89,14 +99,11 @@ class ConstrainedBody:
         pt.p = q[:3]
         pt.E_inv = inverse3(pt.E_B)
         R = pt.R
-        pt.I_W = R @ self.body.J @ R.T
         pt.Iinv_W = R @ self.body.J_inv @ R.T
         if self.m:
-            G = np.empty((self.m, 6))
-            i = 0
-            for c in self.constraints:
-                G[i : i + c.rows] = c.jacobian(pt.p, R)
-                i += c.rows
+            G = self._G_template.copy()
+            for i, j, c in self._varying:
+                G[i:j] = c.jacobian(pt.p, R)
             MinvGt = np.empty((6, self.m))
             MinvGt[:3] = G[:, :3].T * self._inv_m
             MinvGt[3:] = pt.Iinv_W @ G[:, 3:].T
@@ -130,20 +137,20 @@ class ConstrainedBody:
         a1, u, a2 = pt.dE
         Edq = -(d1 * d3) * a1 - (d1 * d2) * u - (d2 * d3) * a2
         v = qd[:3]
-        w = pt.R @ (pt.E_B @ thd)
+        w_B = pt.E_B @ thd
+        w = pt.R @ w_B
         F = np.zeros(6) if operator_W is None else np.array(operator_W, dtype=float)
         for e in self.effects:
             e.add_wrench(pt.p, pt.R, v, w, t, F)
         free = np.empty(6)
         free[:3] = F[:3] * self._inv_m
-        tq = F[3:] - cross(w, pt.I_W @ w) if self.coriolis else F[3:]
+        # gyroscopic torque w x I_W w = R (w_B x J w_B)
+        tq = F[3:] - pt.R @ cross(w_B, self.body.J @ w_B) if self.coriolis else F[3:]
         free[3:] = pt.Iinv_W @ tq
         if self.m:
-            b = np.empty(self.m)
-            i = 0
-            for c in self.constraints:
-                b[i : i + c.rows] = c.bias(pt.p, pt.R, v, w)
-                i += c.rows
+            b = np.zeros(self.m)
+            for i, j, c in self._varying:
+                b[i:j] = c.bias(pt.p, pt.R, v, w)
             if stabilize is not None:
                 alpha, beta = stabilize
                 nu = np.concatenate([v, w])

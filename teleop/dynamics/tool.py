@@ -98,7 +98,7 @@ class ReferenceTool:
             operator_W = None  # a non-finite input never reaches the math
         try:
             ev = self.integrator.step(self.model, s, h, operator_W)
-            ok = math.isfinite(float(s.q.sum() + s.qd.sum() + ev.lam.sum() + ev.nudot.sum()))
+            ok = math.isfinite(float(s.q @ s.q + s.qd @ s.qd + ev.lam @ ev.lam + ev.nudot @ ev.nudot))
         except (TeleopError, FloatingPointError, np.linalg.LinAlgError, ValueError):
             ok, ev = False, None
         if not ok:
