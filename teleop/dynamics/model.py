@@ -35,7 +35,7 @@ from teleop.dynamics.multipliers import (
     DelassusFactor,
     compute_constrained_acceleration,
 )
-from teleop.dynamics.rotations import EulerChart, cross, inverse3, rate_map_terms
+from teleop.dynamics.rotations import EulerChart, cross, rate_map_terms
 
 
 class PoseTerms:
@@ -95,9 +95,8 @@ class ConstrainedBody:
             return c
         pt = PoseTerms()
         pt.key = key
-        pt.R, pt.E_B, pt.dE = rate_map_terms(chart, q[3:])
+        pt.R, pt.E_B, pt.E_inv, pt.dE = rate_map_terms(chart, q[3:])
         pt.p = q[:3]
-        pt.E_inv = inverse3(pt.E_B)
         R = pt.R
         pt.Iinv_W = R @ self.body.J_inv @ R.T
         if self.m:
@@ -133,9 +132,14 @@ class ConstrainedBody:
         """Eqs. 8-9 at (q, qd). ``stabilize=(alpha, beta)`` adds Baumgarte terms 2a G nu + b^2 h."""
         pt = self.pose_terms(chart, q)
         thd = qd[3:]
-        d1, d2, d3 = thd[0], thd[1], thd[2]
+        d1, d2, d3 = float(thd[0]), float(thd[1]), float(thd[2])
         a1, u, a2 = pt.dE
-        Edq = -(d1 * d3) * a1 - (d1 * d2) * u - (d2 * d3) * a2
+        k1, k2, k3 = d1 * d3, d1 * d2, d2 * d3
+        Edq = np.array([
+            -k1 * a1[0] - k2 * u[0] - k3 * a2[0],
+            -k1 * a1[1] - k2 * u[1] - k3 * a2[1],
+            -k1 * a1[2] - k2 * u[2] - k3 * a2[2],
+        ])
         v = qd[:3]
         w_B = pt.E_B @ thd
         w = pt.R @ w_B

@@ -93,7 +93,7 @@ class ReferenceTool:
         """
         s = self.state
         saved = (s.chart, s.q, s.qd, s.t, s.z, s.zd)  # integrators replace arrays, never mutate them
-        bad_input = operator_W is not None and not math.isfinite(float(np.sum(operator_W)))
+        bad_input = operator_W is not None and not math.isfinite(float(operator_W @ operator_W))
         if bad_input:
             operator_W = None  # a non-finite input never reaches the math
         try:
