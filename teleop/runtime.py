@@ -14,7 +14,8 @@ from pathlib import Path
 
 import numpy as np
 
-from teleop.scenario.build import ScriptedWrench, build_tool
+from teleop.scenario.build import build_tool
+from teleop.scenario.operators import make_operator
 from teleop.scenario.metrics import make_metrics
 from teleop.scenario.schema import Scene
 
@@ -76,7 +77,7 @@ def run_scene(scene: Scene, progress=None) -> RunResult:
     """Run a scene headless in simulated time. ``progress(i, n)`` is called now and then."""
     rng = np.random.default_rng(scene.seed)
     tool = build_tool(scene)
-    operator = ScriptedWrench(scene.operator, scene.fixture)
+    operator = make_operator(scene.operator, scene.fixture, scene.effects, rng)
     n = int(round(scene.duration_s / scene.dt_s))
     metrics = make_metrics(scene.fixture, n, tool.body.mass_kg)
     log = {
@@ -90,7 +91,7 @@ def run_scene(scene: Scene, progress=None) -> RunResult:
             t0 = time.perf_counter_ns()
             p_v, R_v = master.virtual_pose()
             v_v, w_v = master.virtual_twist()
-            wrench = operator.wrench(i * scene.dt_s, p_v, R_v)
+            wrench = operator.wrench(i * scene.dt_s, p_v, R_v, v_v, w_v)
             st = master.step(wrench, None)
             t1 = time.perf_counter_ns()
             nan = nan or not (np.all(np.isfinite(tool.q)) and np.all(np.isfinite(p_v)))

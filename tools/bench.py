@@ -50,7 +50,8 @@ class Yardstick:
 def bench_integrators(steps: int, yard: Yardstick) -> dict:
     """Every integrator on Example 1 (the rolling disk with its parallel-parking operator)."""
     from teleop.dynamics.integrators import INTEGRATORS
-    from teleop.scenario.build import ScriptedWrench, build_tool
+    from teleop.scenario.build import build_tool
+    from teleop.scenario.operators import ScriptedWrench
     from teleop.scenario.schema import load_scene
 
     scene = load_scene("paper_rolling_disk")

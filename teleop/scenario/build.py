@@ -11,10 +11,9 @@ from teleop.dynamics import fixtures
 from teleop.dynamics.body import RigidBody
 from teleop.dynamics.effects import AngularDamper, Gravity, LinearDamper, Spring
 from teleop.dynamics.fixtures import Fixture
-from teleop.dynamics.rotations import cross
 from teleop.dynamics.tool import ReferenceTool
 from teleop.errors import ConfigError, SceneError
-from teleop.scenario.schema import FixtureSpec, OperatorSpec, Scene
+from teleop.scenario.schema import FixtureSpec, Scene
 
 
 def build_body(scene: Scene) -> RigidBody:
@@ -61,50 +60,3 @@ def build_tool(scene: Scene) -> ReferenceTool:
     except ConfigError as e:
         raise SceneError(scene.path, "fixture", str(e)) from None
     return tool
-
-
-def task_frame(spec: FixtureSpec, R: np.ndarray) -> np.ndarray:
-    """Rotation (3, 3) whose columns are the fixture's natural directions for the operator.
-
-    rolling disk: (forward, lateral, plane normal); otherwise the tool's body axes.
-    """
-    if spec.type != "rolling_disk":
-        return R
-    n = np.asarray(spec.plane_normal, dtype=float)
-    n = n / np.linalg.norm(n)
-    forward = cross(n, R[:, 2])
-    norm = np.linalg.norm(forward)
-    if norm < 1e-9:
-        return R
-    forward /= norm
-    return np.column_stack([forward, cross(n, forward), n])
-
-
-class ScriptedWrench:
-    """The scripted operator: phases of constant wrench with linear ramps, optionally repeating."""
-
-    def __init__(self, spec: OperatorSpec, fixture: FixtureSpec):
-        self.spec = spec
-        self.fixture = fixture
-
-    def wrench(self, t: float, p: np.ndarray, R: np.ndarray) -> np.ndarray:
-        """World wrench (6,: N, N*m) at the tool origin at time t s for the tool pose (p, R)."""
-        spec = self.spec
-        if spec.repeat_s:
-            t = t % spec.repeat_s
-        out = np.zeros(6)
-        for ph in spec.phases:
-            if not ph.start_s <= t < ph.end_s:
-                continue
-            gain = 1.0
-            if ph.ramp_s > 0:
-                gain = min(1.0, (t - ph.start_s) / ph.ramp_s, (ph.end_s - t) / ph.ramp_s)
-            if ph.frame == "world":
-                Rf = np.eye(3)
-            elif ph.frame == "tool":
-                Rf = R
-            else:
-                Rf = task_frame(self.fixture, R)
-            out[:3] += gain * (Rf @ np.array(ph.force_N))
-            out[3:] += gain * (Rf @ np.array(ph.torque_Nm))
-        return out

@@ -75,11 +75,26 @@ class Phase:
 
 
 @dataclass(frozen=True)
+class HandSpec:
+    """A virtual hand: a spring (N/m) and damper (N*s/m) pulling the handle along waypoints
+    ((t s, x m, y m, z m), world), with tremor of RMS ``tremor_amplitude_m`` per axis in
+    ``tremor_band_hz`` when the scene switches the "tremor" effect on."""
+
+    waypoints: tuple
+    stiffness_N_per_m: float = 200.0
+    damping_Ns_per_m: float = 5.0
+    angular_damping_Nms_per_rad: float = 0.0
+    tremor_amplitude_m: float = 0.0
+    tremor_band_hz: tuple = (8.0, 12.0)
+
+
+@dataclass(frozen=True)
 class OperatorSpec:
-    """A scripted wrench profile; phases repeat every ``repeat_s`` seconds if given."""
+    """Scripted wrench phases (repeating every ``repeat_s`` if given) and/or a virtual hand."""
 
     phases: tuple = ()
     repeat_s: float | None = None
+    hand: HandSpec | None = None
 
 
 @dataclass(frozen=True)
@@ -252,8 +267,35 @@ def _operator(t: Table | None) -> OperatorSpec:
             p.take("ramp_s", "float", 0.0, lambda x: 0 <= x <= (end - start) / 2, "must be in [0, (end_s - start_s)/2]"),
         ))
         p.done()
+    hand = _hand(t.sub("hand", None))
     t.done()
-    return OperatorSpec(tuple(phases), repeat)
+    return OperatorSpec(tuple(phases), repeat, hand)
+
+
+def _hand(t: Table | None) -> HandSpec | None:
+    if t is None:
+        return None
+    raw = t.take("waypoints", "list")
+    pts = []
+    for i, wp in enumerate(raw):
+        if not (isinstance(wp, list) and len(wp) == 4 and all(isinstance(x, (int, float)) and not isinstance(x, bool) for x in wp)):
+            raise t.error(f"waypoints[{i}]", "expected [t_s, x_m, y_m, z_m]")
+        if pts and not wp[0] > pts[-1][0]:
+            raise t.error(f"waypoints[{i}]", "waypoint times must increase")
+        pts.append(tuple(float(x) for x in wp))
+    if len(pts) < 2:
+        raise t.error("waypoints", "give at least two waypoints")
+    band = t.take("tremor_band_hz", "floats", (8.0, 12.0), lambda b: len(b) == 2 and 0 < b[0] < b[1], "expected [low, high] Hz with 0 < low < high")
+    h = HandSpec(
+        tuple(pts),
+        t.take("stiffness_N_per_m", "float", 200.0, _pos, "must be positive"),
+        t.take("damping_Ns_per_m", "float", 5.0, lambda x: x >= 0, "must be >= 0"),
+        t.take("angular_damping_Nms_per_rad", "float", 0.0, lambda x: x >= 0, "must be >= 0"),
+        t.take("tremor_amplitude_m", "float", 0.0, lambda x: 0 <= x <= 0.01, "must be in [0, 0.01] m"),
+        band,
+    )
+    t.done()
+    return h
 
 
 def _spring(t: Table) -> SpringSpec:
