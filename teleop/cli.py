@@ -3,6 +3,7 @@
     teleop run [NAME_OR_PATH] [--master ideal|cobot] [--headless] [--duration S] [--seed N]
                [--integrator NAME] [--dt S] [--json PATH] [--out DIR]
     teleop list
+    teleop plot LOG [--out DIR]
 """
 
 from __future__ import annotations
@@ -71,6 +72,22 @@ def cmd_list(args) -> int:
     return 0
 
 
+def cmd_plot(args) -> int:
+    from pathlib import Path
+
+    from teleop.errors import ConfigError
+    from teleop.plots import plot_log
+
+    log = Path(args.log)
+    if log.is_dir():
+        log = log / "log.npz"
+    if not log.exists():
+        raise ConfigError(f"{args.log}: no run log here (expected a log.npz written by 'teleop run --out')")
+    for p in plot_log(log, args.out or log.parent):
+        print(p)
+    return 0
+
+
 def build_parser() -> argparse.ArgumentParser:
     ap = argparse.ArgumentParser(prog="teleop", description="Constrained teleoperation of surgical-style robots")
     sub = ap.add_subparsers(dest="command", required=True)
@@ -88,6 +105,10 @@ def build_parser() -> argparse.ArgumentParser:
     run.set_defaults(func=cmd_run)
     ls = sub.add_parser("list", help="list the scenes")
     ls.set_defaults(func=cmd_list)
+    pl = sub.add_parser("plot", help="paper-style PNG figures of a run log")
+    pl.add_argument("log", help="a log.npz or the --out folder of a run")
+    pl.add_argument("--out", help="folder for the PNGs (default: next to the log)")
+    pl.set_defaults(func=cmd_plot)
     return ap
 
 

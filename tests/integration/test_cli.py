@@ -42,3 +42,14 @@ def test_run_out_dir_writes_log_and_plots(tmp_path):
     assert (tmp_path / "metrics.json").exists() and (tmp_path / "log.npz").exists()
     pngs = sorted(p.name for p in tmp_path.glob("*.png"))
     assert pngs and all((tmp_path / p).stat().st_size > 5000 for p in pngs)
+
+
+def test_plot_command_redraws_a_log(tmp_path):
+    assert main(["run", "paper_rolling_disk", "--duration", "0.2", "--out", str(tmp_path / "run")]) == 0
+    assert main(["plot", str(tmp_path / "run"), "--out", str(tmp_path / "figs")]) == 0
+    assert (tmp_path / "figs" / "figure8.png").stat().st_size > 5000
+
+
+def test_plot_without_a_log_is_a_clear_error(tmp_path, capsys):
+    assert main(["plot", str(tmp_path)]) == 2
+    assert "no run log" in capsys.readouterr().err

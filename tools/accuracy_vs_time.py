@@ -1,0 +1,197 @@
+"""What accuracy costs in time: sweep integrators, control periods and effect sets.
+
+    python tools/accuracy_vs_time.py [--out docs/accuracy] [--seconds 2.0]
+
+For every point it records the constraint drift (holonomic position residual, velocity residual
+|G nu|), the energy error on a conservative scene, the trajectory error against a reference run
+(RK4 at 0.1 ms), and CPU microseconds per tick (median, p99). It writes ``accuracy.csv``,
+``accuracy.md`` and ``pareto.png`` (error against us/tick, log-log), and marks the shipped default
+(parametric at 1 ms). The effect sweep shows what each simulated effect costs.
+"""
+
+from __future__ import annotations
+
+import argparse
+import csv
+import time
+from dataclasses import replace
+from pathlib import Path
+
+import numpy as np
+
+from teleop.dynamics.constraints import stack_jacobian, stack_residual
+from teleop.dynamics.integrators import INTEGRATORS
+from teleop.scenario.build import build_tool
+from teleop.scenario.operators import make_operator
+from teleop.scenario.schema import load_scene
+
+PERIODS_MS = (0.1, 0.25, 0.5, 1.0, 2.0)
+SCENES = ("paper_rolling_disk", "paper_disk_on_sphere")
+DEFAULT = ("parametric", 1.0)
+EFFECT_SETS = {
+    "all (coriolis, damping)": ("coriolis", "damping"),
+    "no coriolis": ("damping",),
+    "none": (),
+}
+
+
+def simulate(scene, seconds: float, record_dt: float = 0.01):
+    """Run a scene's tool (ideal master) and measure drift, energy, and the sampled trajectory."""
+    scene = scene.with_overrides(duration_s=seconds)
+    tool = build_tool(scene)
+    op = make_operator(scene.operator, scene.fixture, scene.effects, np.random.default_rng(scene.seed))
+    n = int(round(seconds / scene.dt_s))
+    every = max(1, int(round(record_dt / scene.dt_s)))
+    ticks, traj = np.empty(n), []
+    pos_res = vel_res = 0.0
+    e0 = tool.energy()
+    status = "ok"
+    for i in range(n):
+        p, R = tool.pose()
+        v, w = tool.twist()
+        F = op.wrench(i * scene.dt_s, p, R, v, w)
+        t0 = time.perf_counter_ns()
+        st = tool.step(scene.dt_s, F)
+        ticks[i] = (time.perf_counter_ns() - t0) * 1e-3
+        if st != "ok":
+            status = st
+            break
+        p, R = tool.pose()
+        v, w = tool.twist()
+        cons = tool.model.constraints
+        if cons:
+            h = stack_residual(cons, p, R)
+            pos_res = max(pos_res, float(np.abs(h).max()) if h.size else 0.0)
+            vel_res = max(vel_res, float(np.abs(stack_jacobian(cons, p, R) @ np.concatenate([v, w])).max()))
+        if (i + 1) % every == 0:
+            traj.append(p.copy())
+    return {
+        "status": status,
+        "pos_residual_max": pos_res,
+        "vel_residual_max": vel_res,
+        "energy_rel_err": abs(tool.energy() - e0) / max(e0, 1e-12),
+        "traj": np.array(traj),
+        "tick_median_us": float(np.median(ticks[: i + 1])),
+        "tick_p99_us": float(np.percentile(ticks[: i + 1], 99)),
+    }
+
+
+def conservative(scene):
+    """The same scene with no damping and no operator: a start velocity, energy must stay put."""
+    from teleop.scenario.schema import OperatorSpec
+
+    q0 = scene.tool.q0
+    qd0 = (0.02, 0.0, 0.0, 0.5, 0.0, 1.0) if scene.fixture.type == "sphere" else (0.0, 0.0, 0.0, 0.8, 0.0, -1.0)
+    return replace(scene, effects=("coriolis",), operator=OperatorSpec(), tool=replace(scene.tool, q0=q0, qd0=qd0))
+
+
+def sweep(seconds: float):
+    rows = []
+    for name in SCENES:
+        base = load_scene(name)
+        ref = simulate(base.with_overrides(integrator="rk4", dt_s=1e-4), seconds)
+        cons_scene = conservative(base)
+        for integ in INTEGRATORS:
+            for ms in PERIODS_MS:
+                sc = base.with_overrides(integrator=integ, dt_s=ms * 1e-3)
+                r = simulate(sc, seconds)
+                e = simulate(cons_scene.with_overrides(integrator=integ, dt_s=ms * 1e-3), seconds)
+                k = min(len(r["traj"]), len(ref["traj"]))
+                err = float(np.sqrt(((r["traj"][:k] - ref["traj"][:k]) ** 2).sum(axis=1).mean())) if k else float("nan")
+                rows.append({
+                    "scene": name, "integrator": integ, "period_ms": ms, "effects": "all (coriolis, damping)",
+                    "status": r["status"], "traj_err_m": err,
+                    "pos_residual_max": r["pos_residual_max"], "vel_residual_max": r["vel_residual_max"],
+                    "energy_rel_err": e["energy_rel_err"],
+                    "tick_median_us": r["tick_median_us"], "tick_p99_us": r["tick_p99_us"],
+                    "default": (integ, ms) == DEFAULT,
+                })
+                print(f"{name:22s} {integ:15s} {ms:5.2f} ms  err {err:9.2e} m  drift {r['pos_residual_max']:9.2e}  "
+                      f"E {e['energy_rel_err']:9.2e}  {r['tick_median_us']:7.1f} us")
+        for label, effects in EFFECT_SETS.items():
+            sc = replace(base, effects=effects)
+            r = simulate(sc.with_overrides(integrator=DEFAULT[0], dt_s=DEFAULT[1] * 1e-3), seconds)
+            k = min(len(r["traj"]), len(ref["traj"]))
+            err = float(np.sqrt(((r["traj"][:k] - ref["traj"][:k]) ** 2).sum(axis=1).mean()))
+            rows.append({
+                "scene": name, "integrator": DEFAULT[0], "period_ms": DEFAULT[1], "effects": label,
+                "status": r["status"], "traj_err_m": err, "pos_residual_max": r["pos_residual_max"],
+                "vel_residual_max": r["vel_residual_max"], "energy_rel_err": float("nan"),
+                "tick_median_us": r["tick_median_us"], "tick_p99_us": r["tick_p99_us"], "default": False,
+            })
+            print(f"{name:22s} effects={label:26s} err {err:9.2e} m  {r['tick_median_us']:7.1f} us")
+    return rows
+
+
+def pareto_front(points):
+    """Indices of points not dominated in (cost, error), both minimised."""
+    front = []
+    for i, (c, e) in enumerate(points):
+        if not any((c2 <= c and e2 <= e) and (c2 < c or e2 < e) for j, (c2, e2) in enumerate(points) if j != i):
+            front.append(i)
+    return front
+
+
+def write_outputs(rows, out: Path) -> None:
+    out.mkdir(parents=True, exist_ok=True)
+    with open(out / "accuracy.csv", "w", newline="") as f:
+        wr = csv.DictWriter(f, fieldnames=list(rows[0]))
+        wr.writeheader()
+        wr.writerows(rows)
+    lines = ["| scene | integrator | period ms | effects | traj err m | drift m | |Gν| | energy err | µs median | µs p99 | front |",
+             "|---|---|---|---|---|---|---|---|---|---|---|"]
+    main = [r for r in rows if r["effects"].startswith("all")]
+    for name in SCENES:
+        sub = [r for r in main if r["scene"] == name]
+        front = set(pareto_front([(r["tick_median_us"], max(r["traj_err_m"], 1e-16)) for r in sub]))
+        for i, r in enumerate(sub):
+            r["front"] = i in front
+    for r in rows:
+        mark = "**default**" if r["default"] else ""
+        lines.append(
+            f"| {r['scene']} | {r['integrator']} {mark} | {r['period_ms']:g} | {r['effects']} | {r['traj_err_m']:.2e} | "
+            f"{r['pos_residual_max']:.1e} | {r['vel_residual_max']:.1e} | {r['energy_rel_err']:.1e} | "
+            f"{r['tick_median_us']:.1f} | {r['tick_p99_us']:.1f} | {'yes' if r.get('front') else ''} |"
+        )
+    (out / "accuracy.md").write_text("\n".join(lines) + "\n")
+
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, axes = plt.subplots(1, len(SCENES), figsize=(12, 4.5))
+    markers = dict(zip(INTEGRATORS, "osD^v*"))
+    for ax, name in zip(axes, SCENES):
+        for integ in INTEGRATORS:
+            sub = [r for r in main if r["scene"] == name and r["integrator"] == integ]
+            x = [r["tick_median_us"] for r in sub]
+            y = [max(r["traj_err_m"], 1e-12) for r in sub]
+            ax.plot(x, y, marker=markers[integ], lw=0.8, label=integ)
+        d = [r for r in main if r["scene"] == name and r["default"]][0]
+        ax.plot(d["tick_median_us"], max(d["traj_err_m"], 1e-12), "o", ms=16, mfc="none", mec="red", label="default")
+        ax.set_xscale("log")
+        ax.set_yscale("log")
+        ax.set_xlabel("CPU µs per tick (median)")
+        ax.set_ylabel("trajectory error vs RK4 @ 0.1 ms [m]")
+        ax.set_title(f"{name} (periods 0.1-2 ms)", fontsize=9)
+        ax.grid(alpha=0.3, which="both")
+    axes[0].legend(fontsize=7)
+    fig.tight_layout()
+    fig.savefig(out / "pareto.png", dpi=110)
+    plt.close(fig)
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--out", default="docs/accuracy")
+    ap.add_argument("--seconds", type=float, default=2.0, help="simulated seconds per point")
+    args = ap.parse_args(argv)
+    rows = sweep(args.seconds)
+    write_outputs(rows, Path(args.out))
+    print(f"wrote {args.out}/accuracy.csv, accuracy.md, pareto.png ({len(rows)} points)")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
