@@ -73,10 +73,32 @@ def bench_integrators(steps: int, yard: Yardstick) -> dict:
     return out
 
 
+def fuzz_scenes(n: int) -> dict:
+    """Run n random valid scenes; count statuses. Every one must finish with nan false."""
+    import collections
+    import warnings
+
+    from teleop.runtime import run_scene
+    from teleop.scenario.random_scene import random_scene
+    from teleop.scenario.schema import parse_scene
+
+    counts: collections.Counter = collections.Counter()
+    nan_seeds = []
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)  # overflow on purpose in diverging scenes
+        for seed in range(n):
+            s = run_scene(parse_scene(random_scene(np.random.default_rng(seed)), f"<fuzz {seed}>")).summary
+            counts[s["status"]] += 1
+            if s["nan"]:
+                nan_seeds.append(seed)
+    return {"scenes": n, "passed": n - len(nan_seeds), "statuses": dict(counts), "nan_seeds": nan_seeds}
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--json", help="write the figures here")
     ap.add_argument("--steps", type=int, default=20_000, help="steps per integrator (default 20000)")
+    ap.add_argument("--fuzz", type=int, default=500, help="random valid scenes to run (default 500)")
     args = ap.parse_args(argv)
 
     yard = Yardstick()
@@ -95,6 +117,10 @@ def main(argv=None) -> int:
         ratio = s["median"] / aba["median"]
         print(f"step_us {name:26s} median {s['median']:8.2f}  p99 {s['p99']:8.2f}   ({ratio:5.1f}x aba)")
     print(f"reference_step_us / pin_aba_us = {result['reference_over_aba']} (target <= 15)")
+    if args.fuzz:
+        fz = fuzz_scenes(args.fuzz)
+        result["fuzz"] = fz
+        print(f"fuzzed scenes: {fz['passed']} of {fz['scenes']} finished with nan false; statuses {fz['statuses']}")
     if args.json:
         Path(args.json).write_text(json.dumps(result, indent=2) + "\n")
     return 0
