@@ -15,8 +15,6 @@ pose work to the next evaluation.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
-
 import numpy as np
 
 from teleop.dynamics.body import (
@@ -45,18 +43,16 @@ class PoseTerms:
     __slots__ = ("key", "p", "R", "E_B", "E_inv", "dE", "G", "Iinv_W", "MinvGt", "K")
 
 
-@dataclass(frozen=True, eq=False)
 class Evaluation:
     """One evaluation at (q, qd): qdd (6,) chart accel., nudot (6,) world (vdot, wdot), lam (m,),
-    rank of the Delassus matrix, the applied external wrench (6,), G (m, 6) and the pose terms."""
+    rank of the Delassus matrix, the applied external wrench (6,), G (m, 6) and the pose terms.
+    (A slotted class, not a frozen dataclass: it is built every tick.)"""
 
-    qdd: np.ndarray
-    nudot: np.ndarray
-    lam: np.ndarray
-    rank: int
-    wrench_W: np.ndarray
-    G: np.ndarray
-    pose: PoseTerms
+    __slots__ = ("qdd", "nudot", "lam", "rank", "wrench_W", "G", "pose")
+
+    def __init__(self, qdd, nudot, lam, rank, wrench_W, G, pose):
+        self.qdd, self.nudot, self.lam, self.rank = qdd, nudot, lam, rank
+        self.wrench_W, self.G, self.pose = wrench_W, G, pose
 
 
 class ConstrainedBody:

@@ -80,8 +80,8 @@ class DelassusFactor:
         self.L = self.V = self.w = None
         L, info = dpotrf(K, lower=1, clean=1, overwrite_a=0)
         if info == 0:
-            d = L.diagonal()  # positive for a successful Cholesky
-            if d.min() ** 2 > RANK_RTOL * d.max() ** 2:
+            d = L.diagonal().tolist()  # positive for a successful Cholesky; m is small
+            if min(d) ** 2 > RANK_RTOL * max(d) ** 2:
                 self.L, self.rank = L, m
                 return
         w, V = np.linalg.eigh(K)
