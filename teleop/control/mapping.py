@@ -1,0 +1,139 @@
+"""Master-to-slave mapping: registration X_PM, motion scaling, constraints and force feedback.
+
+Frames: M the master workspace, P the patient frame (the slave's world W). The registration X_PM
+(p_PM m, R_PM) places M in P. Motion is scaled down by ``scale`` (master : slave, e.g. 3.0 for 3:1):
+a master point x_M maps to
+
+    x_P = p_PM + R_PM x_M / scale,
+
+so a master twist (v, w) maps to (R_PM v / scale, R_PM w): rotations are not scaled. The reference
+tool's body frame maps onto the slave's tool frame E, so body points scale by 1/scale as well.
+
+``constraint_to_master`` maps a fixture defined in P into M (points through the inverse map,
+directions rotated by R_PM', lengths and body points times ``scale``), so one fixture definition
+serves both sides. ``wrench_to_master`` scales the slave's contact wrench back to the master:
+forces by ``force_scale`` and torques by ``torque_scale`` (default force_scale * scale, since lever
+arms at the master are ``scale`` times longer).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, replace
+
+import numpy as np
+
+from teleop.dynamics import constraints as C
+from teleop.errors import ConfigError
+
+
+def _rotation(R, name: str) -> np.ndarray:
+    R = np.asarray(R, dtype=float)
+    if R.shape != (3, 3) or not np.all(np.isfinite(R)):
+        raise ConfigError(f"{name}: expected a finite 3x3 rotation, got shape {R.shape}")
+    if np.abs(R.T @ R - np.eye(3)).max() > 1e-6 or np.linalg.det(R) < 0:
+        raise ConfigError(f"{name}: not a rotation (R'R != I or det < 0)")
+    return R
+
+
+@dataclass(frozen=True, eq=False)
+class Registration:
+    """X_PM = (X_PM_p m, X_PM_R), ``scale`` master:slave (> 0), feedback gains (dimensionless,
+    torque_scale in (N*m at M)/(N*m at P))."""
+
+    X_PM_p: np.ndarray
+    X_PM_R: np.ndarray
+    scale: float = 1.0
+    force_scale: float = 1.0
+    torque_scale: float | None = None
+
+    def __post_init__(self):
+        p = np.asarray(self.X_PM_p, dtype=float).reshape(-1)
+        if p.shape != (3,) or not np.all(np.isfinite(p)):
+            raise ConfigError(f"mapping.X_PM_p: expected a finite 3-vector, got {self.X_PM_p!r}")
+        object.__setattr__(self, "X_PM_p", p)
+        object.__setattr__(self, "X_PM_R", _rotation(self.X_PM_R, "mapping.X_PM_R"))
+        for key in ("scale", "force_scale"):
+            x = getattr(self, key)
+            if not isinstance(x, (int, float)) or not np.isfinite(x) or x <= 0:
+                raise ConfigError(f"mapping.{key}: expected a finite positive number, got {x!r}")
+        if self.torque_scale is None:
+            object.__setattr__(self, "torque_scale", float(self.force_scale * self.scale))
+        elif not np.isfinite(self.torque_scale) or self.torque_scale <= 0:
+            raise ConfigError(f"mapping.torque_scale: expected a finite positive number, got {self.torque_scale!r}")
+
+    @classmethod
+    def from_dict(cls, d: dict, where: str = "mapping") -> "Registration":
+        """Keys: position_m (3), rpy_rad (3), scale, force_scale, torque_scale."""
+        import pinocchio as pin
+
+        known = ("position_m", "rpy_rad", "scale", "force_scale", "torque_scale")
+        for k in d:
+            if k not in known:
+                raise ConfigError(f"{where}.{k}: unknown key; known keys: {list(known)}")
+        rpy = np.asarray(d.get("rpy_rad", (0.0, 0.0, 0.0)), dtype=float)
+        if rpy.shape != (3,) or not np.all(np.isfinite(rpy)):
+            raise ConfigError(f"{where}.rpy_rad: expected 3 finite angles, got {d.get('rpy_rad')!r}")
+        try:
+            return cls(d.get("position_m", (0.0, 0.0, 0.0)), pin.rpy.rpyToMatrix(*rpy),
+                       float(d.get("scale", 1.0)), float(d.get("force_scale", 1.0)),
+                       None if d.get("torque_scale") is None else float(d["torque_scale"]))
+        except (TypeError, ValueError) as exc:
+            raise ConfigError(f"{where}: {exc}") from None
+
+    # -- poses and twists -------------------------------------------------------------------
+    def point_to_patient(self, x_M) -> np.ndarray:
+        return self.X_PM_p + self.X_PM_R @ np.asarray(x_M, dtype=float) / self.scale
+
+    def point_to_master(self, x_P) -> np.ndarray:
+        return self.scale * (self.X_PM_R.T @ (np.asarray(x_P, dtype=float) - self.X_PM_p))
+
+    def target(self, p_r, R_r, v_r, w_r):
+        """Reference tool pose/twist in M -> slave tool target (p m, R, v m/s, w rad/s) in P."""
+        R = self.X_PM_R
+        return (self.point_to_patient(p_r), R @ np.asarray(R_r, float),
+                R @ np.asarray(v_r, float) / self.scale, R @ np.asarray(w_r, float))
+
+    def pose_to_master(self, p, R_P):
+        """Slave tool pose in P -> reference tool pose in M (the inverse of ``target``'s pose)."""
+        return self.point_to_master(p), self.X_PM_R.T @ np.asarray(R_P, float)
+
+    # -- constraints -----------------------------------------------------------------------
+    def constraint_to_master(self, c: C.Constraint) -> C.Constraint:
+        """The same constraint with its world geometry and lengths expressed in M."""
+        return _transform(c, self.point_to_master, self.X_PM_R.T, self.scale)
+
+    def constraint_to_patient(self, c: C.Constraint) -> C.Constraint:
+        """The inverse of ``constraint_to_master``."""
+        return _transform(c, self.point_to_patient, self.X_PM_R, 1.0 / self.scale)
+
+    # -- forces ------------------------------------------------------------------------------
+    def wrench_to_master(self, F_P) -> np.ndarray:
+        """Slave contact wrench (N, N*m; P axes) -> wrench to render at the master (M axes)."""
+        F_P = np.asarray(F_P, dtype=float)
+        out = np.empty(6)
+        out[:3] = self.force_scale * (self.X_PM_R.T @ F_P[:3])
+        out[3:] = self.torque_scale * (self.X_PM_R.T @ F_P[3:])
+        return out
+
+
+def _transform(c, point, Rot, length):
+    """Map constraint ``c``: world points via ``point``, world directions via ``Rot``, lengths and
+    body points times ``length``; body axes unchanged."""
+    if isinstance(c, C.PlaneHeight):
+        return replace(c, origin=point(c.origin), normal=Rot @ c.normal, height=c.height * length)
+    if isinstance(c, C.AxisInPlane):
+        return replace(c, normal=Rot @ c.normal)
+    if isinstance(c, C.RollingWithoutSlip):
+        return replace(c, radius=c.radius * length, normal=Rot @ c.normal)
+    if isinstance(c, C.SphereContact):
+        return replace(c, center=point(c.center), radius=c.radius * length)
+    if isinstance(c, C.PointDepth):
+        return replace(c, origin=point(c.origin), normal=Rot @ c.normal, depth=c.depth * length,
+                       point_B=c.point_B * length)
+    if isinstance(c, C.AxisAlong):
+        return replace(c, direction=Rot @ c.direction)
+    if isinstance(c, C.KnifeEdge):
+        return replace(c, point_B=c.point_B * length)
+    if isinstance(c, C.RemoteCenter):
+        return replace(c, center=point(c.center), point_B=c.point_B * length)
+    raise ConfigError(f"mapping.constraint: no mapping for constraint type {type(c).__name__!r}")

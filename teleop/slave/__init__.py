@@ -1,0 +1,11 @@
+"""The slave arm: Pinocchio model with the tool frame E, the QP follower, its limits and solvers."""
+
+from teleop.slave.arm import SlaveConfig, build_model
+from teleop.slave.limits import JointLimits
+from teleop.slave.qp import STATUSES, FollowerQP, SlaveArm, compute_target_twist
+from teleop.slave.solvers import installed_solvers, make_solver
+
+__all__ = [
+    "SlaveConfig", "SlaveArm", "FollowerQP", "JointLimits", "STATUSES", "build_model",
+    "compute_target_twist", "installed_solvers", "make_solver",
+]
