@@ -14,7 +14,7 @@ from pathlib import Path
 
 import numpy as np
 
-from teleop.scenario.build import build_tool
+from teleop.scenario.build import build_tool, master_fixture_spec
 from teleop.scenario.operators import make_operator
 from teleop.scenario.metrics import make_metrics
 from teleop.scenario.schema import Scene
@@ -77,14 +77,21 @@ def run_scene(scene: Scene, progress=None) -> RunResult:
     """Run a scene headless in simulated time. ``progress(i, n)`` is called now and then."""
     rng = np.random.default_rng(scene.seed)
     tool = build_tool(scene)
-    operator = make_operator(scene.operator, scene.fixture, scene.effects, rng)
+    operator = make_operator(scene.operator, master_fixture_spec(scene), scene.effects, rng)
     n = int(round(scene.duration_s / scene.dt_s))
-    metrics = make_metrics(scene.fixture, n, tool.body.mass_kg)
+    metrics = make_metrics(master_fixture_spec(scene), n, tool.body.mass_kg)
     log = {
         "t": np.zeros(n), "q_r": np.zeros((n, 6)), "q_v_p": np.zeros((n, 3)),
         "lam": np.zeros((n, tool.model.m)), "operator_W": np.zeros((n, 6)),
         "constraint_W": np.zeros((n, 6)), "tick_us": np.zeros(n),
     }
+    slave = None
+    if "slave" in scene.extra:
+        from teleop.slave.side import SlaveSide
+
+        slave = SlaveSide(scene, n)
+        slave.reset(*tool.pose())
+    contact = None
     status, steps, nan = "ok", 0, False
     with make_master(scene, tool, rng) as master:
         for i in range(n):
@@ -92,7 +99,9 @@ def run_scene(scene: Scene, progress=None) -> RunResult:
             p_v, R_v = master.virtual_pose()
             v_v, w_v = master.virtual_twist()
             wrench = operator.wrench(i * scene.dt_s, p_v, R_v, v_v, w_v)
-            st = master.step(wrench, None)
+            st = master.step(wrench, contact)
+            if slave is not None:
+                contact = slave.step(*master.virtual_pose(), *master.virtual_twist())
             t1 = time.perf_counter_ns()
             nan = nan or not (np.all(np.isfinite(tool.q)) and np.all(np.isfinite(p_v)))
             # the tick's state, the wrench applied over it and the constraint force it produced
@@ -113,6 +122,10 @@ def run_scene(scene: Scene, progress=None) -> RunResult:
         stats = master.stats()
     log = {k: v[:steps] for k, v in log.items()}
     log.update({f"m_{k}": v for k, v in metrics.trimmed().items()})
+    results = metrics.result()
+    if slave is not None:
+        log.update(slave.trimmed_log())
+        results.update(slave.result())
     ticks = log["tick_us"]
     summary = {
         "scenario": scene.name,
@@ -129,8 +142,10 @@ def run_scene(scene: Scene, progress=None) -> RunResult:
         "master": scene.master,
         "seed": scene.seed,
         "effects": list(scene.effects),
-        "metrics": metrics.result(),
+        "metrics": results,
         "engine": {"rank_min": int(tool.rank), "recharts": tool.recharts},
     }
+    if slave is not None:
+        summary["slave_statuses"] = slave.statuses
     summary.update(stats)
     return RunResult(summary, log)

@@ -12,6 +12,7 @@ import numpy as np
 
 from teleop.dynamics import constraints as C
 from teleop.dynamics import parametrizations as P
+from teleop.dynamics.rotations import EulerChart, axis_rotation
 from teleop.errors import ConfigError
 
 
@@ -22,6 +23,13 @@ class Fixture:
     name: str
     constraints: tuple
     parametrization: P.Parametrization | None
+    #: the Euler chart the tool's coordinates use when there is no parametrization to say it
+    chart: EulerChart | None = None
+
+    def initial_chart(self) -> EulerChart:
+        if self.parametrization is not None:
+            return self.parametrization.initial_chart()
+        return self.chart if self.chart is not None else EulerChart("ZYX")
 
     @property
     def rows(self) -> int:
@@ -37,7 +45,7 @@ class Fixture:
 
     def with_extra(self, *extra) -> "Fixture":
         """The same fixture with more rows (e.g. a duplicated row); keeps the parametrization."""
-        return Fixture(self.name, self.constraints + tuple(extra), self.parametrization)
+        return Fixture(self.name, self.constraints + tuple(extra), self.parametrization, self.chart)
 
 
 def free(sequence: str = "ZYX") -> Fixture:
@@ -86,3 +94,32 @@ def scalpel(
     if knife_edge:
         cons.append(C.KnifeEdge(point_B=tip_B, side_B=(0.0, 1.0, 0.0), name="knife_edge"))
     return Fixture("scalpel", tuple(cons), P.ScalpelPlane(plane_origin, n, depth, tip_B))
+
+
+def laparoscopic(
+    plane_origin=(0.0, 0.0, 0.0),
+    plane_normal=(0.0, 0.0, 1.0),
+    depth: float = 0.005,
+    tip_B=(0.0, 0.0, 0.0),
+    trocar=(0.0, 0.0, 0.075),
+    knife_edge: bool = True,
+) -> Fixture:
+    """A laparoscopic scalpel: the blade tip ``depth`` m below the tissue plane, the shaft (the body
+    z axis through the tip) through the trocar point (a remote centre of motion), and no sideways
+    slip. The blade tilts with the shaft, so there is no blade-normal row; no parametrization is
+    known, so use the 'projection', 'rk4' or 'lie_group' integrator."""
+    if not np.isfinite(depth) or depth < 0:
+        raise ConfigError(f"fixture.depth_m: expected a non-negative depth, got {depth}")
+    n = np.asarray(plane_normal, dtype=float)
+    n = n / np.linalg.norm(n)
+    if float(n @ (np.asarray(trocar, dtype=float) - np.asarray(plane_origin, dtype=float))) <= 0:
+        raise ConfigError("fixture.trocar_m: the trocar must lie above the tissue plane")
+    cons = [
+        C.PointDepth(origin=plane_origin, normal=n, depth=depth, point_B=tip_B, name="blade_depth"),
+        C.RemoteCenter(center=trocar, point_B=tip_B, axis_B=(0.0, 0.0, 1.0), name="trocar"),
+    ]
+    if knife_edge:
+        cons.append(C.KnifeEdge(point_B=tip_B, side_B=(0.0, 1.0, 0.0), name="knife_edge"))
+    # blade down: the same chart as the scalpel's (ZYX at R_plane Rx(pi)), far from its singularity
+    chart = EulerChart("ZYX", P.plane_frame(n) @ axis_rotation(0, np.pi))
+    return Fixture("laparoscopic", tuple(cons), None, chart)

@@ -56,7 +56,7 @@ class ReferenceTool:
         self.integrator = make_integrator(integrator) if isinstance(integrator, str) else integrator
         param = fixture.parametrization
         if chart is None:
-            chart = param.initial_chart() if param is not None else EulerChart("ZYX")
+            chart = fixture.initial_chart()
         self._rechartable = param is None or param.rechartable or not isinstance(
             self.integrator, Parametric
         )

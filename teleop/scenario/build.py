@@ -29,6 +29,8 @@ def build_fixture(spec: FixtureSpec) -> Fixture:
         return fixtures.rolling_disk(spec.radius_m, spec.plane_origin_m, spec.plane_normal)
     if spec.type == "sphere":
         return fixtures.sphere(spec.center_m, spec.radius_m)
+    if spec.type == "scalpel" and spec.trocar_m is not None:
+        return fixtures.laparoscopic(spec.plane_origin_m, spec.plane_normal, spec.depth_m, spec.tip_m, spec.trocar_m, spec.knife_edge)
     if spec.type == "scalpel":
         return fixtures.scalpel(spec.plane_origin_m, spec.plane_normal, spec.depth_m, spec.tip_m, spec.knife_edge)
     return fixtures.free(spec.euler_sequence)
@@ -48,12 +50,46 @@ def build_effects(scene: Scene, body: RigidBody) -> list:
     return effects
 
 
+def build_registration(scene: Scene):
+    """The master-to-patient mapping of a teleoperation scene (identity when it has no slave)."""
+    from teleop.control.mapping import Registration
+
+    d = {k: v for k, v in scene.extra.get("mapping", {}).items() if k != "feedback_cutoff_hz"}
+    try:
+        return Registration.from_dict(d, "mapping")
+    except ConfigError as e:
+        raise SceneError(scene.path, "mapping", str(e)) from None
+
+
+def master_fixture_spec(scene: Scene) -> FixtureSpec:
+    """The fixture as the master's reference tool sees it. With a slave, the scene's [fixture] is
+    written in the patient frame (where the tissue is) and is mapped into the master workspace by
+    the registration: points through the inverse map, normals rotated, lengths times the scale."""
+    spec = scene.fixture
+    if "slave" not in scene.extra:
+        return spec
+    from dataclasses import replace
+
+    reg = build_registration(scene)
+    Rt, k = reg.X_PM_R.T, reg.scale
+    mapped = dict(
+        plane_origin_m=tuple(reg.point_to_master(spec.plane_origin_m)),
+        plane_normal=tuple(Rt @ np.asarray(spec.plane_normal)),
+        center_m=tuple(reg.point_to_master(spec.center_m)),
+        radius_m=spec.radius_m * k, depth_m=spec.depth_m * k,
+        tip_m=tuple(k * np.asarray(spec.tip_m)),
+    )
+    if spec.trocar_m is not None:
+        mapped["trocar_m"] = tuple(reg.point_to_master(spec.trocar_m))
+    return replace(spec, **mapped)
+
+
 def build_tool(scene: Scene) -> ReferenceTool:
     """The reference tool of a scene, reset to its initial state (projected onto the fixture)."""
     body = build_body(scene)
     try:
         tool = ReferenceTool(
-            body, build_fixture(scene.fixture), build_effects(scene, body),
+            body, build_fixture(master_fixture_spec(scene)), build_effects(scene, body),
             integrator=scene.integrator, coriolis="coriolis" in scene.effects,
         )
         tool.reset(scene.tool.q0, scene.tool.qd0)

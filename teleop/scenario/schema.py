@@ -58,6 +58,7 @@ class FixtureSpec:
     depth_m: float = 0.005
     tip_m: tuple = (0.0, 0.0, 0.0)
     knife_edge: bool = True
+    trocar_m: tuple | None = None
     euler_sequence: str = "ZYX"
 
 
@@ -244,6 +245,7 @@ def _fixture(t: Table) -> FixtureSpec:
         kw["depth_m"] = t.take("depth_m", "float", 0.005, lambda x: x >= 0, "depth must be >= 0")
         kw["tip_m"] = t.take("tip_m", "vec3", (0.0, 0.0, 0.0))
         kw["knife_edge"] = t.take("knife_edge", "bool", True)
+        kw["trocar_m"] = t.take("trocar_m", "vec3", None)
     if ftype == "free":
         kw["euler_sequence"] = t.take("euler_sequence", "str", "ZYX")
     t.done()
