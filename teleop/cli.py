@@ -13,7 +13,7 @@ import sys
 
 from teleop.errors import TeleopError
 
-DEFAULT_SCENE = "scalpel_fixture"
+DEFAULT_SCENE = "straight_incision"
 
 
 def _progress(i: int, n: int) -> None:
