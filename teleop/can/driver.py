@@ -1,0 +1,232 @@
+"""Host-side driver of the cobot over any python-can bus (virtual, socketcan, pcan, ...).
+
+``read`` drains the bus and decodes frames into SI values; ``send_*`` encode and transmit. Every
+frame that fails its checksum, length, id or DBC range is rejected, counted by reason and logged;
+only finite, in-range values reach :attr:`joints_rad_m` and :attr:`wrench_S`. The watchdog latches a
+fault (``watchdog`` for stale feedback, ``heartbeat``, ``bus_off``, ``device_emergency``,
+``send_failed``); after a fault :meth:`send_command` sends zero velocity only.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+import time
+from collections import Counter
+
+import can
+import numpy as np
+
+from teleop.can.database import Decoded, FrameDatabase
+
+#: SocketCAN error-class bit for bus-off in an error frame's id.
+CAN_ERR_BUSOFF = 0x40
+JOINT_SIGNALS = ("PosX", "PosY", "PosZ", "AngA", "AngB", "AngC")
+WRENCH_SIGNALS = ("ForceX", "ForceY", "ForceZ", "TorqueX", "TorqueY", "TorqueZ")
+CMD_SIGNALS = ("CmdVelX", "CmdVelY", "CmdVelZ", "CmdRateA", "CmdRateB", "CmdRateC")
+REVOLUTE = slice(3, 6)
+
+
+def wrap_angle(a):
+    """Angle(s) wrapped to [-pi, pi) (rad)."""
+    return (np.asarray(a) + np.pi) % (2.0 * np.pi) - np.pi
+
+
+class CobotDriver:
+    """The host end of the link. ``clock()`` gives the time (s): simulated in lockstep runs.
+
+    stale_cycles: cycles without fresh joints or wrench that trip the watchdog.
+    heartbeat_period_s: host heartbeat period; heartbeat_timeout_s: device heartbeat timeout.
+    own_bus: shut the bus down in :meth:`close`.
+    """
+
+    def __init__(self, bus: can.BusABC, db: FrameDatabase | None = None, clock=time.monotonic,
+                 stale_cycles: int = 3, heartbeat_period_s: float = 0.01,
+                 heartbeat_timeout_s: float = 0.05, own_bus: bool = False):
+        self.bus, self.db, self.clock = bus, db or FrameDatabase(), clock
+        self.stale_cycles = int(stale_cycles)
+        self.hb_period, self.hb_timeout = float(heartbeat_period_s), float(heartbeat_timeout_s)
+        self.own_bus = own_bus
+        self.log = logging.getLogger(__name__)
+        self.joints_rad_m = np.zeros(6)  # 3 gantry positions (m), 3 unwrapped wrist angles (rad)
+        self.wrench_S = np.zeros(6)  # load cell (N, N*m) in the load-cell frame
+        self.joints_counter = self.wrench_counter = -1
+        self.fresh_joints = self.fresh_wrench = False
+        self.cycles_since_joints = self.cycles_since_wrench = 0
+        self.device_state = 0
+        self.last_device_hb_s: float | None = None
+        self.fault: str | None = None
+        self.rejected: Counter = Counter()
+        self.frames_rx = self.frames_late = self.send_errors = self.watchdog_trips = 0
+        self._sync = self._cmd = self._hb = 0
+        self._next_hb_s = -math.inf
+        self.started = self.closed = False
+
+    # -- life cycle ---------------------------------------------------------------------------------
+    def start(self, joints0_rad_m=None) -> None:
+        """Announce the host and seed the angle unwrapping with the expected joints (6,)."""
+        if joints0_rad_m is not None:
+            self.joints_rad_m = np.array(joints0_rad_m, dtype=float)
+        self.started = True
+        self.last_device_hb_s = self.clock()
+        self.send_heartbeat(force=True)
+
+    def close(self) -> None:
+        """Zero velocity, host state 0 and (if owned) bus shutdown; safe to call twice."""
+        if self.closed:
+            return
+        self.closed = True
+        if self.started:
+            self._send("HOST_CMD", self._cmd_signals(np.zeros(6), 0))
+            self._send("HOST_HEARTBEAT", {"HostState": 0, "HostHbCounter": self._hb % 256})
+        if self.own_bus:
+            self.bus.shutdown()
+
+    def __enter__(self):
+        self.start()
+        return self
+
+    def __exit__(self, *exc):
+        self.close()
+
+    # -- sending ------------------------------------------------------------------------------------
+    def _send(self, name: str, signals: dict) -> bool:
+        frame_id, data, fd = self.db.encode(name, signals)
+        msg = can.Message(arbitration_id=frame_id, data=data, is_extended_id=False, is_fd=fd,
+                          bitrate_switch=fd, timestamp=self.clock())
+        try:
+            self.bus.send(msg)
+            return True
+        except can.CanError as e:
+            self.send_errors += 1
+            self._trip("send_failed", f"send {name}: {e}")
+            return False
+
+    def send_sync(self) -> int:
+        """SYNC with the next counter; returns the counter (0..255)."""
+        c = self._sync % 256
+        self._sync += 1
+        self._send("SYNC", {"SyncCounter": c})
+        return c
+
+    def send_heartbeat(self, force: bool = False) -> None:
+        now = self.clock()
+        if force or now >= self._next_hb_s:
+            self._next_hb_s = now + self.hb_period - 1e-9
+            state = 2 if self.fault is None else 1
+            self._send("HOST_HEARTBEAT", {"HostState": state, "HostHbCounter": self._hb % 256})
+            self._hb += 1
+
+    def _cmd_signals(self, qd: np.ndarray, mode: int) -> dict:
+        sig = dict(zip(CMD_SIGNALS, (float(v) for v in qd)))
+        sig.update(CmdMode=mode, CmdCounter=self._cmd % 256)
+        return sig
+
+    def send_command(self, qd_cmd, limits=None) -> None:
+        """Joint velocity commands (6,: m/s x3, rad/s x3), clipped to ``limits`` (6,) and the DBC
+        range; zero velocity with mode 0 after a fault or for non-finite input."""
+        qd = np.asarray(qd_cmd, dtype=float)
+        mode = 1
+        if self.fault is not None or qd.shape != (6,) or not np.all(np.isfinite(qd)):
+            qd, mode = np.zeros(6), 0
+        dbc = np.array([0.99996] * 3 + [16.0] * 3)  # the HOST_CMD ranges
+        lim = dbc if limits is None else np.minimum(limits, dbc)
+        qd = np.clip(qd, -lim, lim)
+        self._send("HOST_CMD", self._cmd_signals(qd, mode))
+        self._cmd += 1
+
+    # -- receiving ----------------------------------------------------------------------------------
+    def read(self) -> int:
+        """Drain the bus without blocking; returns the number of valid frames decoded."""
+        n = 0
+        while True:
+            msg = self.bus.recv(timeout=0.0)
+            if msg is None:
+                break
+            self.frames_rx += 1
+            if msg.is_error_frame:
+                self.rejected["error_frame"] += 1
+                if msg.arbitration_id & CAN_ERR_BUSOFF:
+                    self._trip("bus_off", "error frame: bus-off")
+                continue
+            out = self.db.decode(msg.arbitration_id, bytes(msg.data), msg.timestamp)
+            if not isinstance(out, Decoded):
+                self.rejected[out.reason] += 1
+                level = logging.WARNING if sum(self.rejected.values()) <= 10 else logging.DEBUG
+                self.log.log(level, "rejected CAN frame 0x%03X: %s", out.frame_id, out.reason)
+                continue
+            n += 1
+            self._apply(out)
+        return n
+
+    @staticmethod
+    def _newer(counter: int, last: int) -> bool:
+        return last < 0 or 0 < (counter - last) % 256 < 128
+
+    def _from_future(self, counter: int) -> bool:
+        """A counter the host has not sent yet (a corrupted or foreign frame)."""
+        return self._sync == 0 or (self._sync - 1 - counter) % 256 >= 128
+
+    def _apply(self, d: Decoded) -> None:
+        s = d.signals
+        if d.name in ("DEV_JOINTS", "DEV_WRENCH"):
+            counter = int(s["JointsCounter" if d.name == "DEV_JOINTS" else "WrenchCounter"])
+            if self._from_future(counter):
+                self.rejected["counter"] += 1
+                return
+        if d.name == "DEV_JOINTS":
+            if not self._newer(int(s["JointsCounter"]), self.joints_counter):
+                self.frames_late += 1
+                return
+            meas = np.array([s[k] for k in JOINT_SIGNALS], dtype=float)
+            prev = self.joints_rad_m
+            meas[REVOLUTE] = prev[REVOLUTE] + wrap_angle(meas[REVOLUTE] - prev[REVOLUTE])
+            self.joints_rad_m = meas
+            self.joints_counter = int(s["JointsCounter"])
+            self.device_state = int(s["DevState"])
+            self.fresh_joints = True
+            self.cycles_since_joints = 0
+        elif d.name == "DEV_WRENCH":
+            if not self._newer(int(s["WrenchCounter"]), self.wrench_counter):
+                self.frames_late += 1
+                return
+            self.wrench_S = np.array([s[k] for k in WRENCH_SIGNALS], dtype=float)
+            self.wrench_counter = int(s["WrenchCounter"])
+            self.fresh_wrench = True
+            self.cycles_since_wrench = 0
+        elif d.name == "DEV_HEARTBEAT":
+            self.last_device_hb_s = self.clock()
+            self.device_state = int(s["DevHbState"])
+        elif d.name == "DEV_EMERGENCY" and int(s["EmcyCode"]) != 0:
+            self._trip("device_emergency", f"device emergency code {int(s['EmcyCode'])}")
+
+    # -- watchdog -----------------------------------------------------------------------------------
+    def end_cycle(self) -> str | None:
+        """Age the feedback by one cycle and check the watchdog; returns the latched fault or None."""
+        if not self.fresh_joints:
+            self.cycles_since_joints += 1
+        if not self.fresh_wrench:
+            self.cycles_since_wrench += 1
+        self.fresh_joints = self.fresh_wrench = False
+        if max(self.cycles_since_joints, self.cycles_since_wrench) >= self.stale_cycles:
+            self._trip("watchdog", f"no fresh feedback for {self.stale_cycles} cycles")
+        if self.last_device_hb_s is not None and self.clock() - self.last_device_hb_s > self.hb_timeout:
+            self._trip("heartbeat", f"no device heartbeat for {self.hb_timeout} s")
+        return self.fault
+
+    def _trip(self, fault: str, why: str) -> None:
+        if self.fault is None:
+            self.fault = fault
+            self.watchdog_trips += fault in ("watchdog", "heartbeat")
+            self.log.warning("cobot link fault latched: %s (%s)", fault, why)
+
+    def stats(self) -> dict:
+        return {
+            "can_frames_rx": self.frames_rx,
+            "can_frames_rejected": int(sum(self.rejected.values())),
+            "can_rejected_by_reason": dict(self.rejected),
+            "can_frames_late": self.frames_late,
+            "can_send_errors": self.send_errors,
+            "watchdog_trips": self.watchdog_trips,
+            "link_fault": self.fault,
+        }

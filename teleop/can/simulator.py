@@ -1,0 +1,174 @@
+"""The cobot as a node on a python-can bus, in simulated time.
+
+python-can's virtual bus delivers instantly, so the simulator keeps the wire's time itself: every
+frame, the host's and the device's, goes through a :class:`BusModel` (frame time at the bit rate,
+arbitration by id), then through the fault model (loss, corruption, latency, jitter, silence,
+bus-off), and the device's frames reach the host bus only when simulated time passes their delivery
+time. ``advance_to(t)`` is the lockstep: it processes everything up to t seconds.
+
+Device behaviour: on SYNC it samples encoders and load cell and answers DEV_JOINTS + DEV_WRENCH
+(counters echo the SYNC); HOST_CMD sets the servo velocities (mode 0 = zero); DEV_HEARTBEAT every
+``heartbeat_period_s``; without a host heartbeat for ``host_timeout_s`` or a command for
+``cmd_timeout_s`` the device zeroes its servos and sends DEV_EMERGENCY.
+"""
+
+from __future__ import annotations
+
+import heapq
+
+import can
+import numpy as np
+
+from teleop.can.busmodel import BusModel, BusTiming
+from teleop.can.capture import Capture
+from teleop.can.database import Decoded, FrameDatabase
+from teleop.can.driver import CAN_ERR_BUSOFF, CMD_SIGNALS, JOINT_SIGNALS, WRENCH_SIGNALS
+from teleop.can.faults import Faults
+
+STATE_READY, STATE_RUNNING, STATE_FAULT = 1, 2, 3
+WRENCH_LIMITS = np.array([159.9] * 3 + [6.49] * 3)
+
+
+class CobotSimulator:
+    """Plays ``device`` (a :class:`teleop.master.cobot.CobotDevice`) on ``bus``."""
+
+    def __init__(self, bus: can.BusABC, device, rng: np.random.Generator, db: FrameDatabase | None = None,
+                 timing: BusTiming | None = None, faults: Faults | None = None, capture: Capture | None = None,
+                 heartbeat_period_s: float = 0.01, host_timeout_s: float = 0.05, cmd_timeout_s: float = 0.02):
+        self.bus, self.device, self.rng = bus, device, rng
+        self.db = db or FrameDatabase()
+        self.wire = BusModel(timing or BusTiming())
+        self.faults = faults or Faults()
+        self.capture = capture
+        self.hb_period, self.host_timeout, self.cmd_timeout = heartbeat_period_s, host_timeout_s, cmd_timeout_s
+        self.t = 0.0
+        self.state = STATE_READY
+        self.bus_off = False
+        self.last_host_hb = self.last_cmd = 0.0
+        self._next_hb = 0.0
+        self._outbox: list = []
+        self._seq = 0
+        self._counters = {"hb": 0, "emcy": 0}
+        self.lost = self.corrupted = self.device_rejected = self.delivered = 0
+
+    # -- device transmissions -----------------------------------------------------------------------
+    def _transmitting(self, t: float) -> bool:
+        f = self.faults
+        return not self.bus_off and (f.silent_after_s is None or t < f.silent_after_s)
+
+    def _device_send(self, name: str, signals: dict, t: float) -> None:
+        if not self._transmitting(t):
+            return
+        if self.faults.loss_pct and self.rng.random() * 100.0 < self.faults.loss_pct:
+            self.lost += 1
+            return
+        fid, data, fd = self.db.encode(name, signals)
+        msg = can.Message(arbitration_id=fid, data=data, is_extended_id=False, is_fd=fd, bitrate_switch=fd)
+        self.wire.submit(t, fid, len(data), fd, ("device", msg))
+
+    def _emergency(self, code: int, t: float) -> None:
+        self._device_send("DEV_EMERGENCY", {"EmcyCode": code, "EmcyCounter": self._counters["emcy"] % 256}, t)
+        self._counters["emcy"] += 1
+
+    def _corrupt(self, msg: can.Message) -> can.Message:
+        data = bytearray(msg.data)
+        bit = int(self.rng.integers(0, 8 * len(data)))
+        data[bit // 8] ^= 1 << (bit % 8)
+        self.corrupted += 1
+        return can.Message(arbitration_id=msg.arbitration_id, data=bytes(data), is_extended_id=False,
+                           is_fd=msg.is_fd, bitrate_switch=msg.bitrate_switch)
+
+    # -- host frames at the device ------------------------------------------------------------------
+    def _on_host_frame(self, msg: can.Message, t: float) -> None:
+        if self.bus_off:
+            return
+        if self.faults.corrupt_pct and self.rng.random() * 100.0 < self.faults.corrupt_pct:
+            msg = self._corrupt(msg)
+        d = self.db.decode(msg.arbitration_id, bytes(msg.data), t)
+        if not isinstance(d, Decoded):
+            self.device_rejected += 1
+            return
+        s, dev = d.signals, self.device
+        if d.name == "SYNC":
+            dev.advance_to(t)
+            c = int(s["SyncCounter"])
+            enc = dev.sample_encoders()
+            wrench = np.clip(dev.sample_load_cell(), -WRENCH_LIMITS, WRENCH_LIMITS)  # the cell saturates
+            joints = dict(zip(JOINT_SIGNALS, (float(v) for v in enc)))
+            joints.update(DevState=self.state, JointsCounter=c)
+            self._device_send("DEV_JOINTS", joints, t)
+            w = dict(zip(WRENCH_SIGNALS, (float(v) for v in wrench)))
+            w["WrenchCounter"] = c
+            self._device_send("DEV_WRENCH", w, t)
+        elif d.name == "HOST_CMD":
+            self.last_cmd = t
+            run = int(s["CmdMode"]) == 1 and self.state != STATE_FAULT
+            dev.set_command([s[k] for k in CMD_SIGNALS] if run else np.zeros(6), t)
+            if self.state == STATE_READY and run:
+                self.state = STATE_RUNNING
+        elif d.name == "HOST_HEARTBEAT":
+            self.last_host_hb = t
+            if int(s["HostState"]) == 0 and self.state == STATE_RUNNING:
+                dev.set_command(np.zeros(6), t)
+                self.state = STATE_READY
+
+    # -- lockstep -----------------------------------------------------------------------------------
+    def advance_to(self, t_end: float) -> None:
+        """Process bus traffic and device physics up to t_end (s, simulated)."""
+        f = self.faults
+        while (msg := self.bus.recv(timeout=0.0)) is not None:
+            if msg.is_error_frame:
+                continue
+            if f.loss_pct and self.rng.random() * 100.0 < f.loss_pct:
+                self.lost += 1
+                continue
+            self.wire.submit(max(msg.timestamp, self.t), msg.arbitration_id, len(msg.data), msg.is_fd, ("host", msg))
+        if f.bus_off_at_s is not None and not self.bus_off and t_end >= f.bus_off_at_s:
+            self.bus_off = True
+            err = can.Message(arbitration_id=CAN_ERR_BUSOFF, is_error_frame=True, data=bytes(8), is_extended_id=False)
+            heapq.heappush(self._outbox, (f.bus_off_at_s, self._seq, err))
+            self._seq += 1
+        while self._next_hb <= t_end:
+            hb = {"DevHbState": self.state, "DevHbFault": 0, "DevHbCounter": self._counters["hb"] % 256}
+            self._device_send("DEV_HEARTBEAT", hb, self._next_hb)
+            self._counters["hb"] += 1
+            self._next_hb += self.hb_period
+        while (done := self.wire.next_done(t_end)) is not None:
+            t_done, (src, msg) = done
+            if self.capture is not None:
+                self.capture.write(msg, t_done)
+            if src == "host":
+                self._on_host_frame(msg, t_done)
+                continue
+            if f.corrupt_pct and self.rng.random() * 100.0 < f.corrupt_pct:
+                msg = self._corrupt(msg)
+            delay = 1e-3 * (f.latency_ms + f.jitter_ms * self.rng.random())
+            heapq.heappush(self._outbox, (t_done + delay, self._seq, msg))
+            self._seq += 1
+        while self._outbox and self._outbox[0][0] <= t_end:
+            t_deliver, _, msg = heapq.heappop(self._outbox)
+            msg.timestamp = t_deliver
+            self.bus.send(msg)
+            self.delivered += 1
+        self._check_timeouts(t_end)
+        self.device.advance_to(t_end)
+        self.t = t_end
+
+    def _check_timeouts(self, t: float) -> None:
+        if self.state == STATE_RUNNING and t - self.last_host_hb > self.host_timeout:
+            self.device.set_command(np.zeros(6), t)
+            self.state = STATE_FAULT
+            self._emergency(1, t)
+        elif self.state == STATE_RUNNING and t - self.last_cmd > self.cmd_timeout:
+            self.device.set_command(np.zeros(6), t)
+            self.state = STATE_READY
+            self._emergency(2, t)
+
+    def stats(self) -> dict:
+        return {
+            "can_bus_load_pct": self.wire.load_pct(self.t),
+            "can_frames_on_wire": self.wire.frames,
+            "can_frames_lost": self.lost,
+            "can_frames_corrupted": self.corrupted,
+            "device_frames_rejected": self.device_rejected,
+        }

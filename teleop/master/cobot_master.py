@@ -1,0 +1,295 @@
+"""CobotMaster: the whole master chain in lockstep simulated time.
+
+One ``step``: SYNC -> the simulated device samples encoders and load cell -> frames cross the
+modelled wire -> the driver decodes them -> the load-cell wrench, its distal handle mass removed,
+goes through φ to the tool (eq. 4) -> the reference tool steps -> PID on q_r - q_v (eqs. 18-19)
+-> the acceleration back through φ and the device Jacobian (damped least squares) -> joint
+velocity commands on the bus -> the device's servos run to the end of the period.
+
+Late or lost feedback: each measurement carries the SYNC counter it answers, and the host keeps the
+handle pose its own commands predict for every cycle, so an old measurement is carried forward by
+the commanded motion since (a Smith-predictor style estimate) instead of being compared with today's
+reference. Frames of the device arrive only through the bus: a user with hardware changes
+``interface`` and ``channel`` and runs the driver without the simulator.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+import time
+import uuid
+
+import can
+import numpy as np
+import pinocchio as pin
+
+from teleop.can import BusTiming, Capture, CobotDriver, CobotSimulator, FrameDatabase, compute_cycle_load_pct
+from teleop.control.admittance import AdmittanceController, AdmittanceGains, Phi
+from teleop.control.clutch import Clutch
+from teleop.master.cobot import CobotDevice, CobotModel, DeviceParams
+from teleop.master.config import CobotConfig
+
+HISTORY = 256  # the SYNC counter's range
+
+
+def compute_dls(J: np.ndarray, twist: np.ndarray, sigma0: float = 0.05, lam0: float = 0.02) -> np.ndarray:
+    """Joint rates (6,) for a handle twist (6,) by damped least squares: no damping while the
+    smallest singular value exceeds sigma0, then damping rising to lam0 at the singularity."""
+    U, S, Vt = np.linalg.svd(J)
+    smin = S[-1]
+    lam2 = 0.0 if smin >= sigma0 else lam0 * lam0 * (1.0 - (smin / sigma0) ** 2)
+    return Vt.T @ ((S / (S * S + lam2)) * (U.T @ twist))
+
+
+class CobotMaster:
+    """The simulated cobot behind the runtime's master interface (see module docstring)."""
+
+    def __init__(self, tool, cfg: CobotConfig, dt_s: float, rng: np.random.Generator):
+        self.tool, self.cfg, self.dt, self.rng = tool, cfg, float(dt_s), rng
+        self.log = logging.getLogger(__name__)
+        self.model = CobotModel()
+        R_off = pin.exp3(np.array(cfg.offset_rotvec_rad))
+        self.clutch = Clutch(Phi(cfg.scale, np.array(cfg.offset_m), R_off))
+        gains = AdmittanceGains(cfg.kp, cfg.ki, cfg.kd, cfg.integral_limit,
+                                max_velocity=self._virtual_velocity_limit(cfg))
+        self.ctrl = AdmittanceController(gains, self.dt)
+        p_r, R_r = tool.pose()
+        p_H, R_H = self.clutch.phi.compute_handle_pose(p_r, R_r)
+        joints0 = self.model.compute_joints(p_H, R_H)
+        params = DeviceParams(cfg.servo_bandwidth_hz, cfg.max_velocity, cfg.max_acceleration, cfg.encoder_m,
+                              cfg.encoder_rad, cfg.force_noise_N, cfg.torque_noise_Nm, cfg.force_bias_N,
+                              cfg.torque_bias_Nm)
+        self.device = CobotDevice(self.model, params, joints0, rng)
+        self.tau_s = self.device.tau_s
+        self.vmax = np.array(cfg.max_velocity)
+        self.timing = BusTiming(cfg.bitrate_bps, cfg.data_bitrate_bps, cfg.fd)
+        self.db = FrameDatabase()
+        self.budget_load_pct = compute_cycle_load_pct(
+            self.timing, [(2, True, 1), (16, True, 1), (16, True, 1), (16, True, 1),
+                          (3, True, round(cfg.heartbeat_period_s / dt_s)), (4, True, round(cfg.heartbeat_period_s / dt_s))],
+            self.dt)
+        channel = cfg.channel or f"teleop-cobot-{uuid.uuid4().hex}"
+        self.host_bus = can.Bus(interface=cfg.interface, channel=channel, fd=True, preserve_timestamps=True) \
+            if cfg.interface == "virtual" else can.Bus(interface=cfg.interface, channel=channel, fd=True)
+        self.dev_bus = can.Bus(interface="virtual", channel=channel, fd=True, preserve_timestamps=True) \
+            if cfg.interface == "virtual" else None
+        self.capture = Capture(cfg.capture_path) if cfg.capture_path else None
+        self.t = 0.0  # simulated time of the link, s
+        self.driver = CobotDriver(self.host_bus, self.db, clock=lambda: self.t, stale_cycles=cfg.stale_cycles,
+                                  heartbeat_period_s=cfg.heartbeat_period_s,
+                                  heartbeat_timeout_s=cfg.heartbeat_timeout_s, own_bus=True)
+        self.sim = None if self.dev_bus is None else CobotSimulator(
+            self.dev_bus, self.device, rng, self.db, self.timing, cfg.faults, self.capture,
+            heartbeat_period_s=cfg.heartbeat_period_s)
+        self.joints0 = joints0
+        self.bias_S = np.zeros(6)
+        self.qd_est = np.zeros(6)  # host-side servo model of the joint rates
+        self.nu_H_cmd = np.zeros(6)
+        self.accel_H_cmd = np.zeros(6)
+        self.pred_p = np.zeros((HISTORY, 3))
+        self.pred_R = np.tile(np.eye(3), (HISTORY, 1, 1))
+        self.p_H_est, self.R_H_est = p_H, R_H
+        self.counter = 0
+        self.status = "ok"
+        self.err_max = np.zeros(2)
+        self.steps = 0
+        self.closed = self.entered = False
+        self._wall0 = None
+
+    @staticmethod
+    def _virtual_velocity_limit(cfg):
+        v = np.array(cfg.max_velocity)
+        return tuple(np.concatenate([v[:3] * cfg.scale, v[3:]]))
+
+    # -- life cycle ---------------------------------------------------------------------------------
+    def __enter__(self):
+        self.start()
+        return self
+
+    def __exit__(self, *exc):
+        self.close()
+
+    def start(self) -> None:
+        """Open the link, wait for the first feedback and tare the load cell (tare_cycles periods)."""
+        if self.entered:
+            return
+        self.entered = True
+        self.driver.start(self.joints0)
+        samples = []
+        for _ in range(self.cfg.tare_cycles + 200):
+            self._link_cycle_begin()
+            if self.driver.fresh_wrench:
+                samples.append(self.driver.wrench_S.copy())
+            self.driver.fresh_joints = self.driver.fresh_wrench = False
+            self.driver.send_command(np.zeros(6))
+            self._link_cycle_end()
+            if len(samples) >= self.cfg.tare_cycles:
+                break
+        if len(samples) < self.cfg.tare_cycles:
+            self.status = "startup_timeout"
+            return
+        p_H, R_H = self.model.compute_handle_pose(self.driver.joints_rad_m)
+        static = self.model.compute_distal_wrench_W(R_H, np.zeros(3), np.zeros(3), np.zeros(3))
+        self.bias_S = np.mean(samples, axis=0) - np.concatenate([R_H.T @ static[:3], R_H.T @ static[3:]])
+        self.driver.cycles_since_joints = self.driver.cycles_since_wrench = 0
+        self.pred_p[:], self.pred_R[:] = p_H, R_H
+        self._wall0 = time.perf_counter()
+        self.steps = 0
+
+    def close(self) -> None:
+        """Zero velocity and release the buses and the capture; safe to call twice."""
+        if self.closed:
+            return
+        self.closed = True
+        self.driver.close()
+        if self.sim is not None:
+            self.sim.advance_to(self.t + self.dt)
+        if self.dev_bus is not None:
+            self.dev_bus.shutdown()
+        if self.capture is not None:
+            self.capture.close()
+
+    # -- the lockstep link --------------------------------------------------------------------------
+    def _link_cycle_begin(self) -> int:
+        c = self.driver.send_sync()
+        self.driver.send_heartbeat()
+        self.t += self.cfg.read_window_s
+        if self.sim is not None:
+            self.sim.advance_to(self.t)
+        self.driver.read()
+        return c
+
+    def _link_cycle_end(self) -> None:
+        self.t += self.dt - self.cfg.read_window_s
+        if self.sim is not None:
+            self.sim.advance_to(self.t)
+        if self.cfg.realtime and self._wall0 is not None:
+            lag = self._wall0 + (self.steps + 1) * self.dt - time.perf_counter()
+            if lag > 0:
+                time.sleep(lag)
+
+    # -- one period ---------------------------------------------------------------------------------
+    def step(self, hand_wrench_W, contact_wrench_W=None) -> str:
+        """One control period (see the module docstring); never raises. Returns "ok" or a fault."""
+        try:
+            return self._step(hand_wrench_W, contact_wrench_W)
+        except Exception as e:  # the loop must survive anything: hold the device, report
+            self.log.exception("cobot master step failed")
+            self.status = f"internal_error:{type(e).__name__}"
+            self.driver.fault = self.driver.fault or "internal_error"
+            self.driver.send_command(np.zeros(6))
+            return self.status
+
+    def _step(self, hand_wrench_W, contact_wrench_W) -> str:
+        if self.status != "ok" and self.status.startswith(("startup", "internal")):
+            return self.status
+        phi, drv = self.clutch.phi, self.driver
+        hand = np.nan_to_num(np.asarray(hand_wrench_W, dtype=float), nan=0.0, posinf=0.0, neginf=0.0)
+        self.device.hand_wrench_W = phi.wrench_to_handle(hand)
+        k = self._link_cycle_begin()
+        fault = drv.end_cycle()
+        if fault is not None:
+            drv.send_command(np.zeros(6))
+            self._advance_prediction(k, np.zeros(6))
+            self._link_cycle_end()
+            self.status = fault
+            return fault
+        joints = drv.joints_rad_m
+        p_m, R_m = self.model.compute_handle_pose(joints)
+        J = self.model.compute_jacobian(joints)
+        # carry the measurement (cycle j) forward by the commanded motion since
+        j = drv.joints_counter
+        self.p_H_est = p_m + self.pred_p[k] - self.pred_p[j]
+        self.R_H_est = self.pred_R[k] @ self.pred_R[j].T @ R_m
+        F_hand_W = self._hand_wrench_W(R_m)
+        if self.clutch.engaged:
+            nu_H, a_H, st = self._admittance(phi, F_hand_W, contact_wrench_W)
+        else:
+            nu_H = np.clip(F_hand_W / np.array(self.cfg.free_damping), -self.vmax, self.vmax)
+            a_H, st = (nu_H - self.nu_H_cmd) / self.dt, "ok"
+        qd = compute_dls(J, nu_H + self.tau_s * a_H)
+        qd = self._workspace_limit(joints, qd)
+        drv.send_command(qd, self.vmax)
+        self.qd_est += (1.0 - math.exp(-self.dt / self.tau_s)) * (np.clip(qd, -self.vmax, self.vmax) - self.qd_est)
+        self.nu_H_cmd, self.accel_H_cmd = nu_H, a_H
+        self._advance_prediction(k, nu_H)
+        self._link_cycle_end()
+        self.steps += 1
+        self.status = st
+        return st
+
+    def _hand_wrench_W(self, R_H) -> np.ndarray:
+        """The hand's wrench at H (world): load cell minus tare, minus the distal handle's weight
+        and inertia (at the commanded motion), saturated."""
+        meas = self.driver.wrench_S - self.bias_S
+        nu, a = self.nu_H_cmd, self.accel_H_cmd
+        distal = self.model.compute_distal_wrench_W(R_H, nu[3:], a[:3], a[3:])
+        F = np.concatenate([R_H @ meas[:3], R_H @ meas[3:]]) - distal
+        for sl, lim in ((slice(0, 3), self.cfg.max_force_N), (slice(3, 6), self.cfg.max_torque_Nm)):
+            n = float(np.linalg.norm(F[sl]))
+            if n > lim:
+                F[sl] *= lim / n
+        return F
+
+    def _admittance(self, phi, F_hand_W, contact_wrench_W):
+        tool = self.tool
+        f_v = phi.wrench_to_virtual(F_hand_W)  # eq. 4
+        if contact_wrench_W is not None:
+            f_v = f_v + np.nan_to_num(np.asarray(contact_wrench_W, dtype=float))
+        p_r, R_r = tool.pose()
+        v_r, w_r = tool.twist()
+        p_v, R_v = phi.compute_virtual_pose(self.p_H_est, self.R_H_est)
+        e = np.concatenate([p_r - p_v, pin.log3(R_r @ R_v.T)])
+        self.err_max = np.maximum(self.err_max, [np.linalg.norm(e[:3]), np.linalg.norm(e[3:])])
+        st = tool.step(self.dt, f_v)
+        nu_V, a_V = self.ctrl.step(p_r, R_r, np.concatenate([v_r, w_r]), tool.acceleration_W, p_v, R_v)
+        return phi.twist_to_handle(nu_V), phi.twist_to_handle(a_V), st
+
+    def _workspace_limit(self, joints, qd) -> np.ndarray:
+        m = self.cfg.workspace_margin_m
+        out = (joints > self.model.upper - m) & (qd > 0) | (joints < self.model.lower + m) & (qd < 0)
+        return np.where(out, 0.0, qd)
+
+    def _advance_prediction(self, k: int, nu_H) -> None:
+        n = (k + 1) % HISTORY
+        self.pred_p[n] = self.pred_p[k] + nu_H[:3] * self.dt
+        self.pred_R[n] = pin.exp3(nu_H[3:] * self.dt) @ self.pred_R[k]
+
+    # -- clutch -------------------------------------------------------------------------------------
+    def set_clutch(self, engaged: bool) -> None:
+        """Release: the tool holds, the handle follows the hand. Engage: φ re-indexed, no jump."""
+        if not engaged:
+            self.clutch.release()
+            return
+        if not self.clutch.engaged:
+            p_r, R_r = self.tool.pose()
+            self.clutch.engage(self.p_H_est, self.R_H_est, p_r, R_r)
+            v, w = self.tool.twist()
+            self.ctrl.reset(np.concatenate([v, w]))
+
+    # -- read-outs ----------------------------------------------------------------------------------
+    def virtual_pose(self):
+        """q_v = φ(x) from the encoder readings: (p (3,) m, R (3, 3))."""
+        p_H, R_H = self.model.compute_handle_pose(self.driver.joints_rad_m)
+        return self.clutch.phi.compute_virtual_pose(p_H, R_H)
+
+    def virtual_twist(self):
+        """(v (3,) m/s, w (3,) rad/s) of the virtual tool: the device Jacobian at the encoder
+        reading times the host's servo-model estimate of the joint rates, through φ."""
+        nu = self.clutch.phi.twist_to_virtual(self.model.compute_jacobian(self.driver.joints_rad_m) @ self.qd_est)
+        return nu[:3], nu[3:]
+
+    def stats(self) -> dict:
+        out = {"can_bus_load_pct": 0.0, "can_frames_lost": 0}
+        if self.sim is not None:
+            out.update(self.sim.stats())
+        out.update(self.driver.stats())
+        out.update({
+            "can_bus_load_budget_pct": self.budget_load_pct,
+            "master_steps": self.steps,
+            "tracking_error_max_m": float(self.err_max[0]),
+            "tracking_error_max_rad": float(self.err_max[1]),
+            "master_status": self.status,
+        })
+        return out

@@ -1,0 +1,75 @@
+"""Fault matrix: loss, latency + jitter, corruption keep the virtual tool within 200 um and finite;
+a silent device trips the watchdog within 3 cycles and the device is commanded to zero velocity;
+bus-off is reported."""
+
+import numpy as np
+import pytest
+
+from teleop.dynamics import fixtures
+from teleop.dynamics.body import RigidBody
+from teleop.dynamics.effects import AngularDamper, LinearDamper
+from teleop.dynamics.tool import ReferenceTool
+from teleop.master import CobotConfig, CobotMaster
+
+
+def sphere_tool():
+    tool = ReferenceTool(RigidBody(0.25, [0.0025] * 3), fixtures.sphere((0, 0, 0), 0.05),
+                         [LinearDamper(1.0), AngularDamper(0.1)], integrator="parametric")
+    tool.reset([0, -0.05, 0, 0, np.pi / 2, 0])
+    return tool
+
+
+def push(t, R):
+    w = np.zeros(6)
+    w[:3] = R @ ([2.0, 0.0, 0.0] if t < 0.8 else [3.0, 1.0, -35.0 * min(1.0, (t - 0.8) / 0.3)])
+    return w
+
+
+def run(faults, n, stale_cycles=3):
+    tool = sphere_tool()
+    cfg = CobotConfig.from_dict({"faults": faults, "stale_cycles": stale_cycles}, "cobot")
+    m = CobotMaster(tool, cfg, 1e-3, np.random.default_rng(11))
+    dev, statuses = 0.0, []
+    with m:
+        for i in range(n):
+            st = m.step(push(i * 1e-3, m.virtual_pose()[1]), None)
+            statuses.append(st)
+            p, _ = m.virtual_pose()
+            v, w = m.virtual_twist()
+            assert np.all(np.isfinite(p)) and np.all(np.isfinite(v)) and np.all(np.isfinite(w))
+            dev = max(dev, abs(np.linalg.norm(p) - 0.05))  # sphere deviation of the virtual tool
+            if st != "ok":
+                break
+    return statuses, dev, m.stats(), m
+
+
+@pytest.mark.parametrize("faults, stale", [
+    ({"loss_pct": 5.0}, 6),
+    ({"latency_ms": 2.0, "jitter_ms": 1.0}, 6),
+    ({"corrupt_pct": 5.0}, 6),
+    ({"loss_pct": 5.0, "latency_ms": 2.0, "jitter_ms": 1.0, "corrupt_pct": 2.0}, 8),
+])
+def test_degraded_link_stays_accurate(faults, stale):
+    statuses, dev, stats, _ = run(faults, 1600, stale)
+    print(f"\n{faults}: sphere deviation {dev * 1e6:.1f} um, tracking {stats['tracking_error_max_m'] * 1e6:.1f} um, lost {stats['can_frames_lost']}, "
+          f"rejected {stats['can_frames_rejected']}")
+    assert set(statuses) == {"ok"}
+    assert dev < 200e-6 and stats["tracking_error_max_m"] < 200e-6
+    if faults.get("loss_pct"):
+        assert stats["can_frames_lost"] > 0
+    if faults.get("corrupt_pct"):
+        assert stats["can_frames_rejected"] + stats["device_frames_rejected"] > 0
+
+
+def test_silent_device_trips_watchdog_within_three_cycles():
+    statuses, _, stats, m = run({"silent_after_s": 0.25}, 600)
+    # the link clock starts after the start-up tare; find the first step after the device fell silent
+    assert statuses[-1] == "watchdog" and stats["watchdog_trips"] == 1
+    silent_step = next(i for i, _ in enumerate(statuses) if m.cfg.tare_cycles * 1e-3 + i * 1e-3 >= 0.25)
+    assert len(statuses) - 1 - silent_step <= 3
+    assert np.all(m.device.qd_cmd == 0.0)  # zero velocity reached the device (it keeps listening)
+
+
+def test_bus_off_is_reported():
+    statuses, _, stats, m = run({"bus_off_at_s": 0.1}, 300)
+    assert statuses[-1] == "bus_off" and stats["link_fault"] == "bus_off"

@@ -1,0 +1,29 @@
+"""CobotConfig: defaults, validation naming the key and the reason."""
+
+import pytest
+
+from teleop.can.faults import Faults
+from teleop.errors import ConfigError
+from teleop.master import CobotConfig
+
+
+def test_defaults():
+    cfg = CobotConfig.from_dict({}, "master")
+    assert cfg.scale == 1.0 and cfg.capture_path is None and cfg.realtime is False
+    assert cfg.kp == (40000.0,) * 6 and isinstance(cfg.faults, Faults) and cfg.fd
+
+
+def test_vectors_and_faults():
+    cfg = CobotConfig.from_dict({"kp": [1e4, 1e4, 1e4, 2e4, 2e4, 2e4], "faults": {"loss_pct": 5}}, "m")
+    assert cfg.kp[3] == 2e4 and cfg.faults.loss_pct == 5.0
+
+
+@pytest.mark.parametrize("d, key, why", [
+    ({"scael": 1}, "scael", "unknown"), ({"scale": 0}, "scale", "expected"), ({"kp": [1, 2]}, "kp", "6 finite"),
+    ({"stale_cycles": 2.5}, "stale_cycles", "integer"), ({"fd": False}, "fd", "CAN FD"),
+    ({"faults": {"loss_pct": -1}}, "faults.loss_pct", "expected"), ({"realtime": "yes"}, "realtime", "true or false"),
+    ({"encoder_m": float("nan")}, "encoder_m", "expected"),
+])
+def test_errors_name_where_and_key(d, key, why):
+    with pytest.raises(ConfigError, match=rf"^scene\.cobot\.{key}: .*{why}"):
+        CobotConfig.from_dict(d, "scene.cobot")

@@ -1,0 +1,91 @@
+"""Master tick benchmark: driver decode + engine step + controller + encode, per 1 kHz cycle,
+WITHOUT the device simulation (its frames are pre-recorded from a lockstep run and replayed).
+
+    python tools/master_bench.py [--steps N]
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import time
+import uuid
+
+import can
+import numpy as np
+
+
+def _disk_tool():
+    from teleop.dynamics import fixtures
+    from teleop.dynamics.body import RigidBody
+    from teleop.dynamics.effects import AngularDamper, LinearDamper
+    from teleop.dynamics.tool import ReferenceTool
+
+    tool = ReferenceTool(RigidBody(0.25, [0.0025] * 3), fixtures.rolling_disk(0.03),
+                         [LinearDamper(1.0), AngularDamper(0.1)], integrator="parametric")
+    tool.reset([0, 0, 0.03, 0, np.pi / 2, 0])
+    return tool
+
+
+def _record_feedback(n: int):
+    """Device frames (joints, wrench) of a lockstep run, one pair per cycle."""
+    from teleop.master import CobotConfig, CobotMaster
+
+    m = CobotMaster(_disk_tool(), CobotConfig.from_dict({}, "bench"), 1e-3, np.random.default_rng(0))
+    frames = []
+    with m:
+        for i in range(n):
+            m.step(np.array([3.0 * np.cos(i * 1e-3), 0.5, 0, 0, 0, 0.02]))
+            frames.append((m.driver.joints_rad_m.copy(), m.driver.wrench_S.copy()))
+    return m, frames
+
+
+def measure(n_steps: int = 5000) -> dict:
+    """{"master_tick_us": {"median", "p99"}}: one host cycle (decode 2 frames, engine step, PID,
+    Jacobian + DLS, encode and send SYNC and the command) on a virtual bus with no simulator."""
+    from teleop.can import FrameDatabase
+    from teleop.master import CobotConfig, CobotMaster
+
+    ref, frames = _record_feedback(min(n_steps, 2000))
+    db = FrameDatabase()
+    m = CobotMaster(_disk_tool(), CobotConfig.from_dict({}, "bench"), 1e-3, np.random.default_rng(0))
+    m.sim = None  # the host alone: the feedback comes from the replay bus below
+    m.bias_S, m.driver.joints_rad_m = ref.bias_S, frames[0][0].copy()
+    m.driver.start(m.joints0)
+    m.pred_p[:], m.pred_R[:] = m.p_H_est, m.R_H_est
+    ch = f"bench-{uuid.uuid4().hex}"
+    m.driver.bus = can.Bus(interface="virtual", channel=ch, fd=True, preserve_timestamps=True)
+    replay = can.Bus(interface="virtual", channel=ch, fd=True, preserve_timestamps=True)
+    samples = np.empty(n_steps)
+    wrench_in = np.array([1.0, 0.2, 0, 0, 0, 0.01])
+    for i in range(n_steps):
+        joints, wrench = frames[i % len(frames)]
+        c = m.driver._sync % 256
+        for name, sig in (("DEV_JOINTS", dict(zip(("PosX", "PosY", "PosZ", "AngA", "AngB", "AngC"),
+                                                   np.clip(np.r_[joints[:3], (joints[3:] + np.pi) % (2 * np.pi) - np.pi], -0.79, 3.14)),
+                                               DevState=2, JointsCounter=c)),
+                          ("DEV_WRENCH", dict(zip(("ForceX", "ForceY", "ForceZ", "TorqueX", "TorqueY", "TorqueZ"), wrench),
+                                              WrenchCounter=c))):
+            fid, data, fd = db.encode(name, sig)
+            replay.send(can.Message(arbitration_id=fid, data=data, is_fd=fd, is_extended_id=False))
+        t0 = time.perf_counter_ns()
+        m.step(wrench_in, None)  # SYNC + read/decode + engine + controller + command encode/send
+        samples[i] = (time.perf_counter_ns() - t0) * 1e-3
+        while replay.recv(timeout=0.0) is not None:  # drain the host's frames (not timed)
+            pass
+        m.driver.last_device_hb_s = m.t
+    replay.shutdown()
+    m.close()
+    return {"master_tick_us": {"median": round(float(np.median(samples)), 1),
+                               "p99": round(float(np.percentile(samples, 99)), 1)},
+            "status": m.status, "steps": n_steps}
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--steps", type=int, default=5000)
+    print(json.dumps(measure(ap.parse_args().steps), indent=2))
+
+
+if __name__ == "__main__":
+    main()
