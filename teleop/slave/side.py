@@ -65,10 +65,34 @@ class SlaveSide:
         p, R, _, _ = self.reg.target(p_v, R_v, np.zeros(3), np.zeros(3))
         return self.arm.reset((p, R))
 
+    def project_target(self, p, R, v, w):
+        """The target moved onto the patient-frame fixture: Newton steps on the holonomic rows
+        (minimum-norm twist corrections, retraction by exp), then the twist onto every row. The
+        virtual tool carries the device's tracking error (tens of um, mrad); the slave follows its
+        closest admissible pose instead of fighting its own fixture rows."""
+        import pinocchio as pin
+
+        from teleop.dynamics.constraints import stack_jacobian, stack_residual
+
+        hol = [c for c in self.constraints if c.holonomic]
+        for _ in range(3 if hol else 0):
+            h = stack_residual(hol, p, R)
+            if float(np.abs(h).max()) < 1e-12:
+                break
+            G = stack_jacobian(hol, p, R)
+            d = -np.linalg.lstsq(G, h, rcond=None)[0]
+            p, R = p + d[:3], pin.exp3(d[3:]) @ R
+        if self.constraints:
+            G = stack_jacobian(self.constraints, p, R)
+            nu = np.concatenate([v, w])
+            nu = nu - np.linalg.lstsq(G, G @ nu, rcond=None)[0]
+            v, w = nu[:3], nu[3:]
+        return p, R, v, w
+
     def step(self, p_v, R_v, v_v, w_v) -> np.ndarray:
-        """One tick toward the mapped virtual tool; returns the contact wrench for the master (6,),
-        world of the master, at the master tool's origin."""
-        p_t, R_t, v_t, w_t = self.reg.target(p_v, R_v, v_v, w_v)
+        """One tick toward the mapped virtual tool (projected onto the fixture); returns the contact
+        wrench for the master (6,), world of the master, at the master tool's origin."""
+        p_t, R_t, v_t, w_t = self.project_target(*self.reg.target(p_v, R_v, v_v, w_v))
         st = self.arm.step(p_t, R_t, v_t, w_t, self._last_contact if self.n else None)
         self.statuses[st] = self.statuses.get(st, 0) + 1
         p, R = self.arm.tool_pose()
