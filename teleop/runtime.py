@@ -69,7 +69,10 @@ def make_master(scene: Scene, tool, rng: np.random.Generator):
     if scene.master == "cobot":
         from teleop.master import CobotConfig, CobotMaster
 
-        return CobotMaster(tool, CobotConfig.from_dict(scene.master_config, "cobot"), scene.dt_s, rng)
+        cfg = dict(scene.master_config)
+        if "can_faults" not in scene.effects:  # an effect the scene does not name is not simulated
+            cfg.pop("faults", None)
+        return CobotMaster(tool, CobotConfig.from_dict(cfg, "cobot"), scene.dt_s, rng)
     return IdealMaster(tool, scene.dt_s)
 
 
@@ -91,6 +94,11 @@ def run_scene(scene: Scene, progress=None) -> RunResult:
 
         slave = SlaveSide(scene, n)
         slave.reset(*tool.pose())
+    tremor = None
+    if slave is not None and getattr(operator, "tremor_on", False):
+        from teleop.scenario.metrics import TremorProbe
+
+        tremor = TremorProbe(operator, n, slave.reg.scale, slave.reg.X_PM_R, scene.fixture.plane_normal)
     contact = None
     status, steps, nan = "ok", 0, False
     with make_master(scene, tool, rng) as master:
@@ -102,6 +110,8 @@ def run_scene(scene: Scene, progress=None) -> RunResult:
             st = master.step(wrench, contact)
             if slave is not None:
                 contact = slave.step(*master.virtual_pose(), *master.virtual_twist())
+                if tremor is not None:
+                    tremor.update(i * scene.dt_s, R_v, slave.log["tip"][i])
             t1 = time.perf_counter_ns()
             nan = nan or not (np.all(np.isfinite(tool.q)) and np.all(np.isfinite(p_v)))
             # the tick's state, the wrench applied over it and the constraint force it produced
@@ -126,6 +136,8 @@ def run_scene(scene: Scene, progress=None) -> RunResult:
     if slave is not None:
         log.update(slave.trimmed_log())
         results.update(slave.result())
+    if tremor is not None:
+        results.update(tremor.result(scene.dt_s))
     ticks = log["tick_us"]
     summary = {
         "scenario": scene.name,

@@ -175,3 +175,49 @@ METRICS = {"rolling_disk": RollingDiskMetrics, "sphere": SphereMetrics, "scalpel
 
 def make_metrics(spec: FixtureSpec, n: int, mass_kg: float) -> MetricSet:
     return METRICS[spec.type](spec, n, mass_kg)
+
+
+def band_rms(x: np.ndarray, dt: float, lo_hz: float, hi_hz: float) -> float:
+    """RMS of the part of the signal(s) x (n,) or (n, k) in [lo_hz, hi_hz], by FFT (same units)."""
+    x = np.asarray(x, dtype=float)
+    if x.ndim == 1:
+        x = x[:, None]
+    n = x.shape[0]
+    if n < 4:
+        return 0.0
+    X = np.fft.rfft(x - x.mean(axis=0), axis=0)
+    f = np.fft.rfftfreq(n, dt)
+    X[(f < lo_hz) | (f > hi_hz)] = 0.0
+    y = np.fft.irfft(X, n=n, axis=0)
+    return float(np.sqrt((y**2).sum(axis=1).mean()))
+
+
+class TremorProbe:
+    """How much physiological tremor the fixtures remove: the hand's tremor and the slave tip's
+    motion, both across the cut (the plane normal and the blade's side axis, in slave units), in the
+    tremor band. ``tremor_removed_pct`` = 100 (1 - out / in)."""
+
+    def __init__(self, hand, n: int, scale: float, R_PM: np.ndarray, normal_P):
+        self.hand, self.scale, self.R_PM = hand, scale, R_PM
+        self.n_P = _unit(normal_P)
+        self.hand_across = np.zeros((n, 2))
+        self.tip_across = np.zeros((n, 2))
+        self.k = 0
+
+    def update(self, t: float, R_v: np.ndarray, tip_P: np.ndarray) -> None:
+        side_P = self.R_PM @ R_v[:, 1]
+        n_M = self.R_PM.T @ self.n_P
+        tremor = self.hand.tremor(t)
+        self.hand_across[self.k] = (tremor @ n_M / self.scale, tremor @ R_v[:, 1] / self.scale)
+        self.tip_across[self.k] = (tip_P @ self.n_P, tip_P @ side_P)
+        self.k += 1
+
+    def result(self, dt: float) -> dict:
+        lo, hi = self.hand.spec.tremor_band_hz
+        t_in = band_rms(self.hand_across[: self.k], dt, lo, hi)
+        t_out = band_rms(self.tip_across[: self.k], dt, lo, hi)
+        return {
+            "tremor_in_rms_m": t_in,
+            "tremor_out_rms_m": t_out,
+            "tremor_removed_pct": 100.0 * (1.0 - t_out / t_in) if t_in > 0 else 0.0,
+        }

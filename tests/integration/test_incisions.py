@@ -59,3 +59,31 @@ def test_curved_incision_steers_on_the_knife_edge():
     assert m["sideslip_max_m_per_s"] <= 1e-9
     heading = r.log["q_r"][:, 3]
     assert np.ptp(heading) > 0.3  # it really turned
+
+
+def test_tremor_is_removed_across_the_cut():
+    s = run_scene(load_scene("tremor_incision")).summary
+    m = s["metrics"]
+    assert s["status"] == "ok" and not s["nan"]
+    assert m["tremor_in_rms_m"] > 1e-4  # 0.5 mm RMS per axis at the master, / 3 at the slave
+    assert m["tremor_removed_pct"] >= 99.0
+    assert m["cut_depth_error_max_m"] <= 5e-5 and m["tip_tracking_rms_m"] <= 1e-4
+
+
+def test_tremor_effect_off_means_no_tremor():
+    from dataclasses import replace
+
+    scene = load_scene("tremor_incision").with_overrides(duration_s=1.0)
+    scene = replace(scene, effects=tuple(e for e in scene.effects if e != "tremor"))
+    assert "tremor_in_rms_m" not in run_scene(scene).summary["metrics"]
+
+
+def test_cut_through_a_faulty_can_bus():
+    s = run_scene(load_scene("can_faults_incision")).summary
+    m = s["metrics"]
+    assert s["status"] == "ok" and not s["nan"]
+    assert s["can_frames_lost"] > 500  # 5 % of ~2 x 7000 x frames per cycle
+    assert s["can_bus_load_pct"] <= 60.0
+    assert m["tip_tracking_rms_m"] <= 1e-4
+    assert m["cut_depth_error_max_m"] <= 5e-5
+    assert m["cut_length_m"] > 0.03
