@@ -1,6 +1,6 @@
 """Benchmarks: microseconds per step, median and p99, against a yardstick timed in the same run.
 
-    python tools/bench.py [--json OUT.json] [--steps N]
+    python tools/bench.py [--json OUT.json] [--steps N] [--fuzz N] [--engine-only]
 
 The machine is shared and noisy, so every figure is taken in interleaved blocks with the
 yardstick, one ``pinocchio.aba`` of example-robot-data's Panda (``pin_aba_us``); compare ratios.
@@ -73,6 +73,25 @@ def bench_integrators(steps: int, yard: Yardstick) -> dict:
     return out
 
 
+def scene_ticks(seconds: float) -> dict:
+    """tick_us of every scene (ideal master unless the scene names the cobot), and of the incision
+    scenes with their heavy effects switched off: what simulating only what a scene calls for buys."""
+    from dataclasses import replace
+
+    from teleop.runtime import run_scene
+    from teleop.scenario.schema import list_scenes, load_scene
+
+    out = {}
+    for name in list_scenes():
+        scene = load_scene(name).with_overrides(duration_s=seconds)
+        out[name] = run_scene(scene).summary["tick_us"]
+        light = tuple(e for e in scene.effects if e not in ("tissue", "cutting", "can_faults", "tremor"))
+        if light != scene.effects:
+            out[f"{name} (without {', '.join(sorted(set(scene.effects) - set(light)))})"] = run_scene(
+                replace(scene, effects=light)).summary["tick_us"]
+    return out
+
+
 def fuzz_scenes(n: int) -> dict:
     """Run n random valid scenes; count statuses. Every one must finish with nan false."""
     import collections
@@ -99,6 +118,8 @@ def main(argv=None) -> int:
     ap.add_argument("--json", help="write the figures here")
     ap.add_argument("--steps", type=int, default=20_000, help="steps per integrator (default 20000)")
     ap.add_argument("--fuzz", type=int, default=500, help="random valid scenes to run (default 500)")
+    ap.add_argument("--engine-only", action="store_true", help="only the integrators and the yardstick")
+    ap.add_argument("--scene-seconds", type=float, default=2.0, help="simulated seconds per scene for tick_us")
     args = ap.parse_args(argv)
 
     yard = Yardstick()
@@ -117,6 +138,24 @@ def main(argv=None) -> int:
         ratio = s["median"] / aba["median"]
         print(f"step_us {name:26s} median {s['median']:8.2f}  p99 {s['p99']:8.2f}   ({ratio:5.1f}x aba)")
     print(f"reference_step_us / pin_aba_us = {result['reference_over_aba']} (target <= 15)")
+    if not args.engine_only:
+        import master_bench
+        import slave_bench
+
+        yard.samples.clear()
+        yard.block(3000)
+        result["master"] = master_bench.measure(args.steps // 4)
+        result["slave"] = slave_bench.measure(args.steps // 8)
+        yard.block(3000)
+        result["pin_aba_us_late"] = _stats(yard.samples)
+        m, sl = result["master"]["master_tick_us"], result["slave"]
+        print(f"{'master_tick_us':34s} median {m['median']:8.2f}  p99 {m['p99']:8.2f}   (target median <= 100)")
+        for key in ("slave_step_us", "pink_step_us"):
+            print(f"{key:34s} median {sl[key]['median']:8.2f}  p99 {sl[key]['p99']:8.2f}")
+        print(f"slave_step_us / pink_step_us = {sl['slave_step_us']['median'] / sl['pink_step_us']['median']:.2f} (target <= 0.33)")
+        result["scene_tick_us"] = scene_ticks(args.scene_seconds)
+        for name, t in result["scene_tick_us"].items():
+            print(f"tick_us {name:60s} median {t['median']:8.1f}  p99 {t['p99']:8.1f}")
     if args.fuzz:
         fz = fuzz_scenes(args.fuzz)
         result["fuzz"] = fz
