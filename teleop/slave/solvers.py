@@ -15,6 +15,8 @@ and afterwards updates only the values of P, q, A, l, u, warm-starting from the 
 
 from __future__ import annotations
 
+from abc import ABC, abstractmethod
+
 from dataclasses import dataclass
 
 import numpy as np
@@ -37,16 +39,17 @@ class QPResult:
     iters: int
 
 
-class QPSolver:
-    """Base: one fixed problem size (n variables, m equality rows)."""
+class QPSolver(ABC):
+    """Base: one fixed problem size (n variables, m equality rows). Subclasses fill ``solve``."""
 
     name = "base"
 
     def __init__(self, n: int, m: int, eps: float, max_iter: int):
         self.n, self.m, self.eps, self.max_iter = int(n), int(m), float(eps), int(max_iter)
 
-    def solve(self, H, g, A_eq, b_eq, lb, ub) -> QPResult:  # pragma: no cover - interface
-        raise NotImplementedError
+    @abstractmethod
+    def solve(self, H, g, A_eq, b_eq, lb, ub) -> QPResult:
+        """min 1/2 x'Hx + g'x  s.t.  A_eq x = b_eq, lb <= x <= ub."""
 
     def _checked(self, x, y, ok, status, iters) -> QPResult:
         if x is None or not np.all(np.isfinite(x)):
