@@ -37,16 +37,20 @@ class Table:
         'list'. ``check(value) -> bool`` with ``why`` explains a range failure."""
         self._read.add(k)
         if k not in self.data:
-            typo = self._typo_of(k)
-            if typo is not None:
-                raise self.error(typo, f"unknown key; did you mean {k!r}?")
-            if default is _MISSING:
-                raise self.error(k, "required key is missing")
-            return default
+            return self._absent(k, default, "key")
         value = _convert(self, k, self.data[k], kind)
         if check is not None and not check(value):
             raise self.error(k, f"{why or 'value out of range'} (got {self.data[k]!r})")
         return value
+
+    def _absent(self, k: str, default: Any, what: str):
+        """An absent key: a misspelt neighbour is the error; else the default, or "missing"."""
+        typo = self._typo_of(k)
+        if typo is not None:
+            raise self.error(typo, f"unknown key; did you mean {k!r}?")
+        if default is _MISSING:
+            raise self.error(k, f"required {what} is missing")
+        return default
 
     def _typo_of(self, k: str) -> str | None:
         """An unread key of this table that looks like a misspelling of ``k``."""
@@ -60,12 +64,7 @@ class Table:
         """A nested table, or ``default`` when absent (pass ``None`` for optional tables)."""
         self._read.add(k)
         if k not in self.data:
-            typo = self._typo_of(k)
-            if typo is not None:
-                raise self.error(typo, f"unknown key; did you mean {k!r}?")
-            if default is _MISSING:
-                raise self.error(k, "required table is missing")
-            return default
+            return self._absent(k, default, "table")
         return Table(self.path, self.key(k), self.data[k])
 
     def done(self) -> None:
