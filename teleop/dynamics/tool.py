@@ -32,6 +32,7 @@ RECHART_BELOW = 0.25
 STATUS_OK = "ok"
 STATUS_NAN = "nan"
 STATUS_SINGULAR = "singular"
+STATUS_DIVERGED = "diverged"
 
 
 class ReferenceTool:
@@ -39,6 +40,8 @@ class ReferenceTool:
 
     ``integrator``: a name from :data:`teleop.dynamics.integrators.INTEGRATORS` or an instance.
     ``chart``: the Euler chart of the coordinates; defaults to the fixture parametrization's chart.
+    ``max_speed_m_s``, ``max_rate_rad_s``: a step that ends faster than this has diverged (an
+    unstable stiffness for the period); the tool then holds its last pose, status "diverged".
     """
 
     def __init__(
@@ -49,6 +52,8 @@ class ReferenceTool:
         integrator: str | Integrator = "parametric",
         coriolis: bool = True,
         chart: EulerChart | None = None,
+        max_speed_m_s: float = 100.0,
+        max_rate_rad_s: float = 1e4,
     ):
         self.body = body
         self.fixture = fixture
@@ -68,6 +73,9 @@ class ReferenceTool:
         self.constraint_wrench_W = np.zeros(6)
         self.recharts = 0
         self.acceleration_W = np.zeros(6)
+        if not (max_speed_m_s > 0 and max_rate_rad_s > 0):
+            raise ConfigError("max_speed_m_s and max_rate_rad_s must be positive")
+        self._max_v2, self._max_w2 = max_speed_m_s**2, max_rate_rad_s**2
 
     # -- set-up -------------------------------------------------------------------------------------
     def reset(self, q0=None, qd0=None, t0: float = 0.0) -> None:
@@ -103,6 +111,12 @@ class ReferenceTool:
             ok, ev = False, None
         if not ok:
             self._safe_state(saved)
+            return self.status
+        v2 = float(s.qd[:3] @ s.qd[:3])
+        w2 = float(s.qd[3:] @ s.qd[3:])  # Euler rates bound the body rate up to the chart's conditioning
+        if v2 > self._max_v2 or (w2 > self._max_w2 and float(np.dot(*(2 * [self.kinematics().w]))) > self._max_w2):
+            self._safe_state(saved)
+            self.status = STATUS_DIVERGED
             return self.status
         s.t += h
         self.lam, self.rank, self.wrench_W = ev.lam, ev.rank, ev.wrench_W

@@ -121,5 +121,7 @@ def test_damper_too_stiff_for_the_step_reports_and_holds():
     tool = ReferenceTool(body, fixtures.free("ZYX"), [AngularDamper(4e6)], "parametric")
     tool.reset(qd0=[0, 0, 0, 0.1, 0.1, 0.1])
     statuses = {tool.step(1e-3) for _ in range(300)}
-    assert "singular" in statuses
+    # caught as "diverged" by the rate ceiling (or as "singular" if it overflows first)
+    assert statuses & {"diverged", "singular"}
     assert np.all(np.isfinite(tool.q)) and np.all(np.isfinite(tool.qd))
+    assert np.abs(tool.q[3:]).max() < 10.0  # held near where it was, not spun to 1e300 rad

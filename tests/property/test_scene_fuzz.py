@@ -8,7 +8,7 @@ from teleop.runtime import run_scene
 from teleop.scenario.random_scene import random_scene
 from teleop.scenario.schema import parse_scene
 
-STATUSES = {"ok", "nan", "singular"}
+STATUSES = {"ok", "nan", "singular", "diverged"}
 
 #: Seeds of fuzzed scenes that once failed, kept as regressions.
 REGRESSIONS: list[int] = []
