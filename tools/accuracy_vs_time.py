@@ -2,7 +2,8 @@
 
     python tools/accuracy_vs_time.py [--out docs/accuracy] [--seconds 2.0]
 
-For every point it records the constraint drift (holonomic position residual, velocity residual
+It also runs straight_incision over the master's integrator and period and the slave's QP solver
+and tolerance (tracking and depth error). For every point it records the constraint drift (holonomic position residual, velocity residual
 |G nu|), the energy error on a conservative scene, the trajectory error against a reference run
 (RK4 at 0.1 ms), CPU microseconds per tick (median, p99) and the CPU load (us per tick over the
 period: a shorter period costs more ticks a second). It writes ``accuracy.csv``, ``accuracy.md``
@@ -101,6 +102,7 @@ def sweep(seconds: float):
                 err = float(np.sqrt(((r["traj"][:k] - ref["traj"][:k]) ** 2).sum(axis=1).mean())) if k else float("nan")
                 rows.append({
                     "scene": name, "integrator": integ, "period_ms": ms, "effects": "all (coriolis, damping)",
+                    "solver": "", "eps": float("nan"),
                     "status": r["status"], "traj_err_m": err,
                     "pos_residual_max": r["pos_residual_max"], "vel_residual_max": r["vel_residual_max"],
                     "energy_rel_err": e["energy_rel_err"],
@@ -117,12 +119,51 @@ def sweep(seconds: float):
             err = float(np.sqrt(((r["traj"][:k] - ref["traj"][:k]) ** 2).sum(axis=1).mean()))
             rows.append({
                 "scene": name, "integrator": DEFAULT[0], "period_ms": DEFAULT[1], "effects": label,
+                "solver": "", "eps": float("nan"),
                 "status": r["status"], "traj_err_m": err, "pos_residual_max": r["pos_residual_max"],
                 "vel_residual_max": r["vel_residual_max"], "energy_rel_err": float("nan"),
                 "tick_median_us": r["tick_median_us"], "tick_p99_us": r["tick_p99_us"],
                 "cpu_load_pct": 100.0 * r["tick_median_us"] / (DEFAULT[1] * 1e3), "default": False,
             })
             print(f"{name:22s} effects={label:26s} err {err:9.2e} m  {r['tick_median_us']:7.1f} us")
+    return rows
+
+
+INCISION = "straight_incision"
+SOLVERS = (("osqp", 1e-3), ("osqp", 1e-5), ("osqp", 1e-7), ("proxqp", 1e-3), ("proxqp", 1e-7), ("daqp", None), ("quadprog", None))
+
+
+def incision_point(integrator: str, period_ms: float, solver: str, eps, seconds: float) -> dict:
+    """One straight_incision run: the master's integrator and period, the slave's solver and tolerance."""
+    from teleop.runtime import run_scene
+
+    base = load_scene(INCISION)
+    slave = dict(base.extra["slave"], solver=solver)
+    if eps is not None:
+        slave["eps"] = eps
+    sc = replace(base, extra={**base.extra, "slave": slave}).with_overrides(
+        integrator=integrator, dt_s=period_ms * 1e-3, duration_s=seconds)
+    r = run_scene(sc)
+    m, t = r.summary["metrics"], r.summary["tick_us"]
+    print(f"{INCISION:22s} {integrator:15s} {period_ms:5.2f} ms  {solver:8s} eps={eps}  track {m['tip_tracking_rms_m']:9.2e}  "
+          f"depth {m['cut_depth_error_max_m']:9.2e}  {t['median']:7.1f} us  {r.summary['status']}")
+    return {
+        "scene": INCISION, "integrator": integrator, "period_ms": period_ms, "effects": "all (incision)",
+        "solver": solver, "eps": eps if eps is not None else float("nan"), "status": r.summary["status"],
+        "traj_err_m": m["tip_tracking_rms_m"], "pos_residual_max": m["cut_depth_error_max_m"],
+        "vel_residual_max": m["sideslip_max_m_per_s"], "energy_rel_err": float("nan"),
+        "tick_median_us": t["median"], "tick_p99_us": t["p99"],
+        "cpu_load_pct": 100.0 * t["median"] / (period_ms * 1e3),
+        "default": (integrator, period_ms, solver, eps) == (DEFAULT[0], DEFAULT[1], "osqp", 1e-7),
+    }
+
+
+def incision_sweep(seconds: float) -> list:
+    """The master integrator at 1 ms, the default integrator over the periods, and every slave QP
+    solver and tolerance at the defaults: tracking error (RMS) and depth error against CPU load."""
+    rows = [incision_point(i, DEFAULT[1], "osqp", 1e-7, seconds) for i in INTEGRATORS]
+    rows += [incision_point(DEFAULT[0], ms, "osqp", 1e-7, seconds) for ms in PERIODS_MS if ms != DEFAULT[1]]
+    rows += [incision_point(DEFAULT[0], DEFAULT[1], sv, eps, seconds) for sv, eps in SOLVERS if (sv, eps) != ("osqp", 1e-7)]
     return rows
 
 
@@ -145,10 +186,10 @@ def write_outputs(rows, out: Path) -> None:
         wr = csv.DictWriter(f, fieldnames=list(rows[0]))
         wr.writeheader()
         wr.writerows(rows)
-    lines = ["| scene | integrator | period ms | effects | traj err m | drift m | |Gν| | energy err | µs median | µs p99 | CPU load % | front |",
-             "|---|---|---|---|---|---|---|---|---|---|---|---|"]
+    lines = ["| scene | integrator | period ms | effects | QP solver (eps) | traj / tracking err m | drift / depth err m | |Gν| | energy err | µs median | µs p99 | CPU load % | front |",
+             "|---|---|---|---|---|---|---|---|---|---|---|---|---|"]
     main = [r for r in rows if r["effects"].startswith("all")]
-    for name in SCENES:
+    for name in SCENES + (INCISION,):
         sub = [r for r in main if r["scene"] == name]
         # three objectives: CPU time, trajectory error, and constraint drift (what a haptic user feels
         # as sinking into a surface); a cheap integrator that drifts is not "accurate"
@@ -158,8 +199,10 @@ def write_outputs(rows, out: Path) -> None:
             r["front"] = i in front
     for r in rows:
         mark = "**default**" if r["default"] else ""
+        qp = r["solver"] if r["eps"] != r["eps"] else f"{r['solver']} ({r['eps']:.0e})"  # eps NaN: none
         lines.append(
-            f"| {r['scene']} | {r['integrator']} {mark} | {r['period_ms']:g} | {r['effects']} | {r['traj_err_m']:.2e} | "
+            f"| {r['scene']} | {r['integrator']} {mark} | {r['period_ms']:g} | {r['effects']} | "
+            f"{qp} | {r['traj_err_m']:.2e} | "
             f"{r['pos_residual_max']:.1e} | {r['vel_residual_max']:.1e} | {r['energy_rel_err']:.1e} | "
             f"{r['tick_median_us']:.1f} | {r['tick_p99_us']:.1f} | {r['cpu_load_pct']:.1f} | {'yes' if r.get('front') else ''} |"
         )
@@ -170,7 +213,7 @@ def write_outputs(rows, out: Path) -> None:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    fig, axes = plt.subplots(2, len(SCENES), figsize=(12, 8.5))
+    fig, axes = plt.subplots(2, len(SCENES) + 1, figsize=(17, 8.5))
     markers = dict(zip(INTEGRATORS, "osD^v*"))
     rows_spec = (("traj_err_m", "trajectory error vs RK4 @ 0.1 ms [m]"), ("pos_residual_max", "constraint drift max |h| [m]"))
     for col, name in enumerate(SCENES):
@@ -189,6 +232,23 @@ def write_outputs(rows, out: Path) -> None:
             ax.set_ylabel(label, fontsize=8)
             ax.set_title(f"{name} (periods 0.1-2 ms; floor 1e-17 = exact)", fontsize=9)
             ax.grid(alpha=0.3, which="both")
+    inc = [r for r in rows if r["scene"] == INCISION]
+    for row, (key, label) in enumerate((("traj_err_m", "slave tip tracking RMS [m]"), ("pos_residual_max", "slave cut depth error max [m]"))):
+        ax = axes[row][len(SCENES)]
+        for r in inc:
+            tag = r["integrator"] if r["solver"] == "osqp" and r["eps"] == 1e-7 else f"{r['solver']} {'' if r['eps'] != r['eps'] else format(r['eps'], '.0e')}"
+            tag += f" {r['period_ms']:g}ms" if r["period_ms"] != DEFAULT[1] else ""
+            ax.plot(r["cpu_load_pct"], max(r[key], 1e-17), "o" if r["solver"] == "osqp" else "s", ms=5)
+            ax.annotate(tag, (r["cpu_load_pct"], max(r[key], 1e-17)), fontsize=6)
+            if r["default"]:
+                ax.plot(r["cpu_load_pct"], max(r[key], 1e-17), "o", ms=16, mfc="none", mec="red")
+        ax.axvline(100.0, color="k", lw=0.6, ls="--")
+        ax.set_xscale("log")
+        ax.set_yscale("log")
+        ax.set_xlabel("CPU load, % of real time (whole tick / period)")
+        ax.set_ylabel(label, fontsize=8)
+        ax.set_title(f"{INCISION}: integrators, periods, QP solvers", fontsize=9)
+        ax.grid(alpha=0.3, which="both")
     axes[0][0].legend(fontsize=7)
     fig.tight_layout()
     fig.savefig(out / "pareto.png", dpi=110)
@@ -198,9 +258,10 @@ def write_outputs(rows, out: Path) -> None:
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--out", default="docs/accuracy")
-    ap.add_argument("--seconds", type=float, default=2.0, help="simulated seconds per point")
+    ap.add_argument("--seconds", type=float, default=2.0, help="simulated seconds per paper-scene point")
+    ap.add_argument("--incision-seconds", type=float, default=2.0, help="simulated seconds per straight_incision point")
     args = ap.parse_args(argv)
-    rows = sweep(args.seconds)
+    rows = sweep(args.seconds) + incision_sweep(args.incision_seconds)
     write_outputs(rows, Path(args.out))
     print(f"wrote {args.out}/accuracy.csv, accuracy.md, pareto.png ({len(rows)} points)")
     return 0
