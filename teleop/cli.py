@@ -1,7 +1,8 @@
 """The ``teleop`` command: ``run``, ``list``.
 
-    teleop run [NAME_OR_PATH] [--master ideal|cobot] [--headless] [--duration S] [--seed N]
-               [--integrator NAME] [--dt S] [--json PATH] [--out DIR]
+    teleop run [NAME_OR_PATH] [--master ideal|cobot] [--headless] [--realtime]
+               [--operator script|keyboard] [--duration S] [--seed N] [--integrator NAME] [--dt S]
+               [--json PATH] [--out DIR]
     teleop list
     teleop plot LOG [--out DIR]
 """
@@ -31,7 +32,7 @@ def _summary_text(s: dict) -> str:
     ]
     for k, v in s["metrics"].items():
         lines.append(f"  {k:34s} {v:.4g}")
-    for k in ("can_bus_load_pct", "can_frames_lost", "watchdog_trips"):
+    for k in ("can_bus_load_pct", "can_frames_lost", "watchdog_trips", "late_ticks"):
         if k in s:
             lines.append(f"  {k:34s} {s[k]}")
     return "\n".join(lines)
@@ -44,8 +45,16 @@ def cmd_run(args) -> int:
     scene = load_scene(args.scene or DEFAULT_SCENE).with_overrides(
         duration_s=args.duration, seed=args.seed, master=args.master, integrator=args.integrator, dt_s=args.dt
     )
-    show = sys.stderr.isatty() and scene.duration_s / scene.dt_s > 5000
-    result = run_scene(scene, progress=_progress if show else None)
+    show = sys.stderr.isatty() and scene.duration_s / scene.dt_s > 5000 and args.operator != "keyboard"
+    if args.operator == "keyboard":
+        from teleop.scenario.build import master_fixture_spec
+        from teleop.scenario.keyboard import HELP, KeyboardOperator
+
+        print(HELP, file=sys.stderr)
+        with KeyboardOperator(master_fixture_spec(scene)) as keys:
+            result = run_scene(scene, realtime=args.realtime, operator=keys)
+    else:
+        result = run_scene(scene, progress=_progress if show else None, realtime=args.realtime)
     if show:
         sys.stderr.write("\r" + " " * 40 + "\r")
     if args.json:
@@ -96,6 +105,9 @@ def build_parser() -> argparse.ArgumentParser:
     run.add_argument("--master", choices=["ideal", "cobot"], help="ideal: wrench straight to the tool; cobot: the CAN device")
     view = run.add_mutually_exclusive_group()
     view.add_argument("--headless", action="store_true", default=True, help="no viewer (default)")
+    run.add_argument("--realtime", action="store_true", help="pace ticks to the wall clock (default: simulated time)")
+    run.add_argument("--operator", choices=["script", "keyboard"], default="script",
+                     help="the scene's scripted operator (default) or you at the keyboard")
     run.add_argument("--duration", type=float, help="simulated seconds (overrides the scene)")
     run.add_argument("--seed", type=int, help="random seed (overrides the scene)")
     run.add_argument("--integrator", help="integrator name (overrides the scene)")

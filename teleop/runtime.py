@@ -41,6 +41,7 @@ class IdealMaster:
 
     def __init__(self, tool, dt_s: float):
         self.tool, self.dt = tool, dt_s
+        self.engaged = True
 
     def __enter__(self):
         return self
@@ -51,8 +52,13 @@ class IdealMaster:
     def close(self) -> None:
         pass
 
+    def set_clutch(self, engaged: bool) -> None:
+        """Clutch out: the hand lets go of the tool (its wrench no longer reaches it)."""
+        self.engaged = bool(engaged)
+
     def step(self, hand_wrench_W, contact_wrench_W=None) -> str:
-        w = hand_wrench_W if contact_wrench_W is None else hand_wrench_W + contact_wrench_W
+        w = hand_wrench_W if self.engaged else np.zeros(6)
+        w = w if contact_wrench_W is None else w + contact_wrench_W
         return self.tool.step(self.dt, w)
 
     def virtual_pose(self):
@@ -63,6 +69,19 @@ class IdealMaster:
 
     def stats(self) -> dict:
         return {}
+
+
+def _pace(deadline: float) -> int:
+    """Wait for the wall-clock deadline (s, perf_counter): sleep, then spin the last 0.3 ms.
+    Returns 1 when the tick is already late, else 0."""
+    now = time.perf_counter()
+    if now > deadline:
+        return 1
+    if deadline - now > 3e-4:
+        time.sleep(deadline - now - 3e-4)
+    while time.perf_counter() < deadline:
+        pass
+    return 0
 
 
 def make_master(scene: Scene, tool, rng: np.random.Generator):
@@ -76,11 +95,14 @@ def make_master(scene: Scene, tool, rng: np.random.Generator):
     return IdealMaster(tool, scene.dt_s)
 
 
-def run_scene(scene: Scene, progress=None) -> RunResult:
-    """Run a scene headless in simulated time. ``progress(i, n)`` is called now and then."""
+def run_scene(scene: Scene, progress=None, realtime: bool = False, operator=None, view=None) -> RunResult:
+    """Run a scene. Simulated time by default; ``realtime`` paces each tick to the wall clock
+    (late ticks are counted, never skipped). ``operator`` replaces the scene's (e.g. a keyboard);
+    ``view`` gets a frame per tick and throttles itself. ``progress(i, n)`` is called now and then."""
     rng = np.random.default_rng(scene.seed)
     tool = build_tool(scene)
-    operator = make_operator(scene.operator, master_fixture_spec(scene), scene.effects, rng)
+    if operator is None:
+        operator = make_operator(scene.operator, master_fixture_spec(scene), scene.effects, rng)
     n = int(round(scene.duration_s / scene.dt_s))
     metrics = make_metrics(master_fixture_spec(scene), n, tool.body.mass_kg)
     log = {
@@ -100,13 +122,16 @@ def run_scene(scene: Scene, progress=None) -> RunResult:
 
         tremor = TremorProbe(operator, n, slave.reg.scale, slave.reg.X_PM_R, scene.fixture.plane_normal)
     contact = None
-    status, steps, nan = "ok", 0, False
+    status, steps, nan, late = "ok", 0, False, 0
+    wall0 = time.perf_counter()
     with make_master(scene, tool, rng) as master:
         for i in range(n):
             t0 = time.perf_counter_ns()
             p_v, R_v = master.virtual_pose()
             v_v, w_v = master.virtual_twist()
             wrench = operator.wrench(i * scene.dt_s, p_v, R_v, v_v, w_v)
+            if hasattr(operator, "clutch_engaged"):  # the operator reads the clutch pedal too
+                master.set_clutch(operator.clutch_engaged)
             st = master.step(wrench, contact)
             if slave is not None:
                 contact = slave.step(*master.virtual_pose(), *master.virtual_twist())
@@ -124,11 +149,18 @@ def run_scene(scene: Scene, progress=None) -> RunResult:
             log["constraint_W"][i] = tool.constraint_wrench_W
             log["tick_us"][i] = (t1 - t0) * 1e-3
             steps = i + 1
+            if view is not None:
+                view.publish_tick(i * scene.dt_s, tool, master, wrench, slave)
+            if getattr(operator, "stop", False):
+                status = "stopped_by_operator"
+                break
             if st != "ok":
                 status = st
                 break
             if progress is not None and i % 1000 == 0:
                 progress(i, n)
+            if realtime:
+                late += _pace(wall0 + (i + 1) * scene.dt_s)
         stats = master.stats()
     log = {k: v[:steps] for k, v in log.items()}
     log.update({f"m_{k}": v for k, v in metrics.trimmed().items()})
@@ -159,5 +191,7 @@ def run_scene(scene: Scene, progress=None) -> RunResult:
     }
     if slave is not None:
         summary["slave_statuses"] = slave.statuses
+    if realtime:
+        summary["late_ticks"] = late
     summary.update(stats)
     return RunResult(summary, log)
