@@ -107,6 +107,7 @@ def run_scene(scene: Scene, progress=None, realtime: bool = False, operator=None
     metrics = make_metrics(master_fixture_spec(scene), n, tool.body.mass_kg)
     log = {
         "t": np.zeros(n), "q_r": np.zeros((n, 6)), "q_v_p": np.zeros((n, 3)),
+        "p_r": np.zeros((n, 3)), "R_r": np.zeros((n, 3, 3)), "R_v": np.zeros((n, 3, 3)),
         "lam": np.zeros((n, tool.model.m)), "operator_W": np.zeros((n, 6)),
         "constraint_W": np.zeros((n, 6)), "tick_us": np.zeros(n),
     }
@@ -144,6 +145,8 @@ def run_scene(scene: Scene, progress=None, realtime: bool = False, operator=None
             log["t"][i] = tool.t
             log["q_r"][i] = tool.q
             log["q_v_p"][i] = p_v
+            log["R_v"][i] = R_v
+            log["p_r"][i], log["R_r"][i] = tool.pose()
             log["lam"][i] = tool.lam
             log["operator_W"][i] = wrench
             log["constraint_W"][i] = tool.constraint_wrench_W
