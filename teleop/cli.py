@@ -1,15 +1,17 @@
 """The ``teleop`` command: ``run``, ``list``.
 
-    teleop run [NAME_OR_PATH] [--master ideal|cobot] [--headless] [--realtime]
+    teleop run [NAME_OR_PATH] [--master ideal|cobot] [--viewer|--headless] [--realtime]
                [--operator script|keyboard] [--duration S] [--seed N] [--integrator NAME] [--dt S]
                [--json PATH] [--out DIR]
     teleop list
+    teleop replay LOG [--viewer]
     teleop plot LOG [--out DIR]
 """
 
 from __future__ import annotations
 
 import argparse
+import json
 import sys
 
 from teleop.errors import TeleopError
@@ -46,15 +48,32 @@ def cmd_run(args) -> int:
         duration_s=args.duration, seed=args.seed, master=args.master, integrator=args.integrator, dt_s=args.dt
     )
     show = sys.stderr.isatty() and scene.duration_s / scene.dt_s > 5000 and args.operator != "keyboard"
-    if args.operator == "keyboard":
-        from teleop.scenario.build import master_fixture_spec
-        from teleop.scenario.keyboard import HELP, KeyboardOperator
+    view = None
+    if args.viewer or args.out:
+        from teleop.viz import make_view
+        from teleop.viz_bridge import RunView, viz_scene_for
 
-        print(HELP, file=sys.stderr)
-        with KeyboardOperator(master_fixture_spec(scene)) as keys:
-            result = run_scene(scene, realtime=args.realtime, operator=keys)
-    else:
-        result = run_scene(scene, progress=_progress if show else None, realtime=args.realtime)
+        view = make_view("meshcat", viz_scene_for(scene), record=bool(args.out))
+        if args.viewer:
+            print(f"viewer: {view.url}", file=sys.stderr)
+    try:
+        rv = RunView(view) if view is not None else None
+        if args.operator == "keyboard":
+            from teleop.scenario.build import master_fixture_spec
+            from teleop.scenario.keyboard import HELP, KeyboardOperator
+
+            print(HELP, file=sys.stderr)
+            with KeyboardOperator(master_fixture_spec(scene)) as keys:
+                result = run_scene(scene, realtime=args.realtime, operator=keys, view=rv)
+        else:
+            result = run_scene(scene, progress=_progress if show else None, realtime=args.realtime, view=rv)
+        if args.out:
+            from pathlib import Path
+
+            view.save_html(Path(args.out) / "recording.html")
+    finally:
+        if view is not None:
+            view.close()  # the meshcat server never outlives the run, even on Ctrl-C
     if show:
         sys.stderr.write("\r" + " " * 40 + "\r")
     if args.json:
@@ -70,6 +89,36 @@ def cmd_run(args) -> int:
         plot_log(out / "log.npz", out)
     print(_summary_text(result.summary))
     return 0 if result.summary["status"] == "ok" and not result.summary["nan"] else 1
+
+
+def cmd_replay(args) -> int:
+    """Show a recorded run again: live in Meshcat (--viewer), or as recording.html beside the log."""
+    from pathlib import Path
+
+    import numpy as np
+
+    from teleop.errors import ConfigError
+    from teleop.scenario.schema import load_scene
+    from teleop.viz import make_view
+    from teleop.viz_bridge import replay_log, viz_scene_for
+
+    log_path = Path(args.log)
+    if log_path.is_dir():
+        log_path = log_path / "log.npz"
+    if not log_path.exists():
+        raise ConfigError(f"{args.log}: no run log here (expected a log.npz written by 'teleop run --out')")
+    log = dict(np.load(log_path))
+    summary = json.loads(str(log.pop("summary")))
+    scene = load_scene(summary["scenario"])
+    with make_view("meshcat", viz_scene_for(scene), record=not args.viewer) as view:
+        if args.viewer:
+            print(f"viewer: {view.url}  (replaying {summary['scenario']} in real time)", file=sys.stderr)
+        frames = replay_log(log, view, realtime=args.viewer)
+        if not args.viewer:
+            out = view.save_html(log_path.parent / "recording.html")
+            print(out)
+    print(f"replayed {frames} frames of {summary['scenario']}")
+    return 0
 
 
 def cmd_list(args) -> int:
@@ -105,6 +154,7 @@ def build_parser() -> argparse.ArgumentParser:
     run.add_argument("--master", choices=["ideal", "cobot"], help="ideal: wrench straight to the tool; cobot: the CAN device")
     view = run.add_mutually_exclusive_group()
     view.add_argument("--headless", action="store_true", default=True, help="no viewer (default)")
+    view.add_argument("--viewer", action="store_true", help="show both sides live in Meshcat (prints the URL)")
     run.add_argument("--realtime", action="store_true", help="pace ticks to the wall clock (default: simulated time)")
     run.add_argument("--operator", choices=["script", "keyboard"], default="script",
                      help="the scene's scripted operator (default) or you at the keyboard")
@@ -117,6 +167,10 @@ def build_parser() -> argparse.ArgumentParser:
     run.set_defaults(func=cmd_run)
     ls = sub.add_parser("list", help="list the scenes")
     ls.set_defaults(func=cmd_list)
+    rp = sub.add_parser("replay", help="show a recorded run again (Meshcat, or recording.html)")
+    rp.add_argument("log", help="a log.npz or the --out folder of a run")
+    rp.add_argument("--viewer", action="store_true", help="replay live in Meshcat instead of writing HTML")
+    rp.set_defaults(func=cmd_replay)
     pl = sub.add_parser("plot", help="paper-style PNG figures of a run log")
     pl.add_argument("log", help="a log.npz or the --out folder of a run")
     pl.add_argument("--out", help="folder for the PNGs (default: next to the log)")

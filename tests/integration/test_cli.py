@@ -40,6 +40,8 @@ def test_run_out_dir_writes_log_and_plots(tmp_path):
     rc = main(["run", "paper_disk_on_sphere", "--duration", "0.3", "--out", str(tmp_path)])
     assert rc == 0
     assert (tmp_path / "metrics.json").exists() and (tmp_path / "log.npz").exists()
+    html = (tmp_path / "recording.html").read_text()
+    assert "meshcat" in html.lower() and len(html) > 100_000  # self-contained: the viewer inlined
     pngs = sorted(p.name for p in tmp_path.glob("*.png"))
     assert pngs and all((tmp_path / p).stat().st_size > 5000 for p in pngs)
 
@@ -53,3 +55,11 @@ def test_plot_command_redraws_a_log(tmp_path):
 def test_plot_without_a_log_is_a_clear_error(tmp_path, capsys):
     assert main(["plot", str(tmp_path)]) == 2
     assert "no run log" in capsys.readouterr().err
+
+
+def test_replay_writes_a_recording_of_a_logged_run(tmp_path, capsys):
+    assert main(["run", "straight_incision", "--duration", "0.3", "--out", str(tmp_path / "run")]) == 0
+    (tmp_path / "run" / "recording.html").unlink()
+    assert main(["replay", str(tmp_path / "run")]) == 0
+    assert (tmp_path / "run" / "recording.html").stat().st_size > 100_000
+    assert "replayed" in capsys.readouterr().out

@@ -1,0 +1,450 @@
+"""Geometry helpers for the Meshcat view: transforms, tools, fixtures, force arrows, meshes.
+
+Pure functions. Parts are returned as ``(subpath, meshcat object, fixed 4x4 transform)``: the
+object is set once under a moving parent node, with the fixed transform on its own node, so a
+frame only moves parents. Three.js cylinders have their axis along y; a unit cylinder (height 1 m)
+scaled along y draws a segment or an arrow shaft. Lengths in m, colours 0xRRGGBB.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from meshcat import geometry as g
+
+#: colours, chosen to be told apart in a screenshot (see tests/integration/test_browser_render.py)
+COLORS = {
+    "tool": 0x1F4FFF,        # the reference tool, solid blue
+    "ghost": 0x33CCFF,       # the virtual tool, translucent cyan
+    "marker": 0xFFD400,      # the disk's spoke, so rolling shows
+    "handle": 0x404040,
+    "device": 0x7A7A7A,
+    "plane": 0x9A9AA0,
+    "depth": 0xE0B030,
+    "sphere": 0x50B070,
+    "contact_line": 0xD02020,
+    "operator": 0x10B010,    # operator force arrow, green
+    "constraint": 0xC010C0,  # constraint force arrow, magenta
+    "contact": 0xE01010,     # tissue contact force arrow, red
+    "arm": 0xFF8000,         # the slave arm, orange
+    "blade": 0xC8C8D0,
+    "tissue": 0xF04890,      # the tissue block, pink
+    "cut": 0x600000,
+}
+#: a scale that hides a part without deleting it (arrows with no force, zero-length links)
+TINY = 1e-6
+
+
+def material(color: int, opacity: float = 1.0, **kw) -> g.MeshLambertMaterial:
+    """A Lambert material; translucent when opacity < 1 (then it does not write depth)."""
+    if opacity < 1.0:
+        kw.setdefault("depthWrite", False)
+    return g.MeshLambertMaterial(color=color, opacity=opacity, transparent=opacity < 1.0, **kw)
+
+
+def pose_matrix(p=(0.0, 0.0, 0.0), R=None, scale=(1.0, 1.0, 1.0)) -> np.ndarray:
+    """4x4 homogeneous transform: translation p (m), rotation R, then per-axis scale."""
+    M = np.eye(4)
+    if R is not None:
+        M[:3, :3] = R
+    M[:3, :3] = M[:3, :3] * np.asarray(scale, dtype=float)
+    M[:3, 3] = p
+    return M
+
+
+def rotation_between(a, b) -> np.ndarray:
+    """The smallest rotation taking unit vector a onto unit vector b."""
+    a = np.asarray(a, dtype=float) / np.linalg.norm(a)
+    b = np.asarray(b, dtype=float) / np.linalg.norm(b)
+    v, c = np.cross(a, b), float(a @ b)
+    if c < -1.0 + 1e-9:  # opposite: half turn about any axis perpendicular to a
+        axis = np.cross(a, [1.0, 0.0, 0.0] if abs(a[0]) < 0.9 else [0.0, 1.0, 0.0])
+        axis /= np.linalg.norm(axis)
+        return 2.0 * np.outer(axis, axis) - np.eye(3)
+    K = np.array([[0.0, -v[2], v[1]], [v[2], 0.0, -v[0]], [-v[1], v[0], 0.0]])
+    return np.eye(3) + K + K @ K / (1.0 + c)
+
+
+def frame_from_normal(n) -> np.ndarray:
+    """A rotation whose z axis is the unit normal n (its x axis is as close to world x as can be)."""
+    return rotation_between((0.0, 0.0, 1.0), n)
+
+
+Y_TO_Z = rotation_between((0.0, 1.0, 0.0), (0.0, 0.0, 1.0))
+
+
+def segment_matrix(a, b) -> np.ndarray:
+    """Transform of a unit cylinder (1 m along y, centred) drawn from point a to point b (m)."""
+    a, b = np.asarray(a, dtype=float), np.asarray(b, dtype=float)
+    d = b - a
+    L = float(np.linalg.norm(d))
+    if L < 1e-6:
+        return pose_matrix(a, None, (TINY, TINY, TINY))
+    return pose_matrix(0.5 * (a + b), rotation_between((0.0, 1.0, 0.0), d / L), (1.0, L, 1.0))
+
+
+def arrow_matrices(origin, vector, m_per_unit: float, head_m: float, max_m: float = 0.3):
+    """(shaft, head) transforms of an arrow from ``origin`` along ``vector`` (e.g. a force in N),
+    ``m_per_unit`` m per unit of the vector, capped at ``max_m``; hidden when the vector is ~0."""
+    v = np.asarray(vector, dtype=float)
+    n = float(np.linalg.norm(v))
+    L = min(n * m_per_unit, max_m)
+    if L < 1e-5:
+        hidden = pose_matrix(origin, None, (TINY, TINY, TINY))
+        return hidden, hidden
+    d = v / n
+    R = rotation_between((0.0, 1.0, 0.0), d)
+    o = np.asarray(origin, dtype=float)
+    return (pose_matrix(o + 0.5 * L * d, R, (1.0, L, 1.0)),
+            pose_matrix(o + (L + 0.5 * head_m) * d, R))
+
+
+def arrow_parts(radius: float, color: int) -> list:
+    """A unit shaft (radius m) and a cone head (3 radius wide, 6 radius long) along +y."""
+    head = g.Cylinder(6.0 * radius, radiusTop=0.0, radiusBottom=2.5 * radius)
+    return [("shaft", g.Mesh(g.Cylinder(1.0, radius), material(color)), np.eye(4)),
+            ("head", g.Mesh(head, material(color)), np.eye(4))]
+
+
+def disk_parts(radius: float, opacity: float, color: int) -> list:
+    """An upright disk: axle along body z, 0.15 radius thick, with a spoke along body x."""
+    rot = pose_matrix(R=Y_TO_Z)
+    t = 0.15 * radius
+    parts = [("disk", g.Mesh(g.Cylinder(t, radius), material(color, opacity)), rot)]
+    if opacity >= 1.0:
+        spoke = g.Box((0.9 * radius, 0.12 * radius, 1.2 * t))
+        parts.append(("spoke", g.Mesh(spoke, material(COLORS["marker"])), pose_matrix((0.45 * radius, 0.0, 0.0))))
+    return parts
+
+
+def scalpel_parts(tip, opacity: float, handle_color: int, blade_len: float = 0.03,
+                  handle_len: float = 0.09) -> list:
+    """A scalpel whose blade tip is the body point ``tip`` (m): the blade runs back from the tip
+    along body -z (body z points into the tissue), wide along x (the cutting direction), thin
+    along y; the handle continues it."""
+    tip = np.asarray(tip, dtype=float)
+    blade = g.Box((0.012, 0.0015, blade_len))
+    handle = g.Cylinder(handle_len, 0.005)
+    return [
+        ("blade", g.Mesh(blade, material(COLORS["blade"], opacity)),
+         pose_matrix(tip - [0.0, 0.0, 0.5 * blade_len])),
+        ("grip", g.Mesh(handle, material(handle_color, opacity)),
+         pose_matrix(tip - [0.0, 0.0, blade_len + 0.5 * handle_len], Y_TO_Z)),
+    ]
+
+
+def tool_parts(shape: str, radius: float, tip, ghost: bool) -> list:
+    """The reference tool (solid) or the virtual tool (``ghost``: translucent) of a shape."""
+    color, opacity = (COLORS["ghost"], 0.35) if ghost else (COLORS["tool"], 1.0)
+    if shape == "disk":
+        return disk_parts(radius, opacity, color)
+    if shape == "scalpel":
+        return scalpel_parts(tip, opacity, color)
+    return [("box", g.Mesh(g.Box((0.04, 0.03, 0.02)), material(color, opacity)), np.eye(4))]
+
+
+def plane_part(name: str, origin, normal, size: float, color: int, opacity: float) -> tuple:
+    """A thin square slab (size m) whose top face is the plane through origin with normal."""
+    n = np.asarray(normal, dtype=float)
+    thin = 0.002 * size
+    M = pose_matrix(np.asarray(origin, dtype=float) - 0.5 * thin * n, frame_from_normal(n))
+    return (name, g.Mesh(g.Box((size, size, thin)), material(color, opacity)), M)
+
+
+def fixture_parts(fixture_type: str, params: dict, size: float) -> list:
+    """The static geometry of a fixture on the master side (m): the rolling plane, the sphere
+    (translucent with a wireframe), or the tissue plane and the blade's depth plane."""
+    if fixture_type == "rolling_disk":
+        return [plane_part("plane", params.get("plane_origin_m", (0, 0, 0)),
+                           params.get("plane_normal", (0, 0, 1)), size, COLORS["plane"], 0.6)]
+    if fixture_type == "sphere":
+        c, r = params.get("center_m", (0.0, 0.0, 0.0)), params.get("radius_m", 0.05)
+        M = pose_matrix(c)
+        return [("sphere", g.Mesh(g.Sphere(r), material(COLORS["sphere"], 0.3)), M),
+                ("wire", g.Mesh(g.Sphere(r), g.MeshBasicMaterial(color=COLORS["sphere"], wireframe=True)), M)]
+    if fixture_type == "scalpel":
+        o = np.asarray(params.get("plane_origin_m", (0.0, 0.0, 0.0)), dtype=float)
+        n = np.asarray(params.get("plane_normal", (0.0, 0.0, 1.0)), dtype=float)
+        d = params.get("depth_m", 0.005)
+        return [plane_part("tissue_plane", o, n, size, COLORS["tissue"], 0.35),
+                plane_part("depth_plane", o - d * n, n, size, COLORS["depth"], 0.35)]
+    return []
+
+
+def contact_line_part(radius: float) -> tuple:
+    """The rolling disk's contact line: a segment along local x through the contact point."""
+    pts = np.array([[-1.5 * radius, 0.0, 0.0], [1.5 * radius, 0.0, 0.0]], dtype=np.float32).T
+    obj = g.LineSegments(g.PointsGeometry(pts), g.LineBasicMaterial(color=COLORS["contact_line"]))
+    dot = g.Mesh(g.Sphere(0.08 * radius), material(COLORS["contact_line"]))
+    return [("line", obj, np.eye(4)), ("dot", dot, np.eye(4))]
+
+
+def contact_line_matrix(p, R, params: dict) -> np.ndarray:
+    """Pose of the contact line for a disk at (p, R): at the contact point on the plane, local x
+    along the rolling direction (axle x normal), local z along the plane normal."""
+    n = np.asarray(params.get("plane_normal", (0.0, 0.0, 1.0)), dtype=float)
+    o = np.asarray(params.get("plane_origin_m", (0.0, 0.0, 0.0)), dtype=float)
+    c = p - (float((p - o) @ n)) * n
+    heading = np.cross(R[:, 2], n)
+    if np.linalg.norm(heading) < 1e-9:
+        heading = np.cross(n, [1.0, 0.0, 0.0] if abs(n[0]) < 0.9 else [0.0, 1.0, 0.0])
+    x = heading / np.linalg.norm(heading)
+    return pose_matrix(c, np.column_stack([x, np.cross(n, x), n]))
+
+
+def tissue_parts(tissue: dict) -> list:
+    """A tissue block (translucent, so a cut below the surface shows): top face on the plane."""
+    n = np.asarray(tissue["normal"], dtype=float)
+    lx, ly = tissue["size_m"]
+    t = tissue["thickness_m"]
+    M = pose_matrix(np.asarray(tissue["origin_m"], dtype=float) - 0.5 * t * n, frame_from_normal(n))
+    return [("block", g.Mesh(g.Box((lx, ly, t)), material(COLORS["tissue"], 0.75)), M)]
+
+
+def polyline(points, color: int = COLORS["cut"]) -> g.Line:
+    """A line strip through (n, 3) points (m)."""
+    pts = np.ascontiguousarray(np.asarray(points, dtype=np.float32).T)
+    return g.Line(g.PointsGeometry(pts), g.LineBasicMaterial(color=color))
+
+
+def decimate(vertices: np.ndarray, faces: np.ndarray, cell: float):
+    """Vertex clustering on a grid of ``cell`` m: merge the vertices in each cell (their mean),
+    drop the triangles that collapse. Returns (vertices (m, 3), faces (k, 3))."""
+    if cell <= 0 or len(vertices) == 0:
+        return vertices, faces
+    key = np.floor(vertices / cell).astype(np.int64)
+    _, inv, count = np.unique(key, axis=0, return_inverse=True, return_counts=True)
+    inv = inv.reshape(-1)
+    merged = np.zeros((count.size, 3))
+    np.add.at(merged, inv, vertices)
+    merged /= count[:, None]
+    f = inv[faces]
+    keep = (f[:, 0] != f[:, 1]) & (f[:, 1] != f[:, 2]) & (f[:, 0] != f[:, 2])
+    return merged, f[keep]
+
+
+def _bvh_arrays(geom):
+    v = np.asarray(geom.vertices(), dtype=float)
+    tri = geom.tri_indices
+    f = np.array([(t[0], t[1], t[2]) for t in map(tri, range(geom.num_tris))], dtype=np.int64).reshape(-1, 3)
+    return v, f
+
+
+def geometry_shape(gobj, cell: float, color: int):
+    """(meshcat object, fixed transform) for a pinocchio GeometryObject, or None if unsupported.
+    Meshes (coal BVH models) are simplified on a ``cell`` m grid; primitives become primitives."""
+    geom = gobj.geometry
+    kind = type(geom).__name__
+    mat = material(color)
+    if kind.startswith("BVHModel"):
+        v, f = _bvh_arrays(geom)
+        v, f = decimate(v * np.asarray(gobj.meshScale, dtype=float), f, cell)
+        if len(f) == 0:
+            return None
+        return g.Mesh(g.TriangularMeshGeometry(v, f), mat), np.eye(4)
+    if kind == "Box":
+        return g.Mesh(g.Box(2.0 * np.asarray(geom.halfSide)), mat), np.eye(4)
+    if kind == "Sphere":
+        return g.Mesh(g.Sphere(geom.radius), mat), np.eye(4)
+    if kind in ("Cylinder", "Capsule"):
+        h = 2.0 * geom.halfLength + (2.0 * geom.radius if kind == "Capsule" else 0.0)
+        return g.Mesh(g.Cylinder(h, geom.radius), mat), pose_matrix(R=Y_TO_Z)
+    return None
+
+
+def joint_axis(joint) -> np.ndarray:
+    """The axis (in the joint frame) of a one-axis pinocchio joint, z when not known."""
+    name = joint.shortname()
+    last = name[-1] if name else "Z"
+    return {"X": np.array([1.0, 0.0, 0.0]), "Y": np.array([0.0, 1.0, 0.0])}.get(last, np.array([0.0, 0.0, 1.0]))
+
+
+def device_joint_part(k: int, joint) -> tuple:
+    """A marker for device joint k: a block for a prismatic joint, a ring-like disc (smaller for
+    later joints, so a wrist whose axes meet stays readable) along a revolute joint's axis."""
+    name = joint.shortname()
+    mat = material(COLORS["device"])
+    if "JointModelP" in name:
+        return g.Mesh(g.Box((0.02, 0.02, 0.02)), mat), np.eye(4)
+    r = max(0.006, 0.02 - 0.003 * k)
+    return g.Mesh(g.Cylinder(0.004, r), mat), pose_matrix(R=rotation_between((0.0, 1.0, 0.0), joint_axis(joint)))
+
+
+# --------------------------------------------------------------------------------------------
+# The whole scene: its static parts, its layout, and the poses of its moving nodes for a frame.
+# --------------------------------------------------------------------------------------------
+
+#: the meshcat default camera sits at (3, 0, 1) m looking at the origin, 75 deg vertical field of
+#: view: the visible height at the origin is about 4.85 m, the width about 8.6 m at 16:9
+VIEW_HEIGHT_M, VIEW_WIDTH_M = 4.85, 8.6
+#: the layout is tipped toward the camera by this much (rad), so planes are seen from above
+PITCH = np.radians(20.0)
+
+
+class Drawing:
+    """The scene's geometry and layout (owns pinocchio Data workspaces for the device and arm).
+
+    Paths are relative to the scene root. The handle H is drawn with the device (at its "handle"
+    frame, else its last joint); without a device the virtual tool is where the hand is. The master side sits around the layout origin,
+    magnified by ``zoom`` about its fixture's centre; the slave side is translated by
+    ``slave_offset_m``. The root turns the layout so +x runs left to right on the default camera,
+    scales it to fill the view and centres it (we aim by moving the root: meshcat 0.3.2 has no
+    camera-target call).
+    """
+
+    def __init__(self, scene):
+        import pinocchio as pin
+
+        self.pin, self.scene = pin, scene
+        p = scene.fixture_params
+        self.radius = p.get("radius_m", 0.03)
+        tip = p.get("tip_m", (0.0, 0.0, 0.0))
+        ft = scene.fixture_type
+        self.size = {"rolling_disk": max(8.0 * self.radius, 0.1), "sphere": 3.0 * self.radius,
+                     "scalpel": 0.12}.get(ft, 0.15)
+        self.zoom = scene.master_zoom or float(np.clip(0.6 / self.size, 1.0, 10.0))
+        centre = np.asarray(p.get("center_m" if ft == "sphere" else "plane_origin_m", (0.0, 0.0, 0.0)))
+        self.fixed = {"master": pose_matrix(-self.zoom * centre, None, (self.zoom,) * 3),
+                      "slave": pose_matrix(scene.slave_offset_m)}
+        parts = [(f"master/fixture/{n}", o, M) for n, o, M in fixture_parts(ft, p, self.size)]
+        for name, ghost in (("reference", False), ("virtual", True)):
+            parts += [(f"master/{name}/{n}", o, M) for n, o, M in tool_parts(scene.tool_shape, self.radius, tip, ghost)]
+        if ft == "rolling_disk":
+            parts += [(f"master/contact/{n}", o, M) for n, o, M in contact_line_part(self.radius)]
+        r_m = 0.0015
+        for name, r, where in (("operator", r_m, "master"), ("constraint", r_m, "master"), ("contact", 0.004, "slave")):
+            parts += [(f"{where}/arrows/{name}/{n}", o, M) for n, o, M in arrow_parts(r, COLORS[name])]
+        parts += [(f"slave/tool/{n}", o, M) for n, o, M in scalpel_parts((0, 0, 0), 1.0, COLORS["tool"])]
+        if scene.tissue is not None:
+            parts += [(f"slave/tissue/{n}", o, M) for n, o, M in tissue_parts(scene.tissue)]
+        self.master = scene.master_model
+        if self.master is not None:
+            m = self.master
+            self.mdata = m.createData()
+            self.handle_fid = m.getFrameId("handle") if m.existFrame("handle") else None
+            for j in range(1, m.njoints):
+                parts.append((f"master/device/link{j}", g.Mesh(g.Cylinder(1.0, 0.004), material(COLORS["device"])), np.eye(4)))
+                o, M = device_joint_part(j, m.joints[j])
+                parts.append((f"master/device/joint{j}/marker", o, M))
+            parts.append(("master/device/link_handle", g.Mesh(g.Cylinder(1.0, 0.004), material(COLORS["device"])), np.eye(4)))
+            knob, grip = g.Sphere(0.006), g.Cylinder(0.05, 0.004)  # the handle H: knob at H, grip along -z
+            parts += [("master/handle/knob", g.Mesh(knob, material(COLORS["handle"])), np.eye(4)),
+                      ("master/handle/grip", g.Mesh(grip, material(COLORS["handle"])), pose_matrix((0, 0, -0.025), Y_TO_Z))]
+        self.arm = scene.slave_robot
+        self.arm_parts = []
+        if self.arm is not None:
+            self.adata = self.arm.model.createData()
+            self.gdata = pin.GeometryData(self.arm.visual_model)
+            for k, gobj in enumerate(self.arm.visual_model.geometryObjects):
+                shape = geometry_shape(gobj, scene.mesh_cell_m, COLORS["arm"])
+                if shape is not None:
+                    self.arm_parts.append((k, f"slave/arm/{gobj.name}"))
+                    parts.append((f"slave/arm/{gobj.name}/shape", *shape))
+            self.tool_fid = (self.arm.model.getFrameId(scene.slave_tool_frame)
+                             if scene.slave_tool_frame is not None else None)
+        self.parts = parts
+        self.fixed["root"] = self._root_matrix()
+        # nodes that move: hidden until a frame places them
+        groups = {p.rsplit("/", 1)[0] for p, _, _ in parts}
+        self.moving = sorted(p for p, _, _ in parts if "/arrows/" in p)
+        self.moving += sorted(p for p in groups if p.split("/")[1] in ("reference", "virtual", "contact", "handle", "tool")
+                              or p.startswith("slave/arm/"))
+        self.moving += sorted(p for p, _, _ in parts if p.startswith("master/device/link"))
+        self.moving += sorted(p for p in groups if p.startswith("master/device/joint"))
+
+    def _root_matrix(self) -> np.ndarray:
+        h = 0.5 * self.zoom * self.size
+        xs, zs = [-h, h], [-h, h]
+        off = np.asarray(self.scene.slave_offset_m)
+        if self.arm is not None:
+            xs += [off[0] - 0.3, off[0] + 0.9]
+            zs += [off[2], off[2] + 1.0]
+        if self.scene.tissue is not None:
+            o, half = off + self.scene.tissue["origin_m"], 0.5 * max(self.scene.tissue["size_m"])
+            xs += [o[0] - half, o[0] + half]
+            zs += [o[2] - half, o[2] + half]
+        c = np.array([0.5 * (min(xs) + max(xs)), 0.0, 0.5 * (min(zs) + max(zs))])
+        s = min(0.8 * VIEW_WIDTH_M / (max(xs) - min(xs)), 0.75 * VIEW_HEIGHT_M / (max(zs) - min(zs)))
+        Rz = np.array([[0.0, -1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, 1.0]])  # layout +x -> screen right
+        c_, s_ = np.cos(PITCH), np.sin(PITCH)
+        Ry = np.array([[c_, 0.0, s_], [0.0, 1.0, 0.0], [-s_, 0.0, c_]])  # the far side (-x) rises
+        return pose_matrix(-s * (Ry @ Rz @ c), Ry @ Rz, (s, s, s))
+
+    def hidden(self) -> dict:
+        """{path: transform} that shrinks every moving node away (before the first frame)."""
+        return {p: pose_matrix((0.0, 0.0, 0.0), None, (TINY,) * 3) for p in self.moving}
+
+    def _master_q(self, q) -> np.ndarray:
+        m = self.master
+        if q.shape[0] == m.nq:
+            return np.asarray(q, dtype=float)
+        if q.shape[0] != m.nv:
+            from teleop.errors import ConfigError
+            raise ConfigError(f"VizFrame.master_q: expected {m.nq} (pinocchio) or {m.nv} joint values, got {q.shape[0]}")
+        out = self.pin.neutral(m)
+        for j in range(1, m.njoints):
+            jt = m.joints[j]
+            x = q[jt.idx_v]
+            if jt.nq == 2:
+                out[jt.idx_q], out[jt.idx_q + 1] = np.cos(x), np.sin(x)
+            else:
+                out[jt.idx_q] = x
+        return out
+
+    def _slave_q(self, q) -> np.ndarray:
+        nq = self.arm.model.nq
+        if q.shape[0] > nq:
+            from teleop.errors import ConfigError
+            raise ConfigError(f"VizFrame.slave_q: the slave model has {nq} joint values, got {q.shape[0]}")
+        if q.shape[0] == nq:
+            return np.asarray(q, dtype=float)
+        out = self.pin.neutral(self.arm.model)  # trailing joints (e.g. locked fingers) stay neutral
+        out[: q.shape[0]] = q
+        return out
+
+    def states(self, f) -> dict:
+        """{path: 4x4 transform} of the moving nodes for frame ``f`` (a VizFrame); nodes whose
+        data the frame lacks are left out (they keep their last pose), arrows without a wrench
+        are shrunk away."""
+        pin, out = self.pin, {}
+        ref = f.reference_pose
+        if ref is not None:
+            out["master/reference"] = pose_matrix(*ref)
+            if self.scene.fixture_type == "rolling_disk":
+                out["master/contact"] = contact_line_matrix(ref[0], ref[1], self.scene.fixture_params)
+        if f.virtual_pose is not None:
+            out["master/virtual"] = pose_matrix(*f.virtual_pose)
+        handle = f.virtual_pose if f.virtual_pose is not None else ref
+        if self.master is not None and f.master_q is not None:
+            m, d = self.master, self.mdata
+            pin.forwardKinematics(m, d, self._master_q(f.master_q))
+            for j in range(1, m.njoints):
+                a, b = d.oMi[m.parents[j]].translation, d.oMi[j].translation
+                out[f"master/device/link{j}"] = segment_matrix(a, b)
+                out[f"master/device/joint{j}"] = pose_matrix(b, d.oMi[j].rotation)
+            X = d.oMi[m.njoints - 1]
+            if self.handle_fid is not None:
+                X = pin.updateFramePlacement(m, d, self.handle_fid)
+            out["master/device/link_handle"] = segment_matrix(d.oMi[m.njoints - 1].translation, X.translation)
+            handle = (X.translation, X.rotation)
+            out["master/handle"] = pose_matrix(*handle)
+        s, head = self.scene.force_scale_m_per_N, 0.009
+        for name, w, at in (("operator", f.operator_wrench, handle), ("constraint", f.constraint_wrench, ref)):
+            if at is not None:
+                shaft, tip = arrow_matrices(at[0], w[:3] if w is not None else np.zeros(3), s, head, 0.5 * self.size)
+                out[f"master/arrows/{name}/shaft"], out[f"master/arrows/{name}/head"] = shaft, tip
+        tool = f.slave_tool_pose
+        if self.arm is not None and f.slave_q is not None:
+            q = self._slave_q(f.slave_q)
+            pin.forwardKinematics(self.arm.model, self.adata, q)
+            pin.updateGeometryPlacements(self.arm.model, self.adata, self.arm.visual_model, self.gdata)
+            for k, path in self.arm_parts:
+                X = self.gdata.oMg[k]
+                out[path] = pose_matrix(X.translation, X.rotation)
+            if tool is None and self.tool_fid is not None:
+                X = pin.updateFramePlacement(self.arm.model, self.adata, self.tool_fid)
+                tool = (X.translation, X.rotation)
+        if tool is not None:
+            out["slave/tool"] = pose_matrix(*tool)
+            w = f.contact_wrench[:3] if f.contact_wrench is not None else np.zeros(3)
+            out["slave/arrows/contact/shaft"], out["slave/arrows/contact/head"] = arrow_matrices(tool[0], w, s, 0.024)
+        return out

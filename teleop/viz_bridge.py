@@ -1,0 +1,110 @@
+"""From a run to the Meshcat views: build the view's scene from a Scene, and turn loop ticks (or a
+recorded log) into frames. The loop calls :meth:`RunView.publish_tick` every tick; frames are
+built only at ``fps`` of simulated time, so the 1 kHz loop pays nothing in between.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from teleop.scenario.build import master_fixture_spec
+
+
+def slave_robot_for(scene):
+    """The slave arm's visual model, reduced exactly like the follower's model (fingers locked),
+    so the view's joint vector is the arm's ``q``. None when the scene has no slave or a URDF arm."""
+    arm = scene.extra.get("slave", {}).get("arm", "panda")
+    if "slave" not in scene.extra or not isinstance(arm, str):
+        return None
+    import example_robot_data as erd
+    import pinocchio as pin
+
+    from teleop.slave.arm import ARMS
+
+    robot = erd.load(ARMS[arm][0])
+    full = robot.model
+    lock = [j for j in range(1, full.njoints) if "finger" in full.names[j]]
+    if not lock:
+        return robot
+
+    class Reduced:  # the two attributes the view reads
+        pass
+
+    r = Reduced()
+    r.model, geoms = pin.buildReducedModel(full, [robot.visual_model], lock, pin.neutral(full))
+    r.visual_model = geoms[0]
+    return r
+
+
+def viz_scene_for(scene):
+    """The VizScene of a run: master fixture geometry (in the master frame), tool shape, arm, tissue."""
+    from dataclasses import asdict
+
+    from teleop.viz import VizScene
+
+    spec = master_fixture_spec(scene)
+    params = {k: v for k, v in asdict(spec).items() if k not in ("type", "euler_sequence", "knife_edge", "trocar_m")}
+    shape = {"rolling_disk": "disk", "sphere": "disk", "scalpel": "scalpel"}.get(spec.type, "box")
+    tissue = None
+    if "tissue" in scene.extra or "slave" in scene.extra:
+        t = scene.extra.get("tissue", {})
+        tissue = {
+            "origin_m": list(t.get("origin_m", scene.fixture.plane_origin_m)),
+            "normal": list(t.get("normal", scene.fixture.plane_normal)),
+            "size_m": [0.12, 0.08],
+            "thickness_m": float(t.get("thickness_m", 0.03)),
+        }
+    return VizScene(
+        fixture_type=spec.type, fixture_params=params, tool_shape=shape,
+        slave_robot=slave_robot_for(scene), tissue=tissue,
+    )
+
+
+class RunView:
+    """Adapter between the loop and a view: throttles by simulated time and builds VizFrames."""
+
+    def __init__(self, view, fps: float = 30.0):
+        self.view, self.period, self.next_t = view, 1.0 / fps, 0.0
+
+    def publish_tick(self, t: float, tool, master, wrench, slave) -> None:
+        if t + 1e-12 < self.next_t:
+            return
+        self.next_t = t + self.period
+        from teleop.viz import VizFrame
+
+        kw = dict(
+            t=t, reference_pose=tool.pose(), virtual_pose=master.virtual_pose(),
+            operator_wrench=np.asarray(wrench, dtype=float), constraint_wrench=tool.constraint_wrench_W,
+        )
+        if slave is not None and slave.n:
+            kw.update(
+                slave_q=slave.arm.q.copy(), slave_tool_pose=slave.arm.tool_pose(),
+                contact_wrench=slave._last_contact, cut_trace=slave.log["tip"][: slave.n : 20].copy(),
+            )
+        self.view.publish(VizFrame(**kw))
+
+
+def replay_log(log: dict, view, fps: float = 30.0, realtime: bool = False) -> int:
+    """Publish a recorded run (a loaded log.npz) frame by frame, paced to the wall clock when
+    ``realtime``; returns the number of frames."""
+    import time
+
+    from teleop.viz import VizFrame
+
+    wall0 = time.perf_counter()
+    t = log["t"]
+    if t.size == 0:
+        return 0
+    step = max(1, int(round((1.0 / fps) / max(t[1] - t[0], 1e-9)))) if t.size > 1 else 1
+    frames = 0
+    for i in range(0, t.size, step):
+        kw = dict(t=float(t[i]), reference_pose=(log["p_r"][i], log["R_r"][i]),
+                  virtual_pose=(log["q_v_p"][i], log["R_v"][i]),
+                  operator_wrench=log["operator_W"][i], constraint_wrench=log["constraint_W"][i])
+        if "slave_q" in log:
+            kw.update(slave_q=log["slave_q"][i], cut_trace=log["slave_tip"][: i + 1 : 20])
+        if realtime:
+            time.sleep(max(0.0, wall0 + float(t[i] - t[0]) - time.perf_counter()))
+        view.publish(VizFrame(**kw))
+        frames += 1
+    return frames

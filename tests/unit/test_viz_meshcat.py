@@ -1,0 +1,126 @@
+"""The Meshcat view: a real server, throttled publishing, a recording, and a server that always
+goes away (close, close again, and a parent killed with SIGKILL)."""
+
+import base64
+import os
+import re
+import signal
+import subprocess
+import sys
+import time
+
+import numpy as np
+import pytest
+import umsgpack
+
+from teleop.errors import ConfigError, TeleopError
+from teleop.viz import VizFrame, VizScene, make_view
+
+
+def _commands(html: str) -> list:
+    """The meshcat commands embedded in a static_html() page, decoded."""
+    blobs = re.findall(r'data:application/octet-binary;base64,([A-Za-z0-9+/=]+)"', html)
+    return [umsgpack.unpackb(base64.b64decode(b)) for b in blobs]
+
+
+def _frame(k: int, dt: float = 0.001) -> VizFrame:
+    t = k * dt
+    c, s = np.cos(t), np.sin(t)
+    R = np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
+    return VizFrame(t=t, reference_pose=(np.array([0.05 * np.sin(t), 0.0, 0.05 * np.cos(t)]), R),
+                    virtual_pose=(np.array([0.0, 0.01, 0.05]), R),
+                    operator_wrench=np.r_[1.0, 0.0, 0.0, 0.0, 0.0, 0.0],
+                    constraint_wrench=np.r_[0.0, 0.0, 2.0, 0.0, 0.0, 0.0] if k % 2 else None,
+                    slave_tool_pose=(np.array([0.5, 0.0, 0.1]), np.diag([1.0, -1.0, -1.0])),
+                    contact_wrench=np.r_[0.0, 0.0, 3.0, 0.0, 0.0, 0.0],
+                    cut_trace=np.column_stack([np.linspace(0.45, 0.45 + t, k + 1), np.zeros(k + 1),
+                                               np.full(k + 1, 0.095)]))
+
+
+@pytest.fixture
+def scene():
+    return VizScene("sphere", {"radius_m": 0.05}, "scalpel",
+                    tissue={"origin_m": (0.5, 0.0, 0.1), "size_m": (0.2, 0.2), "thickness_m": 0.03})
+
+
+def test_publish_throttles_records_and_saves_an_animation(scene, tmp_path):
+    with make_view("meshcat", scene, record=True) as view:
+        assert view.url.startswith("http://")
+        t0 = time.perf_counter()
+        accepted = [view.publish(_frame(k)) for k in range(100)]  # 1 kHz for 0.1 s
+        cost = (time.perf_counter() - t0) / 100
+        assert sum(accepted) == 3 == view.pushes  # t = 0, 0.034, 0.068: >= 1/30 s apart
+        assert view.dropped == 97
+        assert cost < 0.005  # publish never waits for the server
+        view.flush()  # takes the newest dropped frame (t = 0.099) too
+        assert view.pushes == 4 and 1 <= view.sent <= 4
+        out = view.save_html(tmp_path / "run.html")
+    html = out.read_text()
+    assert "MeshCat.Viewer" in html and len(html) > 100_000  # the viewer's javascript is inlined
+    anims = [c for c in _commands(html) if c["type"] == "set_animation"]
+    assert len(anims) == 1
+    tracks = {a["path"]: a["clip"]["tracks"] for a in anims[0]["animations"]}
+    ref = {t["name"]: t for t in tracks["/meshcat/teleop/master/reference"]}
+    assert set(ref) == {".position", ".quaternion", ".scale"}
+    times = [k["time"] for k in ref[".position"]["keys"]]
+    assert np.allclose(times, np.array([0.0, 0.034, 0.068, 0.099]) * 30)  # frames at 30 fps
+    assert np.allclose(ref[".position"]["keys"][-1]["value"], _frame(99).reference_pose[0])
+    assert any(p.startswith("/meshcat/teleop/slave/cut/chunk") for p in tracks)  # the cut appears over time
+    assert "/meshcat/teleop/slave/arrows/contact/shaft" in tracks
+
+
+def test_close_twice_stops_the_server_and_refuses_more_frames(scene, tmp_path):
+    view = make_view("meshcat", scene)
+    proc = view.server_process
+    assert proc.poll() is None
+    view.publish(_frame(0))
+    with pytest.raises(ConfigError, match="record=True"):
+        view.save_html(tmp_path / "x.html")
+    view.close()
+    assert proc.poll() is not None  # the server process is gone
+    view.close()
+    with pytest.raises(TeleopError, match="closed"):
+        view.publish(_frame(1))
+
+
+def test_a_bad_frame_is_refused(scene):
+    with make_view("meshcat", scene) as view:
+        with pytest.raises(ConfigError, match="VizFrame"):
+            view.publish({"t": 0.0})
+        assert view.pushes == 0
+
+
+def _alive(pid: int) -> bool:
+    """True while pid runs (a zombie waiting for its new parent to reap it counts as gone)."""
+    try:
+        with open(f"/proc/{pid}/stat") as f:
+            return f.read().rsplit(")", 1)[1].split()[0] != "Z"
+    except FileNotFoundError:
+        return False
+
+
+CHILD = """
+import sys, time
+from teleop.viz import VizScene, make_view
+view = make_view("meshcat", VizScene("free"))
+print(view.server_process.pid, flush=True)
+time.sleep(60)
+"""
+
+
+def test_server_dies_with_a_killed_parent():
+    child = subprocess.Popen([sys.executable, "-c", CHILD], stdout=subprocess.PIPE, text=True)
+    try:
+        pid = int(child.stdout.readline())
+        assert _alive(pid)
+        child.send_signal(signal.SIGKILL)  # no finally, no atexit in the parent
+        child.wait()
+        deadline = time.time() + 5.0
+        while _alive(pid) and time.time() < deadline:
+            time.sleep(0.1)
+        if _alive(pid):
+            os.kill(pid, signal.SIGKILL)
+            pytest.fail("the meshcat server outlived its killed parent")
+    finally:
+        if child.poll() is None:
+            child.kill()
