@@ -89,8 +89,13 @@ def make_master(scene: Scene, tool, rng: np.random.Generator):
         from teleop.master import CobotConfig, CobotMaster
 
         cfg = dict(scene.master_config)
-        if "can_faults" not in scene.effects:  # an effect the scene does not name is not simulated
+        # the device's effects follow the scene: what it does not name is not simulated
+        if "can_faults" not in scene.effects:
             cfg.pop("faults", None)
+        if "sensor_noise" not in scene.effects:
+            cfg.update(force_noise_N=0.0, torque_noise_Nm=0.0, force_bias_N=(0.0, 0.0, 0.0), torque_bias_Nm=(0.0, 0.0, 0.0))
+        if "servo_lag" not in scene.effects:
+            cfg["servo_bandwidth_hz"] = 1e4  # a 16 us lag: nothing at a 1 kHz tick
         return CobotMaster(tool, CobotConfig.from_dict(cfg, "cobot"), scene.dt_s, rng)
     return IdealMaster(tool, scene.dt_s)
 
@@ -109,6 +114,7 @@ def run_scene(scene: Scene, progress=None, realtime: bool = False, operator=None
         "t": np.zeros(n), "q_r": np.zeros((n, 6)), "q_v_p": np.zeros((n, 3)),
         "p_r": np.zeros((n, 3)), "R_r": np.zeros((n, 3, 3)), "R_v": np.zeros((n, 3, 3)),
         "lam": np.zeros((n, tool.model.m)), "operator_W": np.zeros((n, 6)),
+        "master_q": np.zeros((n, 6)), "can_frames_lost": np.zeros(n, dtype=np.int64),
         "constraint_W": np.zeros((n, 6)), "tick_us": np.zeros(n),
     }
     slave = None
@@ -146,6 +152,10 @@ def run_scene(scene: Scene, progress=None, realtime: bool = False, operator=None
             log["q_r"][i] = tool.q
             log["q_v_p"][i] = p_v
             log["R_v"][i] = R_v
+            driver = getattr(master, "driver", None)
+            if driver is not None:  # the cobot: its encoders and the bus's running loss count
+                log["master_q"][i] = driver.joints_rad_m
+                log["can_frames_lost"][i] = master.stats().get("can_frames_lost", 0)
             log["p_r"][i], log["R_r"][i] = tool.pose()
             log["lam"][i] = tool.lam
             log["operator_W"][i] = wrench
