@@ -27,7 +27,8 @@ from meshcat.visualizer import ViewerWindow
 
 from teleop.errors import ConfigError, TeleopError
 from teleop.viz.frames import VizFrame, VizScene
-from teleop.viz.shapes import Drawing, polyline
+from teleop.viz.layout import Drawing
+from teleop.viz.shapes import polyline
 
 log = logging.getLogger(__name__)
 

@@ -5,6 +5,7 @@ import pytest
 
 from teleop.errors import ConfigError
 from teleop.viz import NullView, VizFrame, VizScene, make_view
+from teleop.viz import layout as L
 from teleop.viz import shapes as S
 
 R0 = np.eye(3)
@@ -141,7 +142,7 @@ def test_drawing_states_cover_every_side():
 
     scene = VizScene("rolling_disk", {"radius_m": 0.03}, "disk", master_model=CobotModel().model,
                      tissue={"size_m": (0.1, 0.1)})
-    d = S.Drawing(scene)
+    d = L.Drawing(scene)
     f = VizFrame(t=0, reference_pose=([0, 0, 0.03], R0), virtual_pose=([0.01, 0, 0.03], R0),
                  operator_wrench=np.r_[1.0, 0, 0, 0, 0, 0], master_q=[0.01, 0.0, 0.03, 0.1, 1.0, 0.2],
                  slave_tool_pose=([0.5, 0, 0], np.diag([1, -1, -1.0])))
