@@ -4,7 +4,6 @@ import numpy as np
 import pytest
 
 from teleop.dynamics import fixtures
-from teleop.dynamics.body import RigidBody
 from teleop.dynamics.constraints import PlaneHeight
 from teleop.dynamics.model import ConstrainedBody
 from teleop.dynamics.multipliers import DelassusFactor
