@@ -85,12 +85,12 @@ class ConstrainedBody:
 
     # -- pose-only terms --------------------------------------------------------------------------
     def pose_terms(self, chart: EulerChart, q: np.ndarray) -> PoseTerms:
-        key = (id(chart), q.tobytes())
+        qb = q.tobytes()
         c = self._cache
-        if c is not None and c.key == key:
+        if c is not None and c.key[0] is chart and c.key[1] == qb:  # the chart object itself, not its id
             return c
         pt = PoseTerms()
-        pt.key = key
+        pt.key = (chart, qb)
         pt.R, pt.E_B, pt.E_inv, pt.dE = rate_map_terms(chart, q[3:])
         pt.p = q[:3]
         R = pt.R

@@ -168,14 +168,14 @@ class ReferenceTool:
         return Kinematics(self.state.chart, self.state.q, self.state.qd)
 
     def pose(self):
-        """(p (3,) m, R_WB (3, 3)) of the body frame."""
-        k = self.kinematics()
-        return k.p.copy(), k.R
+        """(p (3,) m, R_WB (3, 3)) of the body frame. Read from the pose cache the step filled."""
+        pt = self.model.pose_terms(self.state.chart, self.state.q)
+        return pt.p.copy(), pt.R
 
     def twist(self):
         """(v (3,) m/s, w (3,) rad/s), world frame."""
-        k = self.kinematics()
-        return k.v.copy(), k.w
+        pt = self.model.pose_terms(self.state.chart, self.state.q)
+        return self.state.qd[:3].copy(), pt.R @ (pt.E_B @ self.state.qd[3:])
 
     def residual(self) -> np.ndarray:
         """Holonomic residuals (m or rad) at the current pose."""
