@@ -11,6 +11,10 @@ chart-coordinate evaluation of eqs. 8-9 for reference and tests.
 Everything that depends on the pose only (R, E_B, G, the inverse inertia, the factored Delassus
 matrix) is cached in :class:`PoseTerms`, so a step that ends with a velocity projection hands its
 pose work to the next evaluation.
+
+The same arithmetic runs in two forms: compiled kernels (:mod:`teleop.dynamics.kernels`, the
+default when every constraint has one) and the numpy reference below (``compiled=False``, and the
+path for constraint classes without a kernel). The tests hold the two equal.
 """
 
 from __future__ import annotations
@@ -26,9 +30,11 @@ from teleop.dynamics.body import (
     constraint_matrix,
     generalized_force,
 )
+from teleop.dynamics import kernels
 from teleop.dynamics.constraints import stack_bias, stack_jacobian, stack_residual
 from teleop.dynamics.effects import total_wrench
 from teleop.dynamics.multipliers import (
+    RANK_RTOL,
     ConstrainedAcceleration,
     DelassusFactor,
     compute_constrained_acceleration,
@@ -38,9 +44,10 @@ from teleop.dynamics.rotations import EulerChart, cross, rate_map_terms
 
 class PoseTerms:
     """Pose-only quantities at (chart, q): p, R, E_B, E_B^-1, the Edot pieces, G, I_W^-1,
-    M_nu^-1 G^T and the factored Delassus matrix K = G M_nu^-1 G^T."""
+    M_nu^-1 G^T and the factored Delassus matrix K = G M_nu^-1 G^T; for the kernels, S and mode
+    (the Cholesky factor or the pseudo-inverse of K, see :data:`kernels.SOLVE_CHOLESKY`)."""
 
-    __slots__ = ("key", "p", "R", "E_B", "E_inv", "dE", "G", "Iinv_W", "MinvGt", "K")
+    __slots__ = ("key", "p", "R", "E_B", "E_inv", "dE", "G", "Iinv_W", "MinvGt", "K", "S", "mode")
 
 
 class Evaluation:
@@ -56,9 +63,15 @@ class Evaluation:
 
 
 class ConstrainedBody:
-    """Body + constraints + effects. ``coriolis=False`` drops the gyroscopic torque w x I_W w."""
+    """Body + constraints + effects. ``coriolis=False`` drops the gyroscopic torque w x I_W w.
 
-    def __init__(self, body: RigidBody, constraints=(), effects=(), coriolis: bool = True):
+    ``compiled``: use the compiled kernels when every pose-dependent constraint has one (see
+    :func:`kernels.row_params`); ``False`` forces the numpy reference path. ``self.compiled`` says
+    which path runs.
+    """
+
+    def __init__(self, body: RigidBody, constraints=(), effects=(), coriolis: bool = True,
+                 compiled: bool = True):
         self.body = body
         self.constraints = tuple(constraints)
         self.effects = tuple(effects)
@@ -82,6 +95,12 @@ class ConstrainedBody:
             else:
                 self._varying.append((i, i + c.rows, c))
             i += c.rows
+        rows = [(i, kernels.row_params(c)) for i, _, c in self._varying]
+        self.compiled = bool(compiled) and all(r is not None for _, r in rows)
+        if self.compiled:
+            self._kinds = np.array([r[0] for _, r in rows], dtype=np.int64)
+            self._offsets = np.array([i for i, _ in rows], dtype=np.int64)
+            self._params = np.array([r[1] for _, r in rows]).reshape(len(rows), kernels.NPAR)
 
     # -- pose-only terms --------------------------------------------------------------------------
     def pose_terms(self, chart: EulerChart, q: np.ndarray) -> PoseTerms:
@@ -91,6 +110,10 @@ class ConstrainedBody:
             return c
         pt = PoseTerms()
         pt.key = (chart, qb)
+        if self.compiled:
+            self._compiled_pose_terms(pt, chart, q)
+            self._cache = pt
+            return pt
         pt.R, pt.E_B, pt.E_inv, pt.dE = rate_map_terms(chart, q[3:])
         pt.p = q[:3]
         R = pt.R
@@ -108,6 +131,20 @@ class ConstrainedBody:
             pt.G, pt.MinvGt, pt.K = np.zeros((0, 6)), np.zeros((6, 0)), None
         self._cache = pt
         return pt
+
+    def _compiled_pose_terms(self, pt: PoseTerms, chart: EulerChart, q: np.ndarray) -> None:
+        pt.p = q[:3]
+        (pt.R, pt.E_B, pt.E_inv, pt.dE, pt.Iinv_W, pt.G, pt.MinvGt, K, L, ok) = kernels.pose_terms(
+            chart.R0, chart.axes_array, q, self.body.J_inv, self._inv_m, self._G_template,
+            self._kinds, self._offsets, self._params, RANK_RTOL)
+        if not self.m:
+            pt.K, pt.S, pt.mode = None, L, kernels.SOLVE_NONE
+            return
+        pt.K = DelassusFactor.from_cholesky(K, L, ok)
+        if ok:
+            pt.S, pt.mode = L, kernels.SOLVE_CHOLESKY
+        else:
+            pt.S, pt.mode = pt.K.pseudo_inverse(), kernels.SOLVE_PINV
 
     def twist(self, pt: PoseTerms, qd: np.ndarray) -> np.ndarray:
         """nu = T qd = (v, R E_B thetadot) (6,)."""
@@ -127,6 +164,16 @@ class ConstrainedBody:
     def evaluate(self, chart: EulerChart, q, qd, t: float, operator_W=None, stabilize=None) -> Evaluation:
         """Eqs. 8-9 at (q, qd). ``stabilize=(alpha, beta)`` adds Baumgarte terms 2a G nu + b^2 h."""
         pt = self.pose_terms(chart, q)
+        if self.compiled and stabilize is None:
+            F = np.zeros(6) if operator_W is None else np.array(operator_W, dtype=float)
+            if self.effects:
+                v, w = qd[:3], pt.R @ (pt.E_B @ qd[3:])
+                for e in self.effects:
+                    e.add_wrench(pt.p, pt.R, v, w, t, F)
+            qdd, nudot, lam = kernels.evaluate(
+                pt.R, pt.E_B, pt.E_inv, pt.dE, pt.Iinv_W, self.body.J, self._inv_m, self.coriolis,
+                pt.G, pt.MinvGt, pt.S, pt.mode, self._kinds, self._offsets, self._params, pt.p, qd, F)
+            return Evaluation(qdd, nudot, lam, pt.K.rank if self.m else 0, F, pt.G, pt)
         thd = qd[3:]
         d1, d2, d3 = float(thd[0]), float(thd[1]), float(thd[2])
         a1, u, a2 = pt.dE
@@ -166,6 +213,14 @@ class ConstrainedBody:
         qdd[:3] = nudot[:3]
         qdd[3:] = pt.E_inv @ (pt.R.T @ nudot[3:] - Edq)
         return Evaluation(qdd, nudot, lam, rank, F, pt.G, pt)
+
+    def project_rates(self, pt: PoseTerms, qd: np.ndarray) -> np.ndarray:
+        """The admissible rates closest to qd (6,) in kinetic energy, at the pose of ``pt``."""
+        if not self.m:
+            return qd
+        if self.compiled:
+            return kernels.project_rates(pt.R, pt.E_B, pt.E_inv, pt.G, pt.MinvGt, pt.S, pt.mode, qd)
+        return self.rates(pt, self.project_twist(pt, self.twist(pt, qd)))
 
     def project_twist(self, pt: PoseTerms, nu: np.ndarray) -> np.ndarray:
         """The admissible twist closest to nu in kinetic energy: nu - M^-1 G^T K^+ G nu."""

@@ -84,9 +84,29 @@ class DelassusFactor:
             if min(d) ** 2 > RANK_RTOL * max(d) ** 2:
                 self.L, self.rank = L, m
                 return
+        self._eigen(K)
+
+    @classmethod
+    def from_cholesky(cls, K: np.ndarray, L: np.ndarray, ok: bool) -> "DelassusFactor":
+        """The factor of K from a Cholesky factor L computed elsewhere (the compiled kernel);
+        ``ok`` False (no usable factor) takes the eigendecomposition fallback."""
+        self = cls.__new__(cls)
+        self.V = self.w = None
+        if ok:
+            self.L, self.rank = L, K.shape[0]
+        else:
+            self.L = None
+            self._eigen(K)
+        return self
+
+    def _eigen(self, K: np.ndarray) -> None:
         w, V = np.linalg.eigh(K)
         keep = w > RANK_RTOL * max(w[-1], 0.0)
         self.V, self.w, self.rank = V[:, keep], w[keep], int(keep.sum())
+
+    def pseudo_inverse(self) -> np.ndarray:
+        """K^+ (m, m) of the eigen fallback: V diag(1/w) V^T over the kept directions."""
+        return (self.V / self.w) @ self.V.T
 
     def solve(self, rhs: np.ndarray) -> np.ndarray:
         if self.L is not None:

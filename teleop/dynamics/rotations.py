@@ -81,6 +81,7 @@ class EulerChart:
         object.__setattr__(self, "R0", R0)
         object.__setattr__(self, "_R0_list", tuple(float(x) for x in R0.reshape(-1)))
         object.__setattr__(self, "_axes", tuple(_AXES[c] for c in seq))
+        object.__setattr__(self, "axes_array", np.array(self._axes, dtype=np.int64))
 
     @property
     def axes(self) -> tuple[int, int, int]:
