@@ -21,6 +21,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from teleop.dynamics.constraints import stack_jacobian, stack_residual
+from teleop.dynamics.kernels import left_pinv
 from teleop.dynamics.model import ConstrainedBody
 from teleop.dynamics.multipliers import solve_delassus
 from teleop.dynamics.body import Kinematics
@@ -75,8 +76,7 @@ def project_velocity(model: ConstrainedBody, state: ToolState) -> None:
     """qd <- the admissible rates closest to qd in kinetic energy (all constraint rows)."""
     if not model.m:
         return
-    pt = model.pose_terms(state.chart, state.q)
-    state.qd = model.rates(pt, model.project_twist(pt, model.twist(pt, state.qd)))
+    state.qd = model.project_rates(model.pose_terms(state.chart, state.q), state.qd)
 
 
 # -- integrators ------------------------------------------------------------------------------------
@@ -155,16 +155,26 @@ class Parametric(Integrator):
             )
         self.param = parametrization
         self._pinv = None
-        if getattr(parametrization, "constant_jacobian", False):
+        self._last = None
+        if parametrization.flat and not parametrization.constant_jacobian:
+            raise ConfigError("a flat (affine) parametrization must declare constant_jacobian")
+        if parametrization.constant_jacobian:
             self._P = parametrization.jacobian(state.chart, None)
             self._pinv = np.linalg.pinv(self._P)
         state.z, state.zd = parametrization.from_q(state.chart, state.q, state.qd)
 
     def _jac(self, chart, z):
+        """(Psi, Psi^+) at z; the last one is kept, since each step asks for it twice."""
         if self._pinv is not None:
             return self._P, self._pinv
+        key = z.tobytes()
+        c = self._last
+        if c is not None and c[0] is chart and c[1] == key:
+            return c[2], c[3]
         P = self.param.jacobian(chart, z)
-        return P, np.linalg.solve(P.T @ P, P.T)  # the pseudo-inverse of eq. 11
+        Pinv = left_pinv(P)  # the pseudo-inverse of eq. 11
+        self._last = (chart, key, P, Pinv)
+        return P, Pinv
 
     def sync(self, state: ToolState) -> None:
         """q, qd from z, zd (after a step or a re-chart)."""
@@ -175,16 +185,18 @@ class Parametric(Integrator):
     def step(self, model, state, h, operator_W):
         param, chart = self.param, state.chart
         ev = model.evaluate(chart, state.q, state.qd, state.t, operator_W)
-        _, Pinv = self._jac(chart, state.z)
-        zdd = Pinv @ (ev.qdd - param.curvature(chart, state.z, state.zd))
+        if param.flat:
+            zdd = self._pinv @ ev.qdd
+        else:
+            _, Pinv = self._jac(chart, state.z)
+            zdd = Pinv @ (ev.qdd - param.curvature(chart, state.z, state.zd))
         state.zd = state.zd + h * zdd
         state.z = state.z + h * state.zd
         P, Pinv = self._jac(chart, state.z)
         state.q = param.psi(chart, state.z)
         state.qd = P @ state.zd
         if model.nonholonomic:
-            pt = model.pose_terms(chart, state.q)
-            qd = model.rates(pt, model.project_twist(pt, model.twist(pt, state.qd)))
+            qd = model.project_rates(model.pose_terms(chart, state.q), state.qd)
             state.zd = Pinv @ qd
             state.qd = P @ state.zd
         return ev
