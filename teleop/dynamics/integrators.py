@@ -25,7 +25,13 @@ from teleop.dynamics.kernels import left_pinv
 from teleop.dynamics.model import ConstrainedBody
 from teleop.dynamics.multipliers import solve_delassus
 from teleop.dynamics.body import Kinematics
-from teleop.dynamics.rotations import EulerChart, euler_from_rotation, rate_map
+from teleop.dynamics.rotations import (
+    EulerChart,
+    chart_conditioning,
+    euler_from_rotation,
+    rate_map_terms,
+    rechart,
+)
 from teleop.errors import ConfigError
 
 #: Newton projection: stop when the holonomic residual norm is below this (m or rad).
@@ -209,23 +215,24 @@ class LieGroup(Integrator):
     name = "lie_group"
 
     def reset(self, model, state, parametrization):
+        import pinocchio as pin  # only this integrator needs it
+
+        self._exp3 = pin.exp3
         kin = Kinematics(state.chart, state.q, state.qd)
         self.p, self.R = kin.p.copy(), kin.R.copy()
         self.v, self.w = kin.v.copy(), kin.w.copy()
 
     def step(self, model, state, h, operator_W):
-        import pinocchio as pin
-
         ev = model.evaluate_twist(self.p, self.R, self.v, self.w, state.t, operator_W)
         self.v = self.v + h * ev.nudot[:3]
         self.w = self.w + h * ev.nudot[3:]
         self.p = self.p + h * self.v
-        self.R = pin.exp3(h * self.w) @ self.R
-        self._project(model, pin)
+        self.R = self._exp3(h * self.w) @ self.R
+        self._project(model)
         self._write_chart(state)
         return ev
 
-    def _project(self, model, pin):
+    def _project(self, model):
         for _ in range(PROJECTION_ITERS if model.holonomic else 0):
             h = stack_residual(model.holonomic, self.p, self.R)
             if float(np.abs(h).max()) < PROJECTION_TOL:
@@ -235,24 +242,18 @@ class LieGroup(Integrator):
             mu, _ = solve_delassus(G @ MinvGt, h)
             d = -MinvGt @ mu
             self.p = self.p + d[:3]
-            self.R = pin.exp3(d[3:]) @ self.R
+            self.R = self._exp3(d[3:]) @ self.R
         if model.m:
-            G = stack_jacobian(model.constraints, self.p, self.R)
-            MinvGt = model.twist_mass_inverse(self.R) @ G.T
-            nu = np.concatenate([self.v, self.w])
-            mu, _ = solve_delassus(G @ MinvGt, G @ nu)
-            nu = nu - MinvGt @ mu
+            nu = model.project_twist_at(self.p, self.R, np.concatenate([self.v, self.w]))
             self.v, self.w = nu[:3], nu[3:]
 
     def _write_chart(self, state):
-        from teleop.dynamics.rotations import chart_conditioning, rechart
-
         theta = euler_from_rotation(state.chart, self.R)
         if chart_conditioning(state.chart, theta) < 0.25:
             state.chart, theta, _ = rechart(state.chart, theta, np.zeros(3))
-        _, E_B, _ = rate_map(state.chart, theta, np.zeros(3))
+        _, _, E_inv, _ = rate_map_terms(state.chart, theta)
         state.q = np.concatenate([self.p, theta])
-        state.qd = np.concatenate([self.v, np.linalg.solve(E_B, self.R.T @ self.w)])
+        state.qd = np.concatenate([self.v, E_inv @ (self.R.T @ self.w)])
 
 
 INTEGRATORS = {

@@ -276,14 +276,10 @@ def cholesky(K, rtol):
 
 
 @njit(cache=True)
-def pose_terms(R0, axes, q, J_inv, inv_m, G_template, kinds, offsets, params, rtol):
-    """Everything that depends on the pose q (6,) only, for a chart (R0, axes).
-
-    Returns R, E_B, E_B^-1, dE (see :func:`rate_map_terms`), I_W^-1 = R J^-1 R^T (3, 3),
-    G (m, 6), M_nu^-1 G^T (6, m), the Delassus matrix K = G M_nu^-1 G^T (m, m), its Cholesky
-    factor L and whether L is usable (see :func:`cholesky`).
-    """
-    R, E, Einv, dE = rate_map_terms(R0, axes, q[3:])
+def constraint_terms(R, p, J_inv, inv_m, G_template, kinds, offsets, params, rtol):
+    """Pose-only dynamics terms at (p, R): I_W^-1 = R J^-1 R^T (3, 3), G (m, 6), M_nu^-1 G^T
+    (6, m), the Delassus matrix K = G M_nu^-1 G^T (m, m), its Cholesky factor L and whether L is
+    usable (see :func:`cholesky`)."""
     RJ = R @ J_inv
     Iinv = np.empty((3, 3))
     for i in range(3):
@@ -293,7 +289,7 @@ def pose_terms(R0, axes, q, J_inv, inv_m, G_template, kinds, offsets, params, rt
     G = G_template.copy()
     b = np.empty(m)
     zero = np.zeros(3)
-    stack_rows(G, b, kinds, offsets, params, q[:3], R, zero, zero)
+    stack_rows(G, b, kinds, offsets, params, p, R, zero, zero)
     MinvGt = np.empty((6, m))
     for r in range(m):
         for i in range(3):
@@ -307,6 +303,16 @@ def pose_terms(R0, axes, q, J_inv, inv_m, G_template, kinds, offsets, params, rt
                 s += G[r, i] * MinvGt[i, c]
             K[r, c] = K[c, r] = s
     L, ok = cholesky(K, rtol)
+    return Iinv, G, MinvGt, K, L, ok
+
+
+@njit(cache=True)
+def pose_terms(R0, axes, q, J_inv, inv_m, G_template, kinds, offsets, params, rtol):
+    """Everything that depends on the pose q (6,) only, for a chart (R0, axes): R, E_B, E_B^-1,
+    dE (see :func:`rate_map_terms`) followed by :func:`constraint_terms`."""
+    R, E, Einv, dE = rate_map_terms(R0, axes, q[3:])
+    Iinv, G, MinvGt, K, L, ok = constraint_terms(R, q[:3], J_inv, inv_m, G_template, kinds, offsets,
+                                                 params, rtol)
     return R, E, Einv, dE, Iinv, G, MinvGt, K, L, ok
 
 
@@ -337,25 +343,19 @@ def _solve(S, mode, rhs):
 
 
 @njit(cache=True)
-def evaluate(R, E, Einv, dE, Iinv, J, inv_m, coriolis, G, MinvGt, S, mode,
-             kinds, offsets, params, p, qd, F):
-    """Eqs. 8-9 at rates qd (6,) under the wrench F (6,) (operator plus effects, world).
+def newton_euler(R, Iinv, J, inv_m, coriolis, G, MinvGt, S, mode, kinds, offsets, params, p, v, w, F):
+    """Eqs. 8-9 in twist form at pose (p, R), twist (v, w) (world), under the wrench F (6,).
 
-    Returns qdd (6,) chart accelerations, nudot (6,) = (vdot, wdot) world, lam (m,).
+    Returns nudot (6,) = (vdot, wdot) world and lam (m,).
     """
-    v = qd[:3]
-    d1, d2, d3 = qd[3], qd[4], qd[5]
-    wB = np.empty(3)
-    for i in range(3):
-        wB[i] = E[i, 0] * d1 + E[i, 1] * d2 + E[i, 2] * d3
-    w = np.empty(3)
-    _rv(R, wB[0], wB[1], wB[2], w)
-    k1, k2, k3 = d1 * d3, d1 * d2, d2 * d3
     free = np.empty(6)
     for i in range(3):
         free[i] = F[i] * inv_m
     tq = np.empty(3)
     if coriolis:  # w x I_W w = R (w_B x J w_B)
+        wB = np.empty(3)
+        for i in range(3):
+            wB[i] = R[0, i] * w[0] + R[1, i] * w[1] + R[2, i] * w[2]
         JwB = J @ wB
         g = np.empty(3)
         _cross(wB, JwB, g)
@@ -384,6 +384,23 @@ def evaluate(R, E, Einv, dE, Iinv, J, inv_m, coriolis, G, MinvGt, S, mode,
             for r in range(m):
                 s += MinvGt[i, r] * lam[r]
             nudot[i] += s
+    return nudot, lam
+
+
+@njit(cache=True)
+def evaluate(R, E, Einv, dE, Iinv, J, inv_m, coriolis, G, MinvGt, S, mode,
+             kinds, offsets, params, p, qd, F):
+    """Eqs. 8-9 at chart rates qd (6,) under the wrench F (6,) (operator plus effects, world).
+
+    Returns qdd (6,) chart accelerations, nudot (6,) = (vdot, wdot) world, lam (m,).
+    """
+    d1, d2, d3 = qd[3], qd[4], qd[5]
+    w = np.empty(3)
+    _rv(R, E[0, 0] * d1 + E[0, 1] * d2 + E[0, 2] * d3, E[1, 0] * d1 + E[1, 1] * d2 + E[1, 2] * d3,
+        E[2, 0] * d1 + E[2, 1] * d2 + E[2, 2] * d3, w)
+    nudot, lam = newton_euler(R, Iinv, J, inv_m, coriolis, G, MinvGt, S, mode, kinds, offsets,
+                              params, p, qd[:3], w, F)
+    k1, k2, k3 = d1 * d3, d1 * d2, d2 * d3
     qdd = np.empty(6)
     qdd[:3] = nudot[:3]
     x = np.empty(3)
@@ -395,23 +412,37 @@ def evaluate(R, E, Einv, dE, Iinv, J, inv_m, coriolis, G, MinvGt, S, mode,
 
 
 @njit(cache=True)
-def project_rates(R, E, Einv, G, MinvGt, S, mode, qd):
-    """The admissible rates closest to qd (6,) in kinetic energy: T^-1 (nu - M^-1 G^T K^+ G nu)."""
-    nu = np.empty(6)
-    nu[:3] = qd[:3]
-    wB = E @ qd[3:]
-    _rv(R, wB[0], wB[1], wB[2], nu[3:])
+def project_twist(G, MinvGt, S, mode, nu):
+    """nu - M^-1 G^T K^+ G nu (6,): the admissible twist closest to nu in kinetic energy."""
     m = G.shape[0]
-    out = qd.copy()
+    out = nu.copy()
     if m == 0:
         return out
-    Gnu = G @ nu
+    Gnu = np.empty(m)
+    for r in range(m):
+        s = 0.0
+        for i in range(6):
+            s += G[r, i] * nu[i]
+        Gnu[r] = s
     lam = _solve(S, mode, Gnu)
     for i in range(6):
         s = 0.0
         for r in range(m):
             s += MinvGt[i, r] * lam[r]
-        nu[i] -= s
+        out[i] -= s
+    return out
+
+
+@njit(cache=True)
+def project_rates(R, E, Einv, G, MinvGt, S, mode, qd):
+    """The admissible rates closest to qd (6,) in kinetic energy: T^-1 (nu - M^-1 G^T K^+ G nu)."""
+    nu = np.empty(6)
+    nu[:3] = qd[:3]
+    d1, d2, d3 = qd[3], qd[4], qd[5]
+    _rv(R, E[0, 0] * d1 + E[0, 1] * d2 + E[0, 2] * d3, E[1, 0] * d1 + E[1, 1] * d2 + E[1, 2] * d3,
+        E[2, 0] * d1 + E[2, 1] * d2 + E[2, 2] * d3, nu[3:])
+    nu = project_twist(G, MinvGt, S, mode, nu)
+    out = np.empty(6)
     out[:3] = nu[:3]
     x = np.empty(3)
     for i in range(3):

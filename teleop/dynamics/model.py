@@ -137,14 +137,16 @@ class ConstrainedBody:
         (pt.R, pt.E_B, pt.E_inv, pt.dE, pt.Iinv_W, pt.G, pt.MinvGt, K, L, ok) = kernels.pose_terms(
             chart.R0, chart.axes_array, q, self.body.J_inv, self._inv_m, self._G_template,
             self._kinds, self._offsets, self._params, RANK_RTOL)
+        pt.K, pt.S, pt.mode = self._factor(K, L, ok)
+
+    def _factor(self, K, L, ok):
+        """(DelassusFactor or None, S, mode) for the kernels from the kernel's Cholesky attempt."""
         if not self.m:
-            pt.K, pt.S, pt.mode = None, L, kernels.SOLVE_NONE
-            return
-        pt.K = DelassusFactor.from_cholesky(K, L, ok)
+            return None, L, kernels.SOLVE_NONE
+        f = DelassusFactor.from_cholesky(K, L, ok)
         if ok:
-            pt.S, pt.mode = L, kernels.SOLVE_CHOLESKY
-        else:
-            pt.S, pt.mode = pt.K.pseudo_inverse(), kernels.SOLVE_PINV
+            return f, L, kernels.SOLVE_CHOLESKY
+        return f, f.pseudo_inverse(), kernels.SOLVE_PINV
 
     def twist(self, pt: PoseTerms, qd: np.ndarray) -> np.ndarray:
         """nu = T qd = (v, R E_B thetadot) (6,)."""
@@ -233,6 +235,12 @@ class ConstrainedBody:
         """Newton-Euler with constraints at pose (p, R), twist (v, w): no Euler chart involved."""
         body = self.body
         F = total_wrench(self.effects, p, R, v, w, t, operator_W)
+        if self.compiled:
+            Iinv, G, MinvGt, K, L, ok = self._twist_terms(p, R)
+            Kf, S, mode = self._factor(K, L, ok)
+            nudot, lam = kernels.newton_euler(R, Iinv, body.J, self._inv_m, self.coriolis, G, MinvGt, S,
+                                              mode, self._kinds, self._offsets, self._params, p, v, w, F)
+            return Evaluation(nudot, nudot, lam, Kf.rank if self.m else 0, F, G, None)
         I_W = R @ body.J @ R.T
         Iinv_W = R @ body.J_inv @ R.T
         free = np.empty(6)
@@ -249,6 +257,22 @@ class ConstrainedBody:
         lam = K.solve(-b - G @ free)
         nudot = free + MinvGt @ lam
         return Evaluation(nudot, nudot, lam, K.rank, F, G, None)
+
+    def _twist_terms(self, p, R):
+        return kernels.constraint_terms(R, p, self.body.J_inv, self._inv_m, self._G_template,
+                                        self._kinds, self._offsets, self._params, RANK_RTOL)
+
+    def project_twist_at(self, p, R, nu: np.ndarray) -> np.ndarray:
+        """The admissible twist closest to nu (6,) in kinetic energy at pose (p, R)."""
+        if not self.m:
+            return nu
+        if self.compiled:
+            _, G, MinvGt, K, L, ok = self._twist_terms(p, R)
+            _, S, mode = self._factor(K, L, ok)
+            return kernels.project_twist(G, MinvGt, S, mode, nu)
+        G = stack_jacobian(self.constraints, p, R)
+        MinvGt = self.twist_mass_inverse(R) @ G.T
+        return nu - MinvGt @ DelassusFactor(G @ MinvGt).solve(G @ nu)
 
     def twist_mass_inverse(self, R) -> np.ndarray:
         """blockdiag(I3/m, R J^-1 R^T) (6, 6)."""

@@ -195,11 +195,26 @@ def rate_map_terms(chart: EulerChart, theta: np.ndarray):
 
 
 def euler_from_rotation(chart: EulerChart, R_WB: np.ndarray) -> np.ndarray:
-    """Euler angles (rad) of ``R_WB`` in ``chart``. Only well defined away from the singularity."""
-    from scipy.spatial.transform import Rotation
+    """Euler angles (rad) of ``R_WB`` in ``chart``. Only well defined away from the singularity.
 
-    R_local = chart.R0.T @ R_WB
-    return Rotation.from_matrix(R_local).as_euler(chart.sequence, degrees=False)
+    Closed form for R = R_a(t1) R_b(t2) R_c(t3) (scipy's conventions: t1, t3 in (-pi, pi], t2 in
+    [-pi/2, pi/2] for Tait-Bryan and [0, pi] for proper sequences), with t2 from atan2 so it stays
+    accurate near the chart centre. With d the remaining axis, s = +1 when (a, b, c) (Tait-Bryan)
+    or (a, b, d) (proper) is a cyclic order of (x, y, z), else -1:
+
+    * Tait-Bryan: sin t2 = s R_ac; t1 = atan2(-s R_bc, R_cc); t3 = atan2(-s R_ab, R_aa).
+    * proper:     cos t2 = R_aa;   t1 = atan2(R_ba, -s R_da); t3 = atan2(R_ab, s R_ad).
+    """
+    R = chart.R0.T @ R_WB
+    a, b, c = chart.axes
+    if a != c:
+        s = 1.0 if (b - a) % 3 == 1 else -1.0
+        t2 = math.atan2(s * R[a, c], math.hypot(R[b, c], R[c, c]))
+        return np.array([math.atan2(-s * R[b, c], R[c, c]), t2, math.atan2(-s * R[a, b], R[a, a])])
+    d = 3 - a - b
+    s = 1.0 if (b - a) % 3 == 1 else -1.0
+    t2 = math.atan2(math.hypot(R[a, b], R[a, d]), R[a, a])
+    return np.array([math.atan2(R[b, a], -s * R[d, a]), t2, math.atan2(R[a, b], s * R[a, d])])
 
 
 def rechart(chart: EulerChart, theta: np.ndarray, theta_dot: np.ndarray):

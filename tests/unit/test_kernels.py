@@ -122,3 +122,23 @@ def test_left_pinv_of_a_rank_deficient_matrix_is_not_finite():
     P = np.zeros((6, 3))
     P[0, 0] = P[1, 1] = 1.0
     assert not np.all(np.isfinite(kernels.left_pinv(P)))
+
+
+
+@pytest.mark.parametrize("stack", sorted(STACKS))
+@given(seed=seeds, coriolis=st.booleans())
+@settings(max_examples=30, deadline=None)
+def test_twist_form_matches_the_numpy_path(stack, seed, coriolis):
+    """The Lie-group integrator's evaluation and projection (no chart)."""
+    cons = STACKS[stack]()
+    body = RigidBody(0.25, [0.0025, 0.003, 0.004])
+    fast = ConstrainedBody(body, cons, (LinearDamper(1.0),), coriolis=coriolis)
+    ref = ConstrainedBody(body, cons, (LinearDamper(1.0),), coriolis=coriolis, compiled=False)
+    rng = np.random.default_rng(seed)
+    p, R, v, w, F = rng.normal(size=3), _random_rotation(rng), rng.normal(size=3), rng.normal(size=3), rng.normal(size=6)
+    a, b = fast.evaluate_twist(p, R, v, w, 0.0, F), ref.evaluate_twist(p, R, v, w, 0.0, F)
+    assert a.rank == b.rank
+    for x, y in ((a.nudot, b.nudot), (a.lam, b.lam), (a.G, b.G)):
+        assert _rel(x, y) < 1e-9
+    nu = rng.normal(size=6)
+    assert _rel(fast.project_twist_at(p, R, nu), ref.project_twist_at(p, R, nu)) < 1e-9
