@@ -13,6 +13,7 @@ wrench acts at the tip: (force N, torque N*m), Pinocchio's LOCAL_WORLD_ALIGNED o
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field, fields
 
 import numpy as np
@@ -127,7 +128,7 @@ class TissueBlock:
         F = np.empty(6)
         F[:3] = fn * n + F_cut + F_lat
         F[3:] = tau
-        return ContactReport(F, d, True, fn, float(np.linalg.norm(F_cut)), float(np.linalg.norm(F_lat)), v_c)
+        return ContactReport(F, d, True, fn, math.hypot(*F_cut.tolist()), math.hypot(*F_lat.tolist()), v_c)
 
     def wrench(self, p_tip, R_tool, v_tip, w) -> np.ndarray:
         """World wrench (6,) on the tool at the tip: (N, N*m)."""
