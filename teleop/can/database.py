@@ -9,11 +9,12 @@ rejected frame with a reason (:class:`Rejected`), never an exception in the cont
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
 from pathlib import Path
+from typing import NamedTuple
 
 import cantools
 
+from teleop.can.codec import MessageCodec
 from teleop.errors import CanError
 
 #: The protocol shipped with the package.
@@ -41,8 +42,7 @@ def compute_crc8(data: bytes) -> int:
     return crc ^ 0xFF
 
 
-@dataclass(frozen=True)
-class Decoded:
+class Decoded(NamedTuple):
     """A valid frame: message name, signals in SI units, timestamp (s)."""
 
     name: str
@@ -50,8 +50,7 @@ class Decoded:
     timestamp: float
 
 
-@dataclass(frozen=True)
-class Rejected:
+class Rejected(NamedTuple):
     """A frame that never reaches the math: its id, and why (``unknown_id``, ``length``,
     ``checksum``, ``range:<signal>``, ``nonfinite:<signal>``, ``decode``)."""
 
@@ -60,8 +59,18 @@ class Rejected:
     timestamp: float
 
 
+def _slack(signal) -> float:
+    """Tolerance (physical units) of a decoded value against the DBC range: half a raw step for
+    integer signals, round-off for floats."""
+    return 1e-9 + (0.0 if signal.is_float else 0.5 * abs(signal.conversion.scale))
+
+
 class FrameDatabase:
-    """The DBC plus the encode/decode rules of the protocol (checksums, ranges)."""
+    """The DBC plus the encode/decode rules of the protocol (checksums, ranges).
+
+    Each message is encoded and decoded by a :class:`~teleop.can.codec.MessageCodec` compiled from
+    its DBC layout (cantools' values, without cantools' per-call overhead).
+    """
 
     def __init__(self, path: str | Path = DEFAULT_DBC):
         try:
@@ -70,11 +79,18 @@ class FrameDatabase:
             raise CanError(f"can database {path}: cannot load: {e}") from None
         self.by_name = {m.name: m for m in self.db.messages}
         self.by_id = {m.frame_id: m for m in self.db.messages}
+        self.codecs = {m.name: MessageCodec(m) for m in self.db.messages}
+        self._codec_by_id = {m.frame_id: self.codecs[m.name] for m in self.db.messages}
         self.checksum = {m.name: next((s.name for s in m.signals if s.name.endswith("Checksum")), None)
                          for m in self.db.messages}
-        self.ranges = {
-            m.frame_id: tuple((s.name, s.minimum, s.maximum) for s in m.signals if not s.name.endswith("Checksum"))
-            for m in self.db.messages
+        # decode checks, in codec order: (index, signal, min, max, float signal). The DBC writes
+        # its limits at physical resolution (0.99996 for raw 32767 x 2^-15), so an integer signal
+        # may decode up to half a step past them: whatever strict encoding accepts, decoding does.
+        self._checks = {
+            c.frame_id: tuple((i, s.name, -math.inf if s.minimum is None else s.minimum - _slack(s),
+                               math.inf if s.maximum is None else s.maximum + _slack(s), s.is_float)
+                              for i, s in enumerate(c.signals) if not s.name.endswith("Checksum"))
+            for c in self.codecs.values()
         }
 
     def message(self, name: str):
@@ -91,37 +107,31 @@ class FrameDatabase:
         """
         msg = self.message(name)
         ck = self.checksum[name]
-        values = dict(signals)
         if ck is not None:
-            values[ck] = 0
-        for key, v in values.items():
-            if not math.isfinite(float(v)):
-                raise CanError(f"can encode {name}.{key}: non-finite value {v}")
-        try:
-            data = bytearray(msg.encode(values, strict=True, scaling=True))
-        except (cantools.database.EncodeError, KeyError, ValueError) as e:
-            raise CanError(f"can encode {name}: {e}") from None
+            signals = dict(signals)
+            signals[ck] = 0
+        data = self.codecs[name].encode(signals)
         if ck is not None:
-            data[-1] = compute_crc8(bytes(data[:-1]))
-        return msg.frame_id, bytes(data), bool(msg.is_fd)
+            data = data[:-1] + bytes((compute_crc8(data[:-1]),))
+        return msg.frame_id, data, bool(msg.is_fd)
 
     def decode(self, frame_id: int, data: bytes, timestamp: float = 0.0) -> Decoded | Rejected:
         """Decode and check one frame: a :class:`Decoded` in SI units, or a :class:`Rejected`."""
-        msg = self.by_id.get(frame_id)
-        if msg is None:
+        codec = self._codec_by_id.get(frame_id)
+        if codec is None:
             return Rejected(frame_id, "unknown_id", timestamp)
-        if len(data) != msg.length:
+        if len(data) != codec.length:
             return Rejected(frame_id, "length", timestamp)
-        if self.checksum[msg.name] is not None and compute_crc8(bytes(data[:-1])) != data[-1]:
+        data = bytes(data)
+        if self.checksum[codec.name] is not None and compute_crc8(data[:-1]) != data[-1]:
             return Rejected(frame_id, "checksum", timestamp)
         try:
-            values = msg.decode(bytes(data), decode_choices=False, scaling=True)
+            values = codec.decode(data)
         except Exception:  # cantools raises several types on malformed payloads
             return Rejected(frame_id, "decode", timestamp)
-        for sig, lo, hi in self.ranges[frame_id]:
-            v = float(values[sig])
-            if not math.isfinite(v):
-                return Rejected(frame_id, f"nonfinite:{sig}", timestamp)
-            if (lo is not None and v < lo - 1e-9) or (hi is not None and v > hi + 1e-9):
-                return Rejected(frame_id, f"range:{sig}", timestamp)
-        return Decoded(msg.name, values, timestamp)
+        for i, sig, lo, hi, is_float in self._checks[frame_id]:
+            v = values[i]
+            if not lo <= v <= hi:
+                bad = is_float and not math.isfinite(v)
+                return Rejected(frame_id, f"{'nonfinite' if bad else 'range'}:{sig}", timestamp)
+        return Decoded(codec.name, dict(zip(codec.names, values)), timestamp)

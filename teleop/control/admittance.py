@@ -16,6 +16,7 @@ from dataclasses import dataclass, field
 import numpy as np
 import pinocchio as pin
 
+from teleop.control.kernels import pid_step
 from teleop.errors import ConfigError
 
 
@@ -48,6 +49,11 @@ class Phi:
         object.__setattr__(self, "scale", s)
         object.__setattr__(self, "offset_p", p)
         object.__setattr__(self, "offset_R", R)
+        # φ's constant 6x6 maps: twist to virtual, twist to handle, wrench to virtual, to handle
+        Z = np.zeros((3, 3))
+        maps = tuple(np.block([[a * Ra, Z], [Z, Rb]]) for a, Ra, Rb in (
+            (s, R, R), (1.0 / s, R.T, R.T), (1.0 / s, R, R), (s, R.T, R.T)))
+        object.__setattr__(self, "_maps", maps)
 
     def compute_virtual_pose(self, p_H, R_H):
         """q_v = φ(x): (p_V m, R_V)."""
@@ -58,23 +64,20 @@ class Phi:
         return self.offset_R.T @ (np.asarray(p_V) - self.offset_p) / self.scale, self.offset_R.T @ R_V
 
     def twist_to_virtual(self, nu_H) -> np.ndarray:
-        R = self.offset_R
-        return np.concatenate([self.scale * (R @ nu_H[:3]), R @ nu_H[3:]])
+        """Twist (6,: m/s, rad/s, world) of the handle -> the virtual tool's."""
+        return self._maps[0] @ nu_H
 
     def twist_to_handle(self, nu_V) -> np.ndarray:
         """Twist or twist rate (6,) of the virtual tool -> the handle's (m/s, rad/s [/s])."""
-        R = self.offset_R
-        return np.concatenate([R.T @ nu_V[:3] / self.scale, R.T @ nu_V[3:]])
+        return self._maps[1] @ nu_V
 
     def wrench_to_virtual(self, F_H) -> np.ndarray:
         """Eq. 4, f_v = (∂φ/∂x)ᵀ f: handle wrench (N, N*m, world at H) -> at the tool origin."""
-        R = self.offset_R
-        return np.concatenate([R @ F_H[:3] / self.scale, R @ F_H[3:]])
+        return self._maps[2] @ F_H
 
     def wrench_to_handle(self, F_V) -> np.ndarray:
         """Inverse of :meth:`wrench_to_virtual`: a wrench at the tool origin -> at the handle."""
-        R = self.offset_R
-        return np.concatenate([self.scale * (R.T @ F_V[:3]), R.T @ F_V[3:]])
+        return self._maps[3] @ F_V
 
     def reindexed(self, p_H, R_H, p_V, R_V) -> "Phi":
         """The same scale with the offset that maps the handle pose exactly onto (p_V, R_V)."""
@@ -122,18 +125,21 @@ class AdmittanceController:
 
     Anti-windup: the integral is clamped and is not advanced on an axis whose acceleration or
     velocity command saturates (conditional integration).
+
+    compiled: run the period as one numba kernel (:func:`teleop.control.kernels.pid_step`);
+    False runs the numpy reference below, which the kernel is tested against.
     """
 
-    def __init__(self, gains: AdmittanceGains, dt_s: float):
+    def __init__(self, gains: AdmittanceGains, dt_s: float, compiled: bool = True):
         gains.check_stable(dt_s)
-        self.gains, self.dt = gains, float(dt_s)
+        self.gains, self.dt, self.compiled = gains, float(dt_s), compiled
         self.integral = np.zeros(6)
         self.nu_cmd = np.zeros(6)
         self.accel_cmd = np.zeros(6)
         self.error = np.zeros(6)
 
     def reset(self, nu0=None) -> None:
-        self.integral[:] = 0.0
+        self.integral = np.zeros(6)
         self.nu_cmd = np.zeros(6) if nu0 is None else np.array(nu0, dtype=float)
         self.accel_cmd = np.zeros(6)
 
@@ -141,6 +147,11 @@ class AdmittanceController:
         """One period: reference pose/twist at the measurement time, reference acceleration over
         the period (6,), virtual pose -> (ν_c (6,) m/s rad/s, q̈_v (6,) m/s^2 rad/s^2), world."""
         g, dt = self.gains, self.dt
+        if self.compiled:
+            self.nu_cmd, self.accel_cmd, self.error, self.integral = pid_step(
+                p_r, R_r, nu_r, accel_r, p_v, R_v, g.kp, g.ki, g.kd, g.integral_limit, g.max_accel,
+                g.max_velocity, dt, self.integral, self.nu_cmd)
+            return self.nu_cmd, self.accel_cmd
         e = compute_tracking_error(p_r, R_r, p_v, R_v)
         integral = np.clip(self.integral + e * dt, -g.integral_limit, g.integral_limit)
         accel = accel_r + g.kp * e + g.ki * integral + g.kd * (nu_r - self.nu_cmd)

@@ -86,6 +86,15 @@ class CobotModel:
         return pin.computeFrameJacobian(self.model, self.data, self.pin_q(joints), self.fid,
                                         pin.LOCAL_WORLD_ALIGNED)
 
+    def compute_pose_and_jacobian(self, joints):
+        """(p (3,) m, R (3, 3), J (6, 6)) of H in M from one kinematics pass; the Jacobian maps the
+        joint rates to the handle twist (v m/s, w rad/s) in M."""
+        m, d = self.model, self.data
+        pin.computeJointJacobians(m, d, self.pin_q(joints))
+        X = pin.updateFramePlacement(m, d, self.fid)
+        J = pin.getFrameJacobian(m, d, self.fid, pin.LOCAL_WORLD_ALIGNED)
+        return X.translation.copy(), X.rotation.copy(), J
+
     def compute_mass_matrix(self, joints) -> np.ndarray:
         """M_m(x) (6, 6): the manipulandum's joint-space inertia (kg, kg*m^2)."""
         return pin.crba(self.model, self.data, self.pin_q(joints)).copy()

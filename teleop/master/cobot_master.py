@@ -16,30 +16,38 @@ reference. Frames of the device arrive only through the bus: a user with hardwar
 from __future__ import annotations
 
 import logging
-import math
 import time
 import uuid
 
 import can
 import numpy as np
 import pinocchio as pin
+from scipy.linalg import lapack
 
 from teleop.can import BusTiming, Capture, CobotDriver, CobotSimulator, FrameDatabase, compute_cycle_load_pct
 from teleop.control.admittance import AdmittanceController, AdmittanceGains, Phi
 from teleop.control.clutch import Clutch
-from teleop.master.cobot import CobotDevice, CobotModel, DeviceParams
+from teleop.master.cobot import GRAVITY_W, CobotDevice, CobotModel, DeviceParams
 from teleop.master.config import CobotConfig
-
-HISTORY = 256  # the SYNC counter's range
+from teleop.master.kernels import hand_wrench_W
+from teleop.master.observer import HISTORY, JointObserver
 
 
 def compute_dls(J: np.ndarray, twist: np.ndarray, sigma0: float = 0.05, lam0: float = 0.02) -> np.ndarray:
     """Joint rates (6,) for a handle twist (6,) by damped least squares: no damping while the
     smallest singular value exceeds sigma0, then damping rising to lam0 at the singularity."""
-    U, S, Vt = np.linalg.svd(J)
+    U, S, Vt, info = lapack.dgesvd(J)  # LAPACK directly: numpy's wrapper costs 3x the SVD
+    if info != 0:
+        raise np.linalg.LinAlgError(f"dgesvd did not converge (info {info})")
     smin = S[-1]
     lam2 = 0.0 if smin >= sigma0 else lam0 * lam0 * (1.0 - (smin / sigma0) ** 2)
     return Vt.T @ ((S / (S * S + lam2)) * (U.T @ twist))
+
+
+def _finite(x) -> np.ndarray:
+    """x as a float array with NaN and inf replaced by 0 (an input never poisons the loop)."""
+    a = np.asarray(x, dtype=float)
+    return a if np.isfinite(a).all() else np.nan_to_num(a, nan=0.0, posinf=0.0, neginf=0.0)
 
 
 class CobotMaster:
@@ -84,10 +92,11 @@ class CobotMaster:
             heartbeat_period_s=cfg.heartbeat_period_s)
         self.joints0 = joints0
         self.bias_S = np.zeros(6)
-        self.qd_est = np.zeros(6)  # host-side servo model of the joint rates
+        self.observer = JointObserver(joints0, self.dt, self.tau_s, cfg.read_window_s, self.vmax,
+                                      cfg.max_acceleration, cfg.observer_bandwidth_hz)
         self.nu_H_cmd = np.zeros(6)
         self.accel_H_cmd = np.zeros(6)
-        self.pred_p = np.zeros((HISTORY, 3))
+        self.pred_p = np.zeros((HISTORY, 3))  # handle pose the commands predict, per SYNC counter
         self.pred_R = np.tile(np.eye(3), (HISTORY, 1, 1))
         self.p_H_est, self.R_H_est = p_H, R_H
         self.counter = 0
@@ -133,6 +142,7 @@ class CobotMaster:
         static = self.model.compute_distal_wrench_W(R_H, np.zeros(3), np.zeros(3), np.zeros(3))
         self.bias_S = np.mean(samples, axis=0) - np.concatenate([R_H.T @ static[:3], R_H.T @ static[3:]])
         self.driver.cycles_since_joints = self.driver.cycles_since_wrench = 0
+        self.observer.reset(self.driver.joints_rad_m)
         self.pred_p[:], self.pred_R[:] = p_H, R_H
         self._wall0 = time.perf_counter()
         self.steps = 0
@@ -185,19 +195,22 @@ class CobotMaster:
         if self.status != "ok" and self.status.startswith(("startup", "internal")):
             return self.status
         phi, drv = self.clutch.phi, self.driver
-        hand = np.nan_to_num(np.asarray(hand_wrench_W, dtype=float), nan=0.0, posinf=0.0, neginf=0.0)
-        self.device.hand_wrench_W = phi.wrench_to_handle(hand)
+        if self.sim is not None:  # the hand on the simulated handle
+            self.device.hand_wrench_W = phi.wrench_to_handle(_finite(hand_wrench_W))
         k = self._link_cycle_begin()
+        obs = self.observer
+        if drv.fresh_joints:  # a reading of SYNC joints_counter (this one, or late)
+            obs.correct(drv.joints_rad_m, drv.joints_counter, k)
         fault = drv.end_cycle()
         if fault is not None:
             drv.send_command(np.zeros(6))
+            obs.predict(k, np.zeros(6))
             self._advance_prediction(k, np.zeros(6))
             self._link_cycle_end()
             self.status = fault
             return fault
         joints = drv.joints_rad_m
-        p_m, R_m = self.model.compute_handle_pose(joints)
-        J = self.model.compute_jacobian(joints)
+        p_m, R_m, J = self.model.compute_pose_and_jacobian(joints)
         # carry the measurement (cycle j) forward by the commanded motion since
         j = drv.joints_counter
         self.p_H_est = p_m + self.pred_p[k] - self.pred_p[j]
@@ -211,9 +224,9 @@ class CobotMaster:
         qd = compute_dls(J, nu_H + self.tau_s * a_H)
         qd = self._workspace_limit(joints, qd)
         drv.send_command(qd, self.vmax)
-        self.qd_est += (1.0 - math.exp(-self.dt / self.tau_s)) * (np.clip(qd, -self.vmax, self.vmax) - self.qd_est)
-        self.nu_H_cmd, self.accel_H_cmd = nu_H, a_H
+        obs.predict(k, qd)
         self._advance_prediction(k, nu_H)
+        self.nu_H_cmd, self.accel_H_cmd = nu_H, a_H
         self._link_cycle_end()
         self.steps += 1
         self.status = st
@@ -221,29 +234,24 @@ class CobotMaster:
 
     def _hand_wrench_W(self, R_H) -> np.ndarray:
         """The hand's wrench at H (world): load cell minus tare, minus the distal handle's weight
-        and inertia (at the commanded motion), saturated."""
-        meas = self.driver.wrench_S - self.bias_S
-        nu, a = self.nu_H_cmd, self.accel_H_cmd
-        distal = self.model.compute_distal_wrench_W(R_H, nu[3:], a[:3], a[3:])
-        F = np.concatenate([R_H @ meas[:3], R_H @ meas[3:]]) - distal
-        for sl, lim in ((slice(0, 3), self.cfg.max_force_N), (slice(3, 6), self.cfg.max_torque_Nm)):
-            n = float(np.linalg.norm(F[sl]))
-            if n > lim:
-                F[sl] *= lim / n
-        return F
+        and inertia (at the commanded motion), saturated (kernel of :func:`compute_hand_wrench_W`)."""
+        m, cfg = self.model, self.cfg
+        return hand_wrench_W(self.driver.wrench_S, self.bias_S, R_H, self.accel_H_cmd, self.nu_H_cmd[3:],
+                             m.handle_mass_kg, m.handle_com_H, m.handle_J_H, GRAVITY_W,
+                             cfg.max_force_N, cfg.max_torque_Nm)
 
     def _admittance(self, phi, F_hand_W, contact_wrench_W):
         tool = self.tool
         f_v = phi.wrench_to_virtual(F_hand_W)  # eq. 4
         if contact_wrench_W is not None:
-            f_v = f_v + np.nan_to_num(np.asarray(contact_wrench_W, dtype=float))
+            f_v = f_v + _finite(contact_wrench_W)
         p_r, R_r = tool.pose()
         v_r, w_r = tool.twist()
         p_v, R_v = phi.compute_virtual_pose(self.p_H_est, self.R_H_est)
-        e = np.concatenate([p_r - p_v, pin.log3(R_r @ R_v.T)])
-        self.err_max = np.maximum(self.err_max, [np.linalg.norm(e[:3]), np.linalg.norm(e[3:])])
         st = tool.step(self.dt, f_v)
         nu_V, a_V = self.ctrl.step(p_r, R_r, np.concatenate([v_r, w_r]), tool.acceleration_W, p_v, R_v)
+        e = self.ctrl.error  # q_r - q_v before the step
+        self.err_max = np.maximum(self.err_max, np.linalg.norm(e.reshape(2, 3), axis=1))
         return phi.twist_to_handle(nu_V), phi.twist_to_handle(a_V), st
 
     def _workspace_limit(self, joints, qd) -> np.ndarray:
@@ -275,9 +283,10 @@ class CobotMaster:
         return self.clutch.phi.compute_virtual_pose(p_H, R_H)
 
     def virtual_twist(self):
-        """(v (3,) m/s, w (3,) rad/s) of the virtual tool: the device Jacobian at the encoder
-        reading times the host's servo-model estimate of the joint rates, through φ."""
-        nu = self.clutch.phi.twist_to_virtual(self.model.compute_jacobian(self.driver.joints_rad_m) @ self.qd_est)
+        """(v (3,) m/s, w (3,) rad/s) of the virtual tool: the device Jacobian times the joint rates
+        the observer estimates from the encoders (:mod:`teleop.master.observer`), through φ."""
+        obs = self.observer
+        nu = self.clutch.phi.twist_to_virtual(self.model.compute_jacobian(obs.x) @ obs.rates)
         return nu[:3], nu[3:]
 
     def stats(self) -> dict:

@@ -68,6 +68,7 @@ class CobotConfig:
     free_damping: tuple = (20.0, 20.0, 20.0, 1.0, 1.0, 1.0)  #: clutch-released admittance, N*s/m, N*m*s/rad
     capture_path: str | None = None  #: record the wire to .log / .asc / .blf
     realtime: bool = False  #: pace step() to the wall clock
+    observer_bandwidth_hz: float = 20.0  #: joint observer bandwidth (teleop/master/observer.py), Hz
     faults: Faults = field(default_factory=Faults)
 
     def __post_init__(self):
@@ -86,6 +87,8 @@ class CobotConfig:
             s(self, key, _num(getattr(self, key), key, 0.0, 10.0))
         for key in ("max_force_N", "max_torque_Nm"):
             s(self, key, _num(getattr(self, key), key, 0.0, 1e3, lo_open=True))
+        s(self, "observer_bandwidth_hz", _num(self.observer_bandwidth_hz, "observer_bandwidth_hz", 0.0,
+                                              100.0, lo_open=True))
         for key in ("bitrate_bps", "data_bitrate_bps"):
             s(self, key, _num(getattr(self, key), key, 0.0, 20e6, lo_open=True))
         for key in ("read_window_s", "heartbeat_period_s", "heartbeat_timeout_s"):

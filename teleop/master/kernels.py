@@ -1,0 +1,54 @@
+"""Compiled kernel (numba) of the host's load-cell compensation, run every period.
+
+The readable reference is :func:`compute_hand_wrench_W` below (numpy, with the device model's
+:meth:`~teleop.master.cobot.CobotModel.compute_distal_wrench_W`); tests/unit/test_master_kernels.py
+checks the kernel against it. SI units: N, N*m, m/s^2, rad/s, rad/s^2.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from numba import njit
+
+
+def compute_hand_wrench_W(model, wrench_S, bias_S, R, accel_W, w_W, max_force_N, max_torque_Nm):
+    """The hand's wrench (6,) at H, world: the load cell ``wrench_S`` (S = H frame) minus its tare
+    ``bias_S``, minus the distal handle's weight and inertia at handle rotation R, angular velocity
+    ``w_W`` (3,) and acceleration ``accel_W`` (6,: origin, angular), each half saturated."""
+    meas = wrench_S - bias_S
+    distal = model.compute_distal_wrench_W(R, w_W, accel_W[:3], accel_W[3:])
+    F = np.concatenate([R @ meas[:3], R @ meas[3:]]) - distal
+    for sl, lim in ((slice(0, 3), max_force_N), (slice(3, 6), max_torque_Nm)):
+        n = float(np.linalg.norm(F[sl]))
+        if n > lim:
+            F[sl] *= lim / n
+    return F
+
+
+@njit(cache=True)
+def _cross(a, b):
+    return np.array([a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0]])
+
+
+@njit(cache=True)
+def hand_wrench_W(wrench_S, bias_S, R, accel_W, w_W, mass_kg, com_H, inertia_H, gravity_W,
+                  max_force_N, max_torque_Nm):
+    """:func:`compute_hand_wrench_W` in the handle frame, in one pass; com_H (3,) m and inertia_H
+    (3, 3) kg*m^2 about the COM are the handle's, in H."""
+    Rt = R.T
+    w, a_o, alpha = Rt @ w_W, Rt @ accel_W[:3], Rt @ accel_W[3:]
+    c = com_H
+    a_c = a_o + _cross(alpha, c) + _cross(w, _cross(w, c))
+    f = mass_kg * (Rt @ gravity_W - a_c)
+    tau = _cross(c, f) - inertia_H @ alpha - _cross(w, inertia_H @ w)
+    F_H = wrench_S - bias_S
+    F_H[:3] -= f
+    F_H[3:] -= tau
+    for lo, lim in ((0, max_force_N), (3, max_torque_Nm)):
+        n = np.sqrt(F_H[lo] ** 2 + F_H[lo + 1] ** 2 + F_H[lo + 2] ** 2)
+        if n > lim:
+            F_H[lo:lo + 3] *= lim / n
+    out = np.empty(6)
+    out[:3] = R @ F_H[:3]
+    out[3:] = R @ F_H[3:]
+    return out
