@@ -88,8 +88,8 @@ def measure(n_steps: int = 5000) -> dict:
     m.pred_p[:], m.pred_R[:] = m.p_H_est, m.R_H_est
     ch = f"bench-{uuid.uuid4().hex}"
     m.driver.bus.shutdown()
-    m.driver.bus = can.Bus(interface="virtual", channel=ch, fd=True, preserve_timestamps=True)
-    replay = can.Bus(interface="virtual", channel=ch, fd=True, preserve_timestamps=True)
+    m.driver.bus = can.Bus(interface=m.cfg.interface, channel=ch, fd=True, preserve_timestamps=True)
+    replay = can.Bus(interface=m.cfg.interface, channel=ch, fd=True, preserve_timestamps=True)
     clock = PhaseClock()
     m.driver.read = clock.wrap(m.driver.read, "decode")
     m.driver._send = clock.wrap(m.driver._send, "encode_send")
@@ -121,7 +121,7 @@ def measure(n_steps: int = 5000) -> dict:
         m.driver.last_device_hb_s = m.t
     replay.shutdown()
     m.close()
-    return {"master_tick_us": _stats(samples),
+    return {"master_tick_us": _stats(samples), "interface": m.cfg.interface,
             "phases_us": {p: _stats(phases[p]) for p in PHASES},
             "status": m.status, "steps": n_steps}
 

@@ -85,9 +85,14 @@ class MessageCodec:
             missing = sorted(set(self.names) - set(values))
             unknown = sorted(set(values) - set(self.names))
             raise CanError(f"can encode {self.name}: missing signals {missing}, unknown signals {unknown}")
+        return self.encode_ordered([values[n] for n in self.names])
+
+    def encode_ordered(self, values) -> bytes:
+        """:meth:`encode` for values given in the order of :attr:`names` (no mapping to build)."""
+        if len(values) != len(self.names):
+            raise CanError(f"can encode {self.name}: expected {len(self.names)} values, got {len(values)}")
         raw = []
-        for name, to_raw, (lo, hi, choices) in zip(self.names, self._to_raw, self._encode_range):
-            v = values[name]
+        for name, v, to_raw, (lo, hi, choices) in zip(self.names, values, self._to_raw, self._encode_range):
             try:
                 if not lo <= v <= hi:  # NaN fails here too
                     self._reject(name, v, lo, hi, choices)

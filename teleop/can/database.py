@@ -83,6 +83,11 @@ class FrameDatabase:
         self._codec_by_id = {m.frame_id: self.codecs[m.name] for m in self.db.messages}
         self.checksum = {m.name: next((s.name for s in m.signals if s.name.endswith("Checksum")), None)
                          for m in self.db.messages}
+        self._fd = {m.name: bool(m.is_fd) for m in self.db.messages}
+        for name, ck in self.checksum.items():
+            if ck is not None and (self.codecs[name].names[-1] != ck
+                                   or self.by_name[name].get_signal_by_name(ck).start // 8 != self.by_name[name].length - 1):
+                raise CanError(f"can database {path}: {name}.{ck} must be the last byte of the frame")
         # decode checks, in codec order: (index, signal, min, max, float signal). The DBC writes
         # its limits at physical resolution (0.99996 for raw 32767 x 2^-15), so an integer signal
         # may decode up to half a step past them: whatever strict encoding accepts, decoding does.
@@ -110,10 +115,21 @@ class FrameDatabase:
         if ck is not None:
             signals = dict(signals)
             signals[ck] = 0
-        data = self.codecs[name].encode(signals)
-        if ck is not None:
-            data = data[:-1] + bytes((compute_crc8(data[:-1]),))
-        return msg.frame_id, data, bool(msg.is_fd)
+        return msg.frame_id, self._seal(name, self.codecs[name].encode(signals)), bool(msg.is_fd)
+
+    def encode_ordered(self, name: str, values) -> tuple[int, bytes, bool]:
+        """:meth:`encode` with the values in the order of ``codecs[name].names`` without the
+        checksum (for the per-period frames: no mapping to build)."""
+        codec = self.codecs[name]
+        if self.checksum[name] is not None:
+            values = (*values, 0)
+        return codec.frame_id, self._seal(name, codec.encode_ordered(values)), self._fd[name]
+
+    def _seal(self, name: str, data: bytes) -> bytes:
+        """The payload with its CRC-8 in the last byte, when the layout has a checksum."""
+        if self.checksum[name] is None:
+            return data
+        return data[:-1] + bytes((compute_crc8(data[:-1]),))
 
     def decode(self, frame_id: int, data: bytes, timestamp: float = 0.0) -> Decoded | Rejected:
         """Decode and check one frame: a :class:`Decoded` in SI units, or a :class:`Rejected`."""

@@ -18,6 +18,7 @@ import can
 import numpy as np
 
 from teleop.can.database import Decoded, FrameDatabase
+from teleop.errors import CanError
 
 #: SocketCAN error-class bit for bus-off in an error frame's id.
 CAN_ERR_BUSOFF = 0x40
@@ -25,6 +26,10 @@ JOINT_SIGNALS = ("PosX", "PosY", "PosZ", "AngA", "AngB", "AngC")
 WRENCH_SIGNALS = ("ForceX", "ForceY", "ForceZ", "TorqueX", "TorqueY", "TorqueZ")
 CMD_SIGNALS = ("CmdVelX", "CmdVelY", "CmdVelZ", "CmdRateA", "CmdRateB", "CmdRateC")
 REVOLUTE = slice(3, 6)
+#: frames the driver encodes by position every period, and the signal order it assumes
+ORDERED_FRAMES = {"SYNC": ("SyncCounter",), "HOST_CMD": (*CMD_SIGNALS, "CmdMode", "CmdCounter")}
+#: the HOST_CMD ranges of the DBC (m/s x3, rad/s x3)
+CMD_RANGE = (0.99996,) * 3 + (16.0,) * 3
 
 
 def wrap_angle(a):
@@ -44,6 +49,10 @@ class CobotDriver:
                  stale_cycles: int = 3, heartbeat_period_s: float = 0.01,
                  heartbeat_timeout_s: float = 0.05, own_bus: bool = False):
         self.bus, self.db, self.clock = bus, db or FrameDatabase(), clock
+        for name, order in ORDERED_FRAMES.items():  # the per-period frames are encoded by position
+            if self.db.codecs[name].names[: len(order)] != order:
+                raise CanError(f"can database: {name} must lay out {order} in that order, "
+                               f"found {self.db.codecs[name].names}")
         self.stale_cycles = int(stale_cycles)
         self.hb_period, self.hb_timeout = float(heartbeat_period_s), float(heartbeat_timeout_s)
         self.own_bus = own_bus
@@ -60,6 +69,7 @@ class CobotDriver:
         self.frames_rx = self.frames_late = self.send_errors = self.watchdog_trips = 0
         self._sync = self._cmd = self._hb = 0
         self._next_hb_s = -math.inf
+        self._lim_key, self._lim = None, list(CMD_RANGE)
         self.started = self.closed = False
 
     # -- life cycle ---------------------------------------------------------------------------------
@@ -90,8 +100,12 @@ class CobotDriver:
         self.close()
 
     # -- sending ------------------------------------------------------------------------------------
-    def _send(self, name: str, signals: dict) -> bool:
-        frame_id, data, fd = self.db.encode(name, signals)
+    def _send(self, name: str, signals) -> bool:
+        """Encode and send; ``signals`` a mapping, or the values in codec order (no checksum)."""
+        if isinstance(signals, dict):
+            frame_id, data, fd = self.db.encode(name, signals)
+        else:
+            frame_id, data, fd = self.db.encode_ordered(name, signals)
         msg = can.Message(arbitration_id=frame_id, data=data, is_extended_id=False, is_fd=fd,
                           bitrate_switch=fd, timestamp=self.clock())
         try:
@@ -106,7 +120,7 @@ class CobotDriver:
         """SYNC with the next counter; returns the counter (0..255)."""
         c = self._sync % 256
         self._sync += 1
-        self._send("SYNC", {"SyncCounter": c})
+        self._send("SYNC", (c,))
         return c
 
     def send_heartbeat(self, force: bool = False) -> None:
@@ -117,7 +131,7 @@ class CobotDriver:
             self._send("HOST_HEARTBEAT", {"HostState": state, "HostHbCounter": self._hb % 256})
             self._hb += 1
 
-    def _cmd_signals(self, qd: np.ndarray, mode: int) -> dict:
+    def _cmd_signals(self, qd, mode: int) -> dict:
         sig = dict(zip(CMD_SIGNALS, (float(v) for v in qd)))
         sig.update(CmdMode=mode, CmdCounter=self._cmd % 256)
         return sig
@@ -126,14 +140,21 @@ class CobotDriver:
         """Joint velocity commands (6,: m/s x3, rad/s x3), clipped to ``limits`` (6,) and the DBC
         range; zero velocity with mode 0 after a fault or for non-finite input."""
         qd = np.asarray(qd_cmd, dtype=float)
+        vals = qd.tolist() if qd.shape == (6,) else None  # six floats: scalar arithmetic is cheapest
         mode = 1
-        if self.fault is not None or qd.shape != (6,) or not np.all(np.isfinite(qd)):
-            qd, mode = np.zeros(6), 0
-        dbc = np.array([0.99996] * 3 + [16.0] * 3)  # the HOST_CMD ranges
-        lim = dbc if limits is None else np.minimum(limits, dbc)
-        qd = np.clip(qd, -lim, lim)
-        self._send("HOST_CMD", self._cmd_signals(qd, mode))
+        if self.fault is not None or vals is None or not all(map(math.isfinite, vals)):
+            vals, mode = [0.0] * 6, 0
+        lim = CMD_RANGE if limits is None else self._limits(limits)
+        self._send("HOST_CMD", (*[min(max(v, -m), m) for v, m in zip(vals, lim)], mode, self._cmd % 256))
         self._cmd += 1
+
+    def _limits(self, limits) -> list:
+        """min(limits, the DBC's HOST_CMD range) (6,), kept for the last ``limits`` object given
+        (pass a new array to change the limits; one changed in place is not seen)."""
+        if limits is not self._lim_key:
+            self._lim_key = limits
+            self._lim = [min(a, b) for a, b in zip(np.asarray(limits, float).tolist(), CMD_RANGE)]
+        return self._lim
 
     # -- receiving ----------------------------------------------------------------------------------
     def read(self) -> int:
@@ -178,10 +199,11 @@ class CobotDriver:
             if not self._newer(int(s["JointsCounter"]), self.joints_counter):
                 self.frames_late += 1
                 return
-            meas = np.array([s[k] for k in JOINT_SIGNALS], dtype=float)
-            prev = self.joints_rad_m
-            meas[REVOLUTE] = prev[REVOLUTE] + wrap_angle(meas[REVOLUTE] - prev[REVOLUTE])
-            self.joints_rad_m = meas
+            meas = [s[k] for k in JOINT_SIGNALS]
+            prev = self.joints_rad_m.tolist()
+            for i in range(3, 6):  # unwrap the wrist angles next to the previous reading
+                meas[i] = prev[i] + (meas[i] - prev[i] + math.pi) % (2.0 * math.pi) - math.pi
+            self.joints_rad_m = np.array(meas, dtype=float)
             self.joints_counter = int(s["JointsCounter"])
             self.device_state = int(s["DevState"])
             self.fresh_joints = True

@@ -16,6 +16,7 @@ reference. Frames of the device arrive only through the bus: a user with hardwar
 from __future__ import annotations
 
 import logging
+import math
 import time
 import uuid
 
@@ -29,11 +30,15 @@ from teleop.control.admittance import AdmittanceController, AdmittanceGains, Phi
 from teleop.control.clutch import Clutch
 from teleop.master.cobot import GRAVITY_W, CobotDevice, CobotModel, DeviceParams
 from teleop.master.config import CobotConfig
-from teleop.master.kernels import hand_wrench_W
+from teleop.master.kernels import dls_command, hand_wrench_W
 from teleop.master.observer import HISTORY, JointObserver
 
 
-def compute_dls(J: np.ndarray, twist: np.ndarray, sigma0: float = 0.05, lam0: float = 0.02) -> np.ndarray:
+#: damped least squares: no damping above this smallest singular value, up to this damping at 0
+DLS_SIGMA0, DLS_LAMBDA0 = 0.05, 0.02
+
+
+def compute_dls(J: np.ndarray, twist: np.ndarray, sigma0: float = DLS_SIGMA0, lam0: float = DLS_LAMBDA0) -> np.ndarray:
     """Joint rates (6,) for a handle twist (6,) by damped least squares: no damping while the
     smallest singular value exceeds sigma0, then damping rising to lam0 at the singularity."""
     U, S, Vt, info = lapack.dgesvd(J)  # LAPACK directly: numpy's wrapper costs 3x the SVD
@@ -44,10 +49,20 @@ def compute_dls(J: np.ndarray, twist: np.ndarray, sigma0: float = 0.05, lam0: fl
     return Vt.T @ ((S / (S * S + lam2)) * (U.T @ twist))
 
 
+def compute_workspace_limit(joints, qd, hi, lo) -> np.ndarray:
+    """qd (6,) with the rates that would drive a joint past hi or lo (6,) zeroed (the reference of
+    :func:`~teleop.master.kernels.dls_command`'s last step)."""
+    return np.where((joints > hi) & (qd > 0) | (joints < lo) & (qd < 0), 0.0, qd)
+
+
 def _finite(x) -> np.ndarray:
     """x as a float array with NaN and inf replaced by 0 (an input never poisons the loop)."""
     a = np.asarray(x, dtype=float)
     return a if np.isfinite(a).all() else np.nan_to_num(a, nan=0.0, posinf=0.0, neginf=0.0)
+
+
+#: python-can interfaces on which the simulated device can share the host's channel
+SIMULATED_INTERFACES = ("teleop_lockstep", "virtual")
 
 
 class CobotMaster:
@@ -78,10 +93,10 @@ class CobotMaster:
                           (3, True, round(cfg.heartbeat_period_s / dt_s)), (4, True, round(cfg.heartbeat_period_s / dt_s))],
             self.dt)
         channel = cfg.channel or f"teleop-cobot-{uuid.uuid4().hex}"
-        self.host_bus = can.Bus(interface=cfg.interface, channel=channel, fd=True, preserve_timestamps=True) \
-            if cfg.interface == "virtual" else can.Bus(interface=cfg.interface, channel=channel, fd=True)
-        self.dev_bus = can.Bus(interface="virtual", channel=channel, fd=True, preserve_timestamps=True) \
-            if cfg.interface == "virtual" else None
+        simulated = cfg.interface in SIMULATED_INTERFACES
+        extra = {"preserve_timestamps": True} if simulated else {}
+        self.host_bus = can.Bus(interface=cfg.interface, channel=channel, fd=True, **extra)
+        self.dev_bus = can.Bus(interface=cfg.interface, channel=channel, fd=True, **extra) if simulated else None
         self.capture = Capture(cfg.capture_path) if cfg.capture_path else None
         self.t = 0.0  # simulated time of the link, s
         self.driver = CobotDriver(self.host_bus, self.db, clock=lambda: self.t, stale_cycles=cfg.stale_cycles,
@@ -101,7 +116,8 @@ class CobotMaster:
         self.p_H_est, self.R_H_est = p_H, R_H
         self.counter = 0
         self.status = "ok"
-        self.err_max = np.zeros(2)
+        self.err_max = (0.0, 0.0)  # tracking error maxima (m, rad)
+        self._ws_hi = self._ws_lo = None
         self.steps = 0
         self.closed = self.entered = False
         self._wall0 = None
@@ -213,16 +229,21 @@ class CobotMaster:
         p_m, R_m, J = self.model.compute_pose_and_jacobian(joints)
         # carry the measurement (cycle j) forward by the commanded motion since
         j = drv.joints_counter
-        self.p_H_est = p_m + self.pred_p[k] - self.pred_p[j]
-        self.R_H_est = self.pred_R[k] @ self.pred_R[j].T @ R_m
+        if j == k:  # a reading of this very SYNC: nothing to carry forward
+            self.p_H_est, self.R_H_est = p_m, R_m
+        else:
+            self.p_H_est = p_m + self.pred_p[k] - self.pred_p[j]
+            self.R_H_est = self.pred_R[k] @ self.pred_R[j].T @ R_m
         F_hand_W = self._hand_wrench_W(R_m)
         if self.clutch.engaged:
             nu_H, a_H, st = self._admittance(phi, F_hand_W, contact_wrench_W)
         else:
             nu_H = np.clip(F_hand_W / np.array(self.cfg.free_damping), -self.vmax, self.vmax)
             a_H, st = (nu_H - self.nu_H_cmd) / self.dt, "ok"
-        qd = compute_dls(J, nu_H + self.tau_s * a_H)
-        qd = self._workspace_limit(joints, qd)
+        if self._ws_hi is None:
+            m = self.cfg.workspace_margin_m
+            self._ws_hi, self._ws_lo = self.model.upper - m, self.model.lower + m
+        qd = dls_command(J, nu_H + self.tau_s * a_H, joints, self._ws_hi, self._ws_lo, DLS_SIGMA0, DLS_LAMBDA0)
         drv.send_command(qd, self.vmax)
         obs.predict(k, qd)
         self._advance_prediction(k, nu_H)
@@ -250,14 +271,10 @@ class CobotMaster:
         p_v, R_v = phi.compute_virtual_pose(self.p_H_est, self.R_H_est)
         st = tool.step(self.dt, f_v)
         nu_V, a_V = self.ctrl.step(p_r, R_r, np.concatenate([v_r, w_r]), tool.acceleration_W, p_v, R_v)
-        e = self.ctrl.error  # q_r - q_v before the step
-        self.err_max = np.maximum(self.err_max, np.linalg.norm(e.reshape(2, 3), axis=1))
+        ex, ey, ez, rx, ry, rz = self.ctrl.error.tolist()  # q_r - q_v before the step
+        self.err_max = (max(self.err_max[0], math.sqrt(ex * ex + ey * ey + ez * ez)),
+                        max(self.err_max[1], math.sqrt(rx * rx + ry * ry + rz * rz)))
         return phi.twist_to_handle(nu_V), phi.twist_to_handle(a_V), st
-
-    def _workspace_limit(self, joints, qd) -> np.ndarray:
-        m = self.cfg.workspace_margin_m
-        out = (joints > self.model.upper - m) & (qd > 0) | (joints < self.model.lower + m) & (qd < 0)
-        return np.where(out, 0.0, qd)
 
     def _advance_prediction(self, k: int, nu_H) -> None:
         n = (k + 1) % HISTORY

@@ -58,8 +58,11 @@ class CobotConfig:
     fd: bool = True  #: CAN FD (the 1 kHz cycle needs it; classic CAN does not fit 60 %)
     bitrate_bps: float = 1_000_000.0  #: nominal bit rate, bit/s
     data_bitrate_bps: float = 5_000_000.0  #: CAN FD data-phase bit rate, bit/s
-    interface: str = "virtual"  #: python-can interface of the host bus
-    channel: str | None = None  #: python-can channel; None: a fresh private virtual channel
+    #: python-can interface of the host bus. The simulated ones (SIMULATED_INTERFACES) put the
+    #: simulated device on the same channel: "teleop_lockstep" (teleop.can.lockstep, the default)
+    #: or python-can's "virtual"; any other name is real hardware, driven without the simulator.
+    interface: str = "teleop_lockstep"
+    channel: str | None = None  #: python-can channel; None: a fresh private channel
     read_window_s: float = 3e-4  #: host reads feedback and sends commands this long after SYNC, s
     stale_cycles: int = 3  #: cycles without fresh feedback that trip the watchdog
     heartbeat_period_s: float = 0.01  #: host and device heartbeat period, s

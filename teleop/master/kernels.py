@@ -52,3 +52,21 @@ def hand_wrench_W(wrench_S, bias_S, R, accel_W, w_W, mass_kg, com_H, inertia_H, 
     out[:3] = R @ F_H[:3]
     out[3:] = R @ F_H[3:]
     return out
+
+
+@njit(cache=True)
+def dls_command(J, twist, joints, ws_hi, ws_lo, sigma0, lam0):
+    """Joint rates (6,) for a handle twist (6,): :func:`teleop.master.cobot_master.compute_dls`
+    (damped least squares, no damping while the smallest singular value exceeds sigma0) followed by
+    the workspace limit (a rate that drives a joint past ws_hi or ws_lo (6,) is zeroed), in one pass."""
+    U, S, Vt = np.linalg.svd(J)
+    smin = S[-1]
+    lam2 = 0.0 if smin >= sigma0 else lam0 * lam0 * (1.0 - (smin / sigma0) ** 2)
+    y = U.T @ twist
+    for i in range(6):
+        y[i] *= S[i] / (S[i] * S[i] + lam2)
+    qd = Vt.T @ y
+    for i in range(6):
+        if (joints[i] > ws_hi[i] and qd[i] > 0.0) or (joints[i] < ws_lo[i] and qd[i] < 0.0):
+            qd[i] = 0.0
+    return qd

@@ -25,15 +25,66 @@ from __future__ import annotations
 import math
 
 import numpy as np
+from numba import njit
 
 HISTORY = 256  # the SYNC counter's range
+
+
+@njit(cache=True)
+def _predict(x, qd, u_old, u_cmd, bias, vmax, amax, dt, window, tau):
+    """Compiled twin of :meth:`JointObserver.predict` (returns x, qd_model, u_new: new arrays)."""
+    n = x.shape[0]
+    u_new = np.empty(n)
+    for i in range(n):
+        u_new[i] = min(max(u_cmd[i], -vmax[i]), vmax[i])
+    x, qd = x.copy(), qd.copy()
+    qd_new = np.empty(n)
+    for part in range(2):
+        u = u_old if part == 0 else u_new
+        h = window if part == 0 else dt - window
+        e = math.exp(-h / tau)
+        ramp = False
+        for i in range(n):
+            qd_new[i] = u[i] + (qd[i] - u[i]) * e
+            ramp = ramp or abs(qd_new[i] - qd[i]) > amax[i] * h
+        for i in range(n):
+            if ramp:  # acceleration-limited: a ramp
+                dv = amax[i] * h
+                q1 = qd[i] + min(max(qd_new[i] - qd[i], -dv), dv)
+                x[i] += 0.5 * (qd[i] + q1) * h
+                qd[i] = q1
+            else:
+                x[i] += u[i] * h + (qd[i] - u[i]) * (tau * (1.0 - e))
+                qd[i] = qd_new[i]
+    for i in range(n):
+        x[i] += bias[i] * dt
+    return x, qd, u_new
+
+
+@njit(cache=True)
+def _correct(history, x, bias, y, j, k, alpha, beta, dt):
+    """Compiled twin of :meth:`JointObserver.correct`: history (HISTORY, n) in place; returns the
+    new x and bias."""
+    H, n = history.shape
+    lag = (k - j) % H
+    jj = j % H
+    x, bias = x.copy(), bias.copy()
+    for i in range(n):
+        r = y[i] - history[jj, i]
+        dx, db = alpha * r, (beta / dt) * r
+        for m in range(1, lag + 1):
+            history[(j + m) % H, i] += dx + m * dt * db
+        x[i] += dx + db * (lag * dt)
+        bias[i] += db
+    return x, bias
 
 
 class JointObserver:
     """Estimate of the 6 joints at each SYNC and of their rates (see the module docstring)."""
 
     def __init__(self, joints0, dt_s: float, tau_s: float, read_window_s: float, vmax, amax,
-                 bandwidth_hz: float = 20.0):
+                 bandwidth_hz: float = 20.0, compiled: bool = True):
+        self.compiled = compiled  # False: the numpy reference below (the kernels are tested against it)
         self.dt, self.tau, self.window = float(dt_s), float(tau_s), float(read_window_s)
         r = math.exp(-2.0 * math.pi * bandwidth_hz * self.dt)
         self.alpha, self.beta = 1.0 - r * r, (1.0 - r) ** 2
@@ -56,6 +107,10 @@ class JointObserver:
         """Fuse an encoder reading y (6,) sampled at SYNC counter j (0..255) into the estimate
         for SYNC k. A late reading (j before k) corrects the estimates of SYNC j+1..k as well, so
         a later reading is compared with the corrected trajectory and no error counts twice."""
+        if self.compiled:
+            self.x, self.bias = _correct(self.history, self.x, self.bias, np.asarray(y, dtype=float), j, k,
+                                         self.alpha, self.beta, self.dt)
+            return
         n = (k - j) % HISTORY
         r = y - self.history[j % HISTORY]
         dx = self.alpha * r
@@ -69,6 +124,11 @@ class JointObserver:
     def predict(self, k: int, qd_cmd) -> None:
         """Advance from SYNC k to SYNC k + 1 with the command qd_cmd (6,) sent ``read_window_s``
         after SYNC k (the device clips it to vmax)."""
+        if self.compiled:
+            self.x, self.qd_model, self.u = _predict(self.x, self.qd_model, self.u, np.asarray(qd_cmd, dtype=float),
+                                                     self.bias, self.vmax, self.amax, self.dt, self.window, self.tau)
+            self.history[(k + 1) % HISTORY] = self.x
+            return
         u_new = np.clip(qd_cmd, -self.vmax, self.vmax)
         x, qd = self.x, self.qd_model
         for u, h in ((self.u, self.window), (u_new, self.dt - self.window)):

@@ -78,3 +78,46 @@ def test_observer_rates_from_quantized_late_readings(latency):
             obs.correct(quantize(truth[k - latency], q), (k - latency) % 256, k % 256)
         obs.predict(k % 256, v_cmd)
     assert np.allclose(obs.rates, v_true, atol=np.r_[[1e-3] * 3, [2e-2] * 3])
+
+
+@settings(max_examples=30, deadline=None)
+@given(seed=st.integers(0, 2**32 - 1), window=st.floats(0.0, 5e-4), tau=st.floats(1e-4, 5e-3),
+       amax=st.floats(0.5, 50.0))
+def test_observer_kernels_match_the_numpy_reference(seed, window, tau, amax):
+    """Random commands (some past vmax, some steps past the acceleration limit: the ramp branch)
+    and readings up to 4 periods late, the same sequence through both forms."""
+    rng = np.random.default_rng(seed)
+    args = (rng.normal(size=6), 1e-3, tau, window, np.full(6, 0.5), np.full(6, amax))
+    fast, ref = JointObserver(*args), JointObserver(*args, compiled=False)
+    for k in range(60):
+        y = rng.normal(size=6) * 1e-3
+        lag = int(rng.integers(0, 5))
+        for obs in (fast, ref):
+            obs.correct(y, (k - lag) % 256, k % 256)
+        u = rng.normal(size=6) * (2.0 if k % 7 == 0 else 0.1)
+        for obs in (fast, ref):
+            obs.predict(k % 256, u)
+        np.testing.assert_allclose(fast.x, ref.x, rtol=1e-12, atol=1e-15)
+        np.testing.assert_allclose(fast.rates, ref.rates, rtol=1e-12, atol=1e-12)
+        np.testing.assert_allclose(fast.history, ref.history, rtol=1e-12, atol=1e-15)
+
+
+@settings(max_examples=60, deadline=None)
+@given(seed=st.integers(0, 2**32 - 1), singular=st.booleans())
+def test_dls_command_matches_the_numpy_reference(seed, singular):
+    """Random Jacobians, some made near-singular (the damped branch), and joints beyond the
+    workspace margins on random axes."""
+    from teleop.master.cobot_master import compute_dls, compute_workspace_limit
+    from teleop.master.kernels import dls_command
+
+    rng = np.random.default_rng(seed)
+    J = rng.normal(size=(6, 6))
+    if singular:
+        U, S, Vt = np.linalg.svd(J)
+        S[-1] = rng.uniform(0.0, 0.05)
+        J = (U * S) @ Vt
+    twist, joints = rng.normal(size=6), rng.normal(size=6)
+    hi, lo = np.full(6, 0.5), np.full(6, -0.5)
+    ref = compute_workspace_limit(joints, compute_dls(J, twist), hi, lo)
+    np.testing.assert_allclose(dls_command(np.asfortranarray(J), twist, joints, hi, lo, 0.05, 0.02), ref,
+                               rtol=1e-9, atol=1e-9 * (1.0 + np.abs(ref).max()))
