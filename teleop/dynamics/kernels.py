@@ -25,6 +25,7 @@ import numpy as np
 from numba import njit
 
 from teleop.dynamics import constraints as C
+from teleop.dynamics import effects as E
 
 #: floats per constraint in the parameter table
 NPAR = 12
@@ -62,6 +63,22 @@ def row_params(c) -> tuple[int, np.ndarray] | None:
         par[0:3], par[3:6], par[6:9], par[9:12] = c.center, c.point_B, c._N_B[0], c._N_B[1]
         return KIND_REMOTE_CENTER, par
     return None
+
+
+def effect_params(effects) -> tuple[np.ndarray, tuple]:
+    """Split effects into the compiled ones, summed into fx = (c_lin N*s/m, c_ang N*m*s/rad,
+    gravity force (3,) N), and the rest (a tuple, run in Python)."""
+    fx, rest = np.zeros(5), []
+    for e in effects:
+        if type(e) is E.LinearDamper:
+            fx[0] += e.c
+        elif type(e) is E.AngularDamper:
+            fx[1] += e.c
+        elif type(e) is E.Gravity:
+            fx[2:5] += e._f
+        else:
+            rest.append(e)
+    return fx, tuple(rest)
 
 
 # -- small scalar helpers -------------------------------------------------------------------------
@@ -343,11 +360,18 @@ def _solve(S, mode, rhs):
 
 
 @njit(cache=True)
-def newton_euler(R, Iinv, J, inv_m, coriolis, G, MinvGt, S, mode, kinds, offsets, params, p, v, w, F):
-    """Eqs. 8-9 in twist form at pose (p, R), twist (v, w) (world), under the wrench F (6,).
+def newton_euler(R, Iinv, J, inv_m, coriolis, G, MinvGt, S, mode, kinds, offsets, params, p, v, w, F_in,
+                 fx):
+    """Eqs. 8-9 in twist form at pose (p, R), twist (v, w) (world), under the wrench F_in (6,)
+    plus the compiled effects fx = (c_lin N*s/m, c_ang N*m*s/rad, gravity force (3,) N) (see
+    :func:`effect_params`).
 
-    Returns nudot (6,) = (vdot, wdot) world and lam (m,).
+    Returns nudot (6,) = (vdot, wdot) world, lam (m,) and the total wrench F (6,).
     """
+    F = np.empty(6)
+    for i in range(3):
+        F[i] = F_in[i] - fx[0] * v[i] + fx[2 + i]
+        F[3 + i] = F_in[3 + i] - fx[1] * w[i]
     free = np.empty(6)
     for i in range(3):
         free[i] = F[i] * inv_m
@@ -384,22 +408,24 @@ def newton_euler(R, Iinv, J, inv_m, coriolis, G, MinvGt, S, mode, kinds, offsets
             for r in range(m):
                 s += MinvGt[i, r] * lam[r]
             nudot[i] += s
-    return nudot, lam
+    return nudot, lam, F
 
 
 @njit(cache=True)
 def evaluate(R, E, Einv, dE, Iinv, J, inv_m, coriolis, G, MinvGt, S, mode,
-             kinds, offsets, params, p, qd, F):
-    """Eqs. 8-9 at chart rates qd (6,) under the wrench F (6,) (operator plus effects, world).
+             kinds, offsets, params, p, qd, F, fx):
+    """Eqs. 8-9 at chart rates qd (6,) under the wrench F (6,) (operator plus the Python effects,
+    world) and the compiled effects fx (see :func:`newton_euler`).
 
-    Returns qdd (6,) chart accelerations, nudot (6,) = (vdot, wdot) world, lam (m,).
+    Returns qdd (6,) chart accelerations, nudot (6,) = (vdot, wdot) world, lam (m,) and the total
+    wrench (6,).
     """
     d1, d2, d3 = qd[3], qd[4], qd[5]
     w = np.empty(3)
     _rv(R, E[0, 0] * d1 + E[0, 1] * d2 + E[0, 2] * d3, E[1, 0] * d1 + E[1, 1] * d2 + E[1, 2] * d3,
         E[2, 0] * d1 + E[2, 1] * d2 + E[2, 2] * d3, w)
-    nudot, lam = newton_euler(R, Iinv, J, inv_m, coriolis, G, MinvGt, S, mode, kinds, offsets,
-                              params, p, qd[:3], w, F)
+    nudot, lam, F = newton_euler(R, Iinv, J, inv_m, coriolis, G, MinvGt, S, mode, kinds, offsets,
+                                 params, p, qd[:3], w, F, fx)
     k1, k2, k3 = d1 * d3, d1 * d2, d2 * d3
     qdd = np.empty(6)
     qdd[:3] = nudot[:3]
@@ -408,7 +434,7 @@ def evaluate(R, E, Einv, dE, Iinv, J, inv_m, coriolis, G, MinvGt, S, mode,
         x[i] = (R[0, i] * nudot[3] + R[1, i] * nudot[4] + R[2, i] * nudot[5]
                 + k1 * dE[0, i] + k2 * dE[1, i] + k3 * dE[2, i])
     _rv(Einv, x[0], x[1], x[2], qdd[3:])
-    return qdd, nudot, lam
+    return qdd, nudot, lam, F
 
 
 @njit(cache=True)

@@ -42,6 +42,19 @@ from teleop.dynamics.multipliers import (
 from teleop.dynamics.rotations import EulerChart, cross, rate_map_terms
 
 
+_ZERO6 = np.zeros(6)
+_ZERO6.setflags(write=False)
+
+
+def _wrench6(F) -> np.ndarray:
+    """F as a float64 (6,) array (the kernels index it unchecked); ValueError for another shape."""
+    if type(F) is not np.ndarray or F.dtype != np.float64 or not F.flags.c_contiguous:
+        F = np.ascontiguousarray(F, dtype=float)
+    if F.shape != (6,):
+        raise ValueError(f"operator wrench: expected 6 values, got shape {F.shape}")
+    return F
+
+
 class PoseTerms:
     """Pose-only quantities at (chart, q): p, R, E_B, E_B^-1, the Edot pieces, G, I_W^-1,
     M_nu^-1 G^T and the factored Delassus matrix K = G M_nu^-1 G^T; for the kernels, S and mode
@@ -95,6 +108,8 @@ class ConstrainedBody:
             else:
                 self._varying.append((i, i + c.rows, c))
             i += c.rows
+        # dampers and gravity run inside the kernels; any other effect runs in Python first
+        self._fx, self._py_effects = kernels.effect_params(self.effects)
         rows = [(i, kernels.row_params(c)) for i, _, c in self._varying]
         self.compiled = bool(compiled) and all(r is not None for _, r in rows)
         if self.compiled:
@@ -167,14 +182,16 @@ class ConstrainedBody:
         """Eqs. 8-9 at (q, qd). ``stabilize=(alpha, beta)`` adds Baumgarte terms 2a G nu + b^2 h."""
         pt = self.pose_terms(chart, q)
         if self.compiled and stabilize is None:
-            F = np.zeros(6) if operator_W is None else np.array(operator_W, dtype=float)
-            if self.effects:
+            F = _ZERO6 if operator_W is None else _wrench6(operator_W)
+            if self._py_effects:
+                F = np.array(F, dtype=float)
                 v, w = qd[:3], pt.R @ (pt.E_B @ qd[3:])
-                for e in self.effects:
+                for e in self._py_effects:
                     e.add_wrench(pt.p, pt.R, v, w, t, F)
-            qdd, nudot, lam = kernels.evaluate(
+            qdd, nudot, lam, F = kernels.evaluate(
                 pt.R, pt.E_B, pt.E_inv, pt.dE, pt.Iinv_W, self.body.J, self._inv_m, self.coriolis,
-                pt.G, pt.MinvGt, pt.S, pt.mode, self._kinds, self._offsets, self._params, pt.p, qd, F)
+                pt.G, pt.MinvGt, pt.S, pt.mode, self._kinds, self._offsets, self._params, pt.p, qd,
+                F, self._fx)
             return Evaluation(qdd, nudot, lam, pt.K.rank if self.m else 0, F, pt.G, pt)
         thd = qd[3:]
         d1, d2, d3 = float(thd[0]), float(thd[1]), float(thd[2])
@@ -234,13 +251,15 @@ class ConstrainedBody:
     def evaluate_twist(self, p, R, v, w, t: float, operator_W=None) -> Evaluation:
         """Newton-Euler with constraints at pose (p, R), twist (v, w): no Euler chart involved."""
         body = self.body
-        F = total_wrench(self.effects, p, R, v, w, t, operator_W)
         if self.compiled:
+            F = total_wrench(self._py_effects, p, R, v, w, t, operator_W)
             Iinv, G, MinvGt, K, L, ok = self._twist_terms(p, R)
             Kf, S, mode = self._factor(K, L, ok)
-            nudot, lam = kernels.newton_euler(R, Iinv, body.J, self._inv_m, self.coriolis, G, MinvGt, S,
-                                              mode, self._kinds, self._offsets, self._params, p, v, w, F)
+            nudot, lam, F = kernels.newton_euler(R, Iinv, body.J, self._inv_m, self.coriolis, G, MinvGt, S,
+                                                 mode, self._kinds, self._offsets, self._params, p, v, w, F,
+                                                 self._fx)
             return Evaluation(nudot, nudot, lam, Kf.rank if self.m else 0, F, G, None)
+        F = total_wrench(self.effects, p, R, v, w, t, operator_W)
         I_W = R @ body.J @ R.T
         Iinv_W = R @ body.J_inv @ R.T
         free = np.empty(6)

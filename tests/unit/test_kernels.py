@@ -12,7 +12,7 @@ from hypothesis import strategies as st
 from teleop.dynamics import fixtures, kernels
 from teleop.dynamics.body import RigidBody
 from teleop.dynamics.constraints import Constraint, stack_bias, stack_jacobian
-from teleop.dynamics.effects import AngularDamper, Gravity, LinearDamper
+from teleop.dynamics.effects import AngularDamper, Gravity, LinearDamper, Spring
 from teleop.dynamics.model import ConstrainedBody
 from teleop.dynamics.rotations import EulerChart, rate_map_terms
 
@@ -71,7 +71,9 @@ def test_constraint_rows_match_the_classes(stack, seed, seq):
 def test_evaluation_and_projection_match_the_numpy_path(stack, seed, seq, coriolis):
     cons = STACKS[stack]()
     body = RigidBody(0.25, [0.0025, 0.003, 0.004])
-    effects = (LinearDamper(1.0), AngularDamper(0.1), Gravity(0.25))
+    # compiled effects (dampers, gravity) and one that stays in Python (a spring)
+    effects = (LinearDamper(1.0), AngularDamper(0.1), Gravity(0.25),
+               Spring(np.array([0.1, 0.0, 0.2]), 50.0, k_Nm_per_rad=0.5))
     fast = ConstrainedBody(body, cons, effects, coriolis=coriolis)
     ref = ConstrainedBody(body, cons, effects, coriolis=coriolis, compiled=False)
     rng = np.random.default_rng(seed)
