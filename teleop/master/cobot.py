@@ -16,6 +16,7 @@ import numpy as np
 import pinocchio as pin
 
 from teleop.dynamics.rotations import cross
+from teleop.master.kernels import gantry_zxz_pose_jacobian
 from teleop.errors import ConfigError
 
 DEFAULT_URDF = Path(__file__).resolve().parents[2] / "robots" / "cobot" / "cobot.urdf"
@@ -65,6 +66,7 @@ class CobotModel:
                 self.lower[k] = self.model.lowerPositionLimit[iq]
                 self.upper[k] = self.model.upperPositionLimit[iq]
         self._q = pin.neutral(self.model)
+        self.closed_form = self._check_closed_form()
 
     def pin_q(self, joints) -> np.ndarray:
         q = self._q
@@ -86,9 +88,27 @@ class CobotModel:
         return pin.computeFrameJacobian(self.model, self.data, self.pin_q(joints), self.fid,
                                         pin.LOCAL_WORLD_ALIGNED)
 
+    def _check_closed_form(self, n: int = 8) -> bool:
+        """Whether this URDF is the gantry + Z-X-Z wrist of :func:`gantry_zxz_pose_jacobian`:
+        checked against Pinocchio at n random joint vectors (1e-12)."""
+        rng = np.random.default_rng(0)
+        for _ in range(n):
+            x = rng.uniform(-1.0, 1.0, 6)
+            ref = self._pin_pose_and_jacobian(x)
+            got = gantry_zxz_pose_jacobian(x)
+            if not all(np.allclose(a, b, rtol=0.0, atol=1e-12) for a, b in zip(got, ref)):
+                return False
+        return True
+
     def compute_pose_and_jacobian(self, joints):
         """(p (3,) m, R (3, 3), J (6, 6)) of H in M from one kinematics pass; the Jacobian maps the
-        joint rates to the handle twist (v m/s, w rad/s) in M."""
+        joint rates to the handle twist (v m/s, w rad/s) in M. Closed form (compiled) when the URDF
+        is the shipped gantry + Z-X-Z wrist (checked at load), otherwise Pinocchio."""
+        if self.closed_form:
+            return gantry_zxz_pose_jacobian(np.asarray(joints, dtype=float))
+        return self._pin_pose_and_jacobian(joints)
+
+    def _pin_pose_and_jacobian(self, joints):
         m, d = self.model, self.data
         pin.computeJointJacobians(m, d, self.pin_q(joints))
         X = pin.updateFramePlacement(m, d, self.fid)

@@ -7,6 +7,8 @@ checks the kernel against it. SI units: N, N*m, m/s^2, rad/s, rad/s^2.
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 from numba import njit
 
@@ -70,3 +72,23 @@ def dls_command(J, twist, joints, ws_hi, ws_lo, sigma0, lam0):
         if (joints[i] > ws_hi[i] and qd[i] > 0.0) or (joints[i] < ws_lo[i] and qd[i] < 0.0):
             qd[i] = 0.0
     return qd
+
+
+@njit(cache=True)
+def gantry_zxz_pose_jacobian(joints):
+    """Closed-form kinematics of a 3-axis gantry (x, y, z in m) carrying a Z-X-Z wrist (a, b, c in
+    rad) whose axes meet at the handle origin: p (3,), R = Rz(a) Rx(b) Rz(c) (3, 3) and the
+    Jacobian (6, 6) from joint rates to the handle twist (v, w), world axes at the handle."""
+    a, b, c = joints[3], joints[4], joints[5]
+    ca, sa, cb, sb, cc, sc = math.cos(a), math.sin(a), math.cos(b), math.sin(b), math.cos(c), math.sin(c)
+    p = joints[:3].copy()
+    R = np.empty((3, 3))
+    R[0, 0], R[0, 1], R[0, 2] = ca * cc - sa * cb * sc, -ca * sc - sa * cb * cc, sa * sb
+    R[1, 0], R[1, 1], R[1, 2] = sa * cc + ca * cb * sc, -sa * sc + ca * cb * cc, -ca * sb
+    R[2, 0], R[2, 1], R[2, 2] = sb * sc, sb * cc, cb
+    J = np.zeros((6, 6))
+    J[0, 0] = J[1, 1] = J[2, 2] = 1.0
+    J[5, 3] = 1.0  # wrist a about world z
+    J[3, 4], J[4, 4] = ca, sa  # wrist b about Rz(a) x
+    J[3, 5], J[4, 5], J[5, 5] = sa * sb, -ca * sb, cb  # wrist c about Rz(a) Rx(b) z
+    return p, R, J

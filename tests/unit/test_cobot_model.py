@@ -77,3 +77,26 @@ def test_load_cell_bias_noise_seeded(model):
         dev = CobotDevice(model, DeviceParams(), np.array([0, 0, 0, 0, 1.5, 0]), np.random.default_rng(seed))
         return dev.sample_load_cell()
     assert np.array_equal(reading(4), reading(4)) and not np.array_equal(reading(4), reading(5))
+
+
+def test_closed_form_kinematics_match_pinocchio_and_other_urdfs_fall_back(tmp_path):
+    """The compiled gantry + Z-X-Z kinematics serve the shipped URDF; a URDF with another
+    geometry (a handle offset from the wrist centre) is detected and runs on Pinocchio."""
+    from teleop.master.cobot import DEFAULT_URDF, CobotModel
+
+    model = CobotModel()
+    assert model.closed_form
+    rng = np.random.default_rng(3)
+    for _ in range(20):
+        x = rng.uniform(-2.0, 2.0, 6)
+        for a, b in zip(model.compute_pose_and_jacobian(x), model._pin_pose_and_jacobian(x)):
+            np.testing.assert_allclose(a, b, atol=1e-12)
+    text = DEFAULT_URDF.read_text().replace(
+        '<parent link="load_cell"/><child link="handle"/><origin xyz="0 0 0"/>',
+        '<parent link="load_cell"/><child link="handle"/><origin xyz="0 0 0.05"/>')
+    other = tmp_path / "cobot_offset.urdf"
+    other.write_text(text)
+    shifted = CobotModel(other)
+    assert not shifted.closed_form
+    p, R, _ = shifted.compute_pose_and_jacobian(np.zeros(6))
+    np.testing.assert_allclose(p, [0.0, 0.0, 0.05], atol=1e-12)
