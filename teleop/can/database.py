@@ -43,11 +43,13 @@ def compute_crc8(data: bytes) -> int:
 
 
 class Decoded(NamedTuple):
-    """A valid frame: message name, signals in SI units, timestamp (s)."""
+    """A valid frame: message name, signals in SI units, timestamp (s), and the same values in the
+    order of the message codec's ``names`` (for readers that index them)."""
 
     name: str
     signals: dict
     timestamp: float
+    values: tuple = ()
 
 
 class Rejected(NamedTuple):
@@ -150,4 +152,4 @@ class FrameDatabase:
             if not lo <= v <= hi:
                 bad = is_float and not math.isfinite(v)
                 return Rejected(frame_id, f"{'nonfinite' if bad else 'range'}:{sig}", timestamp)
-        return Decoded(codec.name, dict(zip(codec.names, values)), timestamp)
+        return Decoded(codec.name, dict(zip(codec.names, values)), timestamp, values)

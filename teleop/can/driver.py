@@ -26,8 +26,10 @@ JOINT_SIGNALS = ("PosX", "PosY", "PosZ", "AngA", "AngB", "AngC")
 WRENCH_SIGNALS = ("ForceX", "ForceY", "ForceZ", "TorqueX", "TorqueY", "TorqueZ")
 CMD_SIGNALS = ("CmdVelX", "CmdVelY", "CmdVelZ", "CmdRateA", "CmdRateB", "CmdRateC")
 REVOLUTE = slice(3, 6)
-#: frames the driver encodes by position every period, and the signal order it assumes
-ORDERED_FRAMES = {"SYNC": ("SyncCounter",), "HOST_CMD": (*CMD_SIGNALS, "CmdMode", "CmdCounter")}
+#: frames the driver encodes or reads by position every period, and the signal order it assumes
+ORDERED_FRAMES = {"SYNC": ("SyncCounter",), "HOST_CMD": (*CMD_SIGNALS, "CmdMode", "CmdCounter"),
+                  "DEV_JOINTS": (*JOINT_SIGNALS, "DevState", "JointsCounter"),
+                  "DEV_WRENCH": WRENCH_SIGNALS}
 #: the HOST_CMD ranges of the DBC (m/s x3, rad/s x3)
 CMD_RANGE = (0.99996,) * 3 + (16.0,) * 3
 
@@ -196,24 +198,24 @@ class CobotDriver:
                 self.rejected["counter"] += 1
                 return
         if d.name == "DEV_JOINTS":
-            if not self._newer(int(s["JointsCounter"]), self.joints_counter):
+            if not self._newer(counter, self.joints_counter):
                 self.frames_late += 1
                 return
-            meas = [s[k] for k in JOINT_SIGNALS]
+            meas = list(d.values[:6])  # ORDERED_FRAMES: the six joints first
             prev = self.joints_rad_m.tolist()
             for i in range(3, 6):  # unwrap the wrist angles next to the previous reading
                 meas[i] = prev[i] + (meas[i] - prev[i] + math.pi) % (2.0 * math.pi) - math.pi
             self.joints_rad_m = np.array(meas, dtype=float)
-            self.joints_counter = int(s["JointsCounter"])
+            self.joints_counter = counter
             self.device_state = int(s["DevState"])
             self.fresh_joints = True
             self.cycles_since_joints = 0
         elif d.name == "DEV_WRENCH":
-            if not self._newer(int(s["WrenchCounter"]), self.wrench_counter):
+            if not self._newer(counter, self.wrench_counter):
                 self.frames_late += 1
                 return
-            self.wrench_S = np.array([s[k] for k in WRENCH_SIGNALS], dtype=float)
-            self.wrench_counter = int(s["WrenchCounter"])
+            self.wrench_S = np.array(d.values[:6], dtype=float)
+            self.wrench_counter = counter
             self.fresh_wrench = True
             self.cycles_since_wrench = 0
         elif d.name == "DEV_HEARTBEAT":

@@ -67,6 +67,11 @@ class Phi:
         """Twist (6,: m/s, rad/s, world) of the handle -> the virtual tool's."""
         return self._maps[0] @ nu_H
 
+    @property
+    def twist_map_to_handle(self) -> np.ndarray:
+        """The constant 6x6 map of :meth:`twist_to_handle` (for compiled callers)."""
+        return self._maps[1]
+
     def twist_to_handle(self, nu_V) -> np.ndarray:
         """Twist or twist rate (6,) of the virtual tool -> the handle's (m/s, rad/s [/s])."""
         return self._maps[1] @ nu_V

@@ -60,7 +60,20 @@ class PoseTerms:
     M_nu^-1 G^T and the factored Delassus matrix K = G M_nu^-1 G^T; for the kernels, S and mode
     (the Cholesky factor or the pseudo-inverse of K, see :data:`kernels.SOLVE_CHOLESKY`)."""
 
-    __slots__ = ("key", "p", "R", "E_B", "E_inv", "dE", "G", "Iinv_W", "MinvGt", "K", "S", "mode")
+    __slots__ = ("key", "p", "R", "E_B", "E_inv", "dE", "G", "Iinv_W", "MinvGt", "_K", "S", "mode",
+                 "rank", "_Kmat")
+
+    @property
+    def K(self) -> DelassusFactor | None:
+        """The factored Delassus matrix (built on first use from the kernel's Cholesky factor)."""
+        if self._K is None and self._Kmat is not None:
+            self._K = DelassusFactor.from_cholesky(self._Kmat, self.S, True)
+        return self._K
+
+    @K.setter
+    def K(self, value: DelassusFactor | None) -> None:
+        self._K, self._Kmat = value, None
+        self.rank = value.rank if value is not None else 0
 
 
 class Evaluation:
@@ -152,7 +165,10 @@ class ConstrainedBody:
         (pt.R, pt.E_B, pt.E_inv, pt.dE, pt.Iinv_W, pt.G, pt.MinvGt, K, L, ok) = kernels.pose_terms(
             chart.R0, chart.axes_array, q, self.body.J_inv, self._inv_m, self._G_template,
             self._kinds, self._offsets, self._params, RANK_RTOL)
-        pt.K, pt.S, pt.mode = self._factor(K, L, ok)
+        if self.m and ok:  # the common case: the DelassusFactor object is only built if asked for
+            pt._K, pt._Kmat, pt.S, pt.mode, pt.rank = None, K, L, kernels.SOLVE_CHOLESKY, self.m
+        else:
+            pt.K, pt.S, pt.mode = self._factor(K, L, ok)
 
     def _factor(self, K, L, ok):
         """(DelassusFactor or None, S, mode) for the kernels from the kernel's Cholesky attempt."""
@@ -192,7 +208,7 @@ class ConstrainedBody:
                 pt.R, pt.E_B, pt.E_inv, pt.dE, pt.Iinv_W, self.body.J, self._inv_m, self.coriolis,
                 pt.G, pt.MinvGt, pt.S, pt.mode, self._kinds, self._offsets, self._params, pt.p, qd,
                 F, self._fx)
-            return Evaluation(qdd, nudot, lam, pt.K.rank if self.m else 0, F, pt.G, pt)
+            return Evaluation(qdd, nudot, lam, pt.rank, F, pt.G, pt)
         thd = qd[3:]
         d1, d2, d3 = float(thd[0]), float(thd[1]), float(thd[2])
         a1, u, a2 = pt.dE

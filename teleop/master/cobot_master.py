@@ -30,7 +30,7 @@ from teleop.control.admittance import AdmittanceController, AdmittanceGains, Phi
 from teleop.control.clutch import Clutch
 from teleop.master.cobot import GRAVITY_W, CobotDevice, CobotModel, DeviceParams
 from teleop.master.config import CobotConfig
-from teleop.master.kernels import dls_command, hand_wrench_W
+from teleop.master.kernels import advance_prediction, dls_command, hand_wrench_W, handle_command
 from teleop.master.observer import HISTORY, JointObserver
 
 
@@ -235,15 +235,18 @@ class CobotMaster:
             self.p_H_est = p_m + self.pred_p[k] - self.pred_p[j]
             self.R_H_est = self.pred_R[k] @ self.pred_R[j].T @ R_m
         F_hand_W = self._hand_wrench_W(R_m)
-        if self.clutch.engaged:
-            nu_H, a_H, st = self._admittance(phi, F_hand_W, contact_wrench_W)
-        else:
-            nu_H = np.clip(F_hand_W / np.array(self.cfg.free_damping), -self.vmax, self.vmax)
-            a_H, st = (nu_H - self.nu_H_cmd) / self.dt, "ok"
         if self._ws_hi is None:
             m = self.cfg.workspace_margin_m
             self._ws_hi, self._ws_lo = self.model.upper - m, self.model.lower + m
-        qd = dls_command(J, nu_H + self.tau_s * a_H, joints, self._ws_hi, self._ws_lo, DLS_SIGMA0, DLS_LAMBDA0)
+        if self.clutch.engaged:
+            nu_V, a_V, st = self._admittance(phi, F_hand_W, contact_wrench_W)
+            nu_H, a_H, qd = handle_command(J, phi.twist_map_to_handle, nu_V, a_V, self.tau_s, joints,
+                                           self._ws_hi, self._ws_lo, DLS_SIGMA0, DLS_LAMBDA0)
+        else:
+            nu_H = np.clip(F_hand_W / np.array(self.cfg.free_damping), -self.vmax, self.vmax)
+            a_H, st = (nu_H - self.nu_H_cmd) / self.dt, "ok"
+            qd = dls_command(J, nu_H + self.tau_s * a_H, joints, self._ws_hi, self._ws_lo, DLS_SIGMA0,
+                             DLS_LAMBDA0)
         drv.send_command(qd, self.vmax)
         obs.predict(k, qd)
         self._advance_prediction(k, nu_H)
@@ -274,12 +277,11 @@ class CobotMaster:
         ex, ey, ez, rx, ry, rz = self.ctrl.error.tolist()  # q_r - q_v before the step
         self.err_max = (max(self.err_max[0], math.sqrt(ex * ex + ey * ey + ez * ez)),
                         max(self.err_max[1], math.sqrt(rx * rx + ry * ry + rz * rz)))
-        return phi.twist_to_handle(nu_V), phi.twist_to_handle(a_V), st
+        return nu_V, a_V, st
 
     def _advance_prediction(self, k: int, nu_H) -> None:
-        n = (k + 1) % HISTORY
-        self.pred_p[n] = self.pred_p[k] + nu_H[:3] * self.dt
-        self.pred_R[n] = pin.exp3(nu_H[3:] * self.dt) @ self.pred_R[k]
+        """The handle pose at SYNC k+1 that the command nu_H (6,) predicts (compiled)."""
+        advance_prediction(self.pred_p, self.pred_R, k, nu_H, self.dt)
 
     # -- clutch -------------------------------------------------------------------------------------
     def set_clutch(self, engaged: bool) -> None:

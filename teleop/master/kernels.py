@@ -57,6 +57,16 @@ def hand_wrench_W(wrench_S, bias_S, R, accel_W, w_W, mass_kg, com_H, inertia_H, 
 
 
 @njit(cache=True)
+def handle_command(J, to_handle, nu_V, a_V, tau, joints, ws_hi, ws_lo, sigma0, lam0):
+    """The virtual command (twist nu_V (6,), acceleration a_V (6,)) mapped to the handle by the
+    6x6 map ``to_handle`` (φ's), and the joint rates for nu_H + tau a_H by :func:`dls_command`
+    (tau: servo lag, s). Returns nu_H, a_H, qd (6,) each."""
+    nu_H = to_handle @ nu_V
+    a_H = to_handle @ a_V
+    return nu_H, a_H, dls_command(J, nu_H + tau * a_H, joints, ws_hi, ws_lo, sigma0, lam0)
+
+
+@njit(cache=True)
 def dls_command(J, twist, joints, ws_hi, ws_lo, sigma0, lam0):
     """Joint rates (6,) for a handle twist (6,): :func:`teleop.master.cobot_master.compute_dls`
     (damped least squares, no damping while the smallest singular value exceeds sigma0) followed by
@@ -92,3 +102,30 @@ def gantry_zxz_pose_jacobian(joints):
     J[3, 4], J[4, 4] = ca, sa  # wrist b about Rz(a) x
     J[3, 5], J[4, 5], J[5, 5] = sa * sb, -ca * sb, cb  # wrist c about Rz(a) Rx(b) z
     return p, R, J
+
+
+@njit(cache=True)
+def exp3(r):
+    """Rotation matrix (3, 3) of a rotation vector r (3,) rad (Rodrigues; series near 0)."""
+    t2 = r[0] * r[0] + r[1] * r[1] + r[2] * r[2]
+    t = math.sqrt(t2)
+    if t < 1e-4:
+        a, b = 1.0 - t2 / 6.0, 0.5 - t2 / 24.0
+    else:
+        a, b = math.sin(t) / t, (1.0 - math.cos(t)) / t2
+    x, y, z = r[0], r[1], r[2]
+    return np.array([[1.0 - b * (y * y + z * z), -a * z + b * x * y, a * y + b * x * z],
+                     [a * z + b * x * y, 1.0 - b * (x * x + z * z), -a * x + b * y * z],
+                     [-a * y + b * x * z, a * x + b * y * z, 1.0 - b * (x * x + y * y)]])
+
+
+@njit(cache=True)
+def advance_prediction(pred_p, pred_R, k, nu, dt):
+    """In place: the handle pose the commands predict at SYNC k+1 (mod len) from the one at SYNC
+    k and the commanded handle twist nu (6,) held for dt s: p += v dt, R <- exp(w dt) R."""
+    n = (k + 1) % pred_p.shape[0]
+    E = exp3(nu[3:] * dt)
+    for i in range(3):
+        pred_p[n, i] = pred_p[k, i] + nu[i] * dt
+        for j in range(3):
+            pred_R[n, i, j] = E[i, 0] * pred_R[k, 0, j] + E[i, 1] * pred_R[k, 1, j] + E[i, 2] * pred_R[k, 2, j]

@@ -121,3 +121,33 @@ def test_dls_command_matches_the_numpy_reference(seed, singular):
     ref = compute_workspace_limit(joints, compute_dls(J, twist), hi, lo)
     np.testing.assert_allclose(dls_command(np.asfortranarray(J), twist, joints, hi, lo, 0.05, 0.02), ref,
                                rtol=1e-9, atol=1e-9 * (1.0 + np.abs(ref).max()))
+
+
+@settings(max_examples=60, deadline=None)
+@given(r=st.lists(st.floats(-3.0, 3.0), min_size=3, max_size=3), small=st.booleans())
+def test_exp3_and_prediction_match_pinocchio(r, small):
+    from teleop.master.kernels import advance_prediction, exp3
+
+    r = np.array(r) * (1e-6 if small else 1.0)
+    np.testing.assert_allclose(exp3(r), pin.exp3(r), atol=1e-14)
+    pred_p, pred_R = np.zeros((4, 3)), np.tile(np.eye(3), (4, 1, 1))
+    pred_R[3] = pin.exp3(np.array([0.3, -0.2, 0.1]))
+    nu = np.r_[0.1, -0.2, 0.3, r]
+    advance_prediction(pred_p, pred_R, 3, nu, 1e-3)  # wraps to slot 0
+    np.testing.assert_allclose(pred_p[0], pred_p[3] + nu[:3] * 1e-3, atol=1e-15)
+    np.testing.assert_allclose(pred_R[0], pin.exp3(r * 1e-3) @ pred_R[3], atol=1e-14)
+
+
+def test_handle_command_maps_through_phi_then_solves():
+    from teleop.control.admittance import Phi
+    from teleop.master.cobot_master import compute_dls
+    from teleop.master.kernels import handle_command
+
+    rng = np.random.default_rng(7)
+    phi = Phi(3.0, np.array([0.1, 0.0, 0.2]), pin.exp3(np.array([0.2, -0.1, 0.4])))
+    J, nu_V, a_V = rng.normal(size=(6, 6)), rng.normal(size=6), rng.normal(size=6)
+    inf = np.full(6, np.inf)
+    nu_H, a_H, qd = handle_command(J, phi.twist_map_to_handle, nu_V, a_V, 0.004, np.zeros(6), inf, -inf, 0.05, 0.02)
+    np.testing.assert_allclose(nu_H, phi.twist_to_handle(nu_V), atol=1e-14)
+    np.testing.assert_allclose(a_H, phi.twist_to_handle(a_V), atol=1e-14)
+    np.testing.assert_allclose(qd, compute_dls(J, nu_H + 0.004 * a_H), rtol=1e-10, atol=1e-12)
