@@ -21,6 +21,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from teleop.dynamics.constraints import stack_jacobian, stack_residual
+from teleop.dynamics import kernels
 from teleop.dynamics.kernels import left_pinv
 from teleop.dynamics.model import ConstrainedBody
 from teleop.dynamics.multipliers import solve_delassus
@@ -167,6 +168,8 @@ class Parametric(Integrator):
         if parametrization.constant_jacobian:
             self._P = parametrization.jacobian(state.chart, None)
             self._pinv = np.linalg.pinv(self._P)
+        if parametrization.flat:  # psi(z) = psi(0) + P z
+            self._q0 = parametrization.psi(state.chart, np.zeros(parametrization.dim))
         state.z, state.zd = parametrization.from_q(state.chart, state.q, state.qd)
 
     def _jac(self, chart, z):
@@ -191,6 +194,8 @@ class Parametric(Integrator):
     def step(self, model, state, h, operator_W):
         param, chart = self.param, state.chart
         ev = model.evaluate(chart, state.q, state.qd, state.t, operator_W)
+        if param.flat and model.compiled:
+            return self._flat_step(model, state, h, ev)
         if param.flat:
             zdd = self._pinv @ ev.qdd
         else:
@@ -205,6 +210,19 @@ class Parametric(Integrator):
             qd = model.project_rates(model.pose_terms(chart, state.q), state.qd)
             state.zd = Pinv @ qd
             state.qd = P @ state.zd
+        return ev
+
+
+    def _flat_step(self, model, state, h, ev):
+        """:meth:`step` after the evaluation, for an affine psi with the compiled model: the same
+        arithmetic in two kernel calls."""
+        P, Pinv = self._P, self._pinv
+        state.z, state.zd, state.q, state.qd = kernels.flat_advance(state.z, state.zd, ev.qdd, P, Pinv,
+                                                                    self._q0, h)
+        if model.nonholonomic and model.m:
+            pt = model.pose_terms(state.chart, state.q)
+            state.zd, state.qd = kernels.project_parameter_rates(pt.R, pt.E_B, pt.E_inv, pt.G, pt.MinvGt,
+                                                                 pt.S, pt.mode, state.qd, P, Pinv)
         return ev
 
 

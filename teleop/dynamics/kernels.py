@@ -500,3 +500,48 @@ def left_pinv(P):
     for c in range(n):
         out[:, c] = _solve(L, SOLVE_CHOLESKY, P[c].copy())
     return out
+
+
+@njit(cache=True)
+def flat_advance(z, zd, qdd, P, Pinv, q0, h):
+    """Eqs. 10-11 for an affine parametrization q = q0 + P z (no curvature term): semi-implicit
+    Euler zd += h P^+ qdd, z += h zd, then q and qd = P zd. Returns z, zd, q, qd (new arrays)."""
+    n, k = P.shape
+    zd2 = np.empty(k)
+    z2 = np.empty(k)
+    for i in range(k):
+        s = 0.0
+        for j in range(n):
+            s += Pinv[i, j] * qdd[j]
+        zd2[i] = zd[i] + h * s
+        z2[i] = z[i] + h * zd2[i]
+    q = np.empty(n)
+    qd = np.empty(n)
+    for j in range(n):
+        a, b = q0[j], 0.0
+        for i in range(k):
+            a += P[j, i] * z2[i]
+            b += P[j, i] * zd2[i]
+        q[j], qd[j] = a, b
+    return z2, zd2, q, qd
+
+
+@njit(cache=True)
+def project_parameter_rates(R, E, Einv, G, MinvGt, S, mode, qd, P, Pinv):
+    """:func:`project_rates` in parameter space: zd = P^+ (projected qd), and qd = P zd again.
+    Returns zd (k,), qd (6,)."""
+    qp = project_rates(R, E, Einv, G, MinvGt, S, mode, qd)
+    n, k = P.shape
+    zd = np.empty(k)
+    for i in range(k):
+        s = 0.0
+        for j in range(n):
+            s += Pinv[i, j] * qp[j]
+        zd[i] = s
+    out = np.empty(n)
+    for j in range(n):
+        s = 0.0
+        for i in range(k):
+            s += P[j, i] * zd[i]
+        out[j] = s
+    return zd, out

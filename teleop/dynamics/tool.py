@@ -42,6 +42,7 @@ class ReferenceTool:
     ``chart``: the Euler chart of the coordinates; defaults to the fixture parametrization's chart.
     ``max_speed_m_s``, ``max_rate_rad_s``: a step that ends faster than this has diverged (an
     unstable stiffness for the period); the tool then holds its last pose, status "diverged".
+    ``compiled``: False runs the numpy reference instead of the compiled kernels (for tests).
     """
 
     def __init__(
@@ -54,10 +55,11 @@ class ReferenceTool:
         chart: EulerChart | None = None,
         max_speed_m_s: float = 100.0,
         max_rate_rad_s: float = 1e4,
+        compiled: bool = True,
     ):
         self.body = body
         self.fixture = fixture
-        self.model = ConstrainedBody(body, fixture.constraints, effects, coriolis=coriolis)
+        self.model = ConstrainedBody(body, fixture.constraints, effects, coriolis=coriolis, compiled=compiled)
         self.integrator = make_integrator(integrator) if isinstance(integrator, str) else integrator
         param = fixture.parametrization
         if chart is None:
