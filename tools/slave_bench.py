@@ -1,6 +1,9 @@
 """Time one slave tick against pink on the straight-incision task, in the same run.
 
-slave_step: kinematics + QP build + solve + integrate (``SlaveArm.step``) with the scalpel fixture.
+slave_step: kinematics + QP build + solve + integrate (``SlaveArm.step``) with the scalpel fixture,
+default settings (OSQP, ``kkt_shortcut``: the QP solver runs only on ticks where a joint bound
+binds; ``solver_ticks`` counts them). ``slave_step_daqp`` is the same with DAQP, and
+``slave_step_{osqp,daqp}_every_tick`` turn the shortcut off, so that the solver runs every tick.
 pink_step:  the same target (FrameTask on E + PostureTask, pink's default configuration and
 velocity limits) solved with ``pink.solve_ik`` and its fastest installed solver, then integrated.
 Pink gets no fixture rows, so it solves a smaller problem than the slave.
@@ -30,20 +33,23 @@ def _stats(ts) -> dict:
     return {"median": float(np.median(a)), "p99": float(np.percentile(a, 99))}
 
 
-def _time_slave(solver, n_steps):
+def _time_slave(solver, n_steps, kkt_shortcut=True):
+    """(tick times s, the arm, number of ticks that ran the QP solver)."""
     from teleop.dynamics import fixtures
     from teleop.slave import SlaveArm, SlaveConfig
 
     fx = fixtures.scalpel(plane_origin=PLANE_O, depth=0.005)
-    arm = SlaveArm(SlaveConfig.from_dict({"solver": solver}, "slave"), fx.constraints, DT)
+    cfg = SlaveConfig.from_dict({"solver": solver, "kkt_shortcut": kkt_shortcut}, "slave")
+    arm = SlaveArm(cfg, fx.constraints, DT)
     arm.reset((_target(0)[0], R_CUT))
-    ts, w0 = [], np.zeros(3)
+    ts, w0, solver_ticks = [], np.zeros(3), 0
     for k in range(1, n_steps + 1):
         p, v = _target(k)
         t0 = time.perf_counter()
         arm.step(p, R_CUT, v, w0)
         ts.append(time.perf_counter() - t0)
-    return ts, arm
+        solver_ticks += arm.qp.used_solver
+    return ts, arm, solver_ticks
 
 
 def _time_pink(arm, n_steps):
@@ -73,13 +79,16 @@ def _time_pink(arm, n_steps):
 
 def measure(n_steps: int = 3000) -> dict:
     """{"slave_step_us": {median, p99}, "pink_step_us": {median, p99}, ...} in microseconds."""
-    slave_ts, arm = _time_slave("osqp", n_steps)
+    slave_ts, arm, solver_ticks = _time_slave("osqp", n_steps)
     pink_ts, pink_solver = _time_pink(arm, n_steps)
-    daqp_ts, _ = _time_slave("daqp", n_steps)
+    daqp_ts = _time_slave("daqp", n_steps)[0]
     out = {
         "slave_step_us": _stats(slave_ts),
         "pink_step_us": _stats(pink_ts),
         "slave_step_daqp_us": _stats(daqp_ts),
+        "slave_step_osqp_every_tick_us": _stats(_time_slave("osqp", n_steps, False)[0]),
+        "slave_step_daqp_every_tick_us": _stats(_time_slave("daqp", n_steps, False)[0]),
+        "solver_ticks": f"{solver_ticks} of {n_steps}",
         "pink_solver": pink_solver,
     }
     out["ratio_median"] = out["slave_step_us"]["median"] / out["pink_step_us"]["median"]

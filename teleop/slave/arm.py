@@ -65,7 +65,9 @@ class SlaveConfig:
     arm: "panda" | "ur5" | {"urdf": path, "flange": frame, "q0": [...], "a_max": [...]}.
     tool: "scalpel" | {"urdf": path, "tip": frame}. Weights are per (m/s)^2 (position),
     per (rad/s)^2 (orientation) and per (rad/s)^2 (posture, damping); ``impedance_Ns_per_m``
-    turns the QP's row multipliers into forces (N) for ``fixture_forces``.
+    turns the QP's row multipliers into forces (N) for ``fixture_forces``. ``kkt_shortcut``: solve
+    the QP without its joint bounds first (one linear solve, exact when no bound binds) and run
+    ``solver`` only when that solution leaves the bounds.
     """
 
     arm: object = "panda"
@@ -95,6 +97,7 @@ class SlaveConfig:
     relaxed_tol_mps: float = 1e-6
     tracking_alarm_m: float = 0.01
     fallback: str = "dls"
+    kkt_shortcut: bool = True
 
     @classmethod
     def from_dict(cls, d: dict, where: str = "slave") -> "SlaveConfig":
@@ -147,6 +150,10 @@ class SlaveConfig:
         if fallback not in ("dls", "hold"):
             raise ConfigError(f"{where}.fallback: expected 'dls' or 'hold', got {fallback!r}")
         kw["fallback"] = fallback
+        if "kkt_shortcut" in d:
+            if not isinstance(d["kkt_shortcut"], bool):
+                raise ConfigError(f"{where}.kkt_shortcut: expected true or false, got {d['kkt_shortcut']!r}")
+            kw["kkt_shortcut"] = d["kkt_shortcut"]
         pos = ("eps", "weight_position", "weight_orientation", "slack_weight", "k_task_1ps",
                "k_fixture_1ps", "velocity_scale", "acceleration_scale", "impedance_Ns_per_m",
                "relaxed_tol_mps", "tracking_alarm_m")

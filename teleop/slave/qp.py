@@ -1,20 +1,9 @@
-"""The QP follower: every tick, joint velocities that track a tool target under limits and fixtures.
+"""The slave arm's tick: joint limits -> follower QP (teleop.slave.follower) -> servo -> state.
 
-Decision variables x = (qd, s): joint velocities qd (rad/s, nv) and one slack s per fixture row
-(row units per second: m/s or rad/s). With J the tool frame's LOCAL_WORLD_ALIGNED Jacobian (6, nv)
-and the target twist nu* = (v_t + k e_p, w_t + k e_R) (feedforward plus proportional pose error,
-e_R = log(R_t R'), world frame):
-
-    minimize   1/2 |J qd - nu*|^2_W + 1/2 lam |qd|^2 + 1/2 w_post |qd - k_post (q_post - q)|^2
-               + 1/2 rho |s|^2
-    subject to G J qd + s = -k_h h(p, R)   (holonomic fixture rows; nonholonomic rows: = 0)
-               lb <= qd <= ub               (joint position, velocity and acceleration limits)
-
-lam = damping + lm_damping * |e|^2_W is a Levenberg-Marquardt damping that grows with the pose
-error, so an unreachable target or a singular pose cannot ask for wild joint velocities. The slack
-(weight rho >> 1) keeps the problem feasible when fixtures conflict with the joint limits; its size
-is reported as the status "fixtures_relaxed". The rows' multipliers, times an impedance (N s/m),
-are the fixture forces (N or N*m).
+``SlaveArm.step`` computes the joint velocity bounds of the tick, builds and solves the follower's
+QP toward the target pose and twist, classifies the outcome (``STATUSES``), falls back to damped
+least squares (or a stop) when the solver fails, and integrates the joint state through the servo
+lag, with the kinematics and joint torques of the new state.
 """
 
 from __future__ import annotations
@@ -22,88 +11,14 @@ from __future__ import annotations
 import numpy as np
 import pinocchio as pin
 
-from teleop.slave.solvers import make_solver
+from teleop.slave.follower import FollowerQP, compute_target_twist
+
+__all__ = ["STATUSES", "FollowerQP", "SlaveArm", "compute_target_twist"]
 
 STATUSES = ("ok", "saturated", "tracking_error", "fixtures_relaxed", "infeasible_fallback", "invalid_target")
-
-
-def compute_target_twist(p, R, p_t, R_t, v_t, w_t, k: float) -> tuple[np.ndarray, np.ndarray]:
-    """(nu*, e): target twist (6,) (m/s, rad/s) and pose error e = (p_t - p, log(R_t R')) (m, rad)."""
-    e = np.empty(6)
-    e[:3] = p_t - p
-    e[3:] = pin.log3(R_t @ R.T)
-    nu = np.empty(6)
-    nu[:3] = v_t
-    nu[3:] = w_t
-    nu += k * e
-    return nu, e
-
-
-class FollowerQP:
-    """Workspace and solver of the follower for one arm and one fixed set of fixture constraints."""
-
-    def __init__(self, nv: int, constraints, cfg, dt: float):
-        self.nv = nv
-        self.constraints = tuple(constraints)
-        self.m = sum(c.rows for c in self.constraints)
-        self.n = nv + self.m
-        self.cfg, self.dt = cfg, float(dt)
-        self.W = np.array([cfg.weight_position] * 3 + [cfg.weight_orientation] * 3)
-        self._slices = []
-        i = 0
-        for c in self.constraints:
-            self._slices.append((c, slice(i, i + c.rows)))
-            i += c.rows
-        self.H = np.zeros((self.n, self.n))
-        self.g = np.zeros(self.n)
-        self.A = np.zeros((self.m, self.n))
-        self.A[:, nv:] = np.eye(self.m)
-        self.b = np.zeros(self.m)
-        self.G = np.zeros((self.m, 6))
-        self.lb = np.full(self.n, -np.inf)
-        self.ub = np.full(self.n, np.inf)
-        self.H[nv:, nv:] = cfg.slack_weight * np.eye(self.m)
-        self.solver = make_solver(cfg.solver, self.n, self.m, eps=cfg.eps, max_iter=cfg.max_iter)
-
-    def compute_fixture_rows(self, p, R, k_h: float):
-        """Fill G (m, 6) and the right-hand side b (m,) = -k_h h (holonomic) or 0; return (G, b)."""
-        for c, sl in self._slices:
-            self.G[sl] = c.jacobian(p, R)
-            self.b[sl] = -k_h * c.residual(p, R) if c.holonomic else 0.0
-        return self.G, self.b
-
-    def build(self, q, J, p, R, p_t, R_t, v_t, w_t, q_post, lb, ub):
-        """Fill H, g, A, b, lb, ub from the state and the target; returns the pose error e (6,)."""
-        cfg, nv = self.cfg, self.nv
-        nu, e = compute_target_twist(p, R, p_t, R_t, v_t, w_t, cfg.k_task_1ps)
-        WJ = self.W[:, None] * J
-        lam = cfg.damping + cfg.lm_damping * float(e @ (self.W * e)) + cfg.weight_posture
-        Hq = J.T @ WJ
-        Hq.flat[:: nv + 1] += lam
-        self.H[:nv, :nv] = Hq
-        qd_post = cfg.k_posture_1ps * (q_post - q)
-        self.g[:nv] = -(WJ.T @ nu) - cfg.weight_posture * qd_post
-        if self.m:
-            G, _ = self.compute_fixture_rows(p, R, cfg.k_fixture_1ps)
-            self.A[:, :nv] = G @ J
-        self.lb[:nv] = lb
-        self.ub[:nv] = ub
-        return e
-
-    def solve(self):
-        """Solve the built QP: (qd, slack, y_eq, ok)."""
-        r = self.solver.solve(self.H, self.g, self.A, self.b, self.lb, self.ub)
-        return r.x[: self.nv], r.x[self.nv :], r.y_eq, r.ok
-
-    def compute_fallback(self, J, e, lb, ub, hold: bool, qd_prev) -> np.ndarray:
-        """Damped least squares toward the target (or a stop), clipped into the bounds (rad/s)."""
-        stop = np.clip(np.zeros(self.nv), lb, ub)
-        if hold or not np.all(np.isfinite(e)):
-            return stop
-        nu = self.cfg.k_task_1ps * e
-        JJt = J @ J.T + (1e-4 + float(e @ e)) * np.eye(6)
-        qd = np.clip(J.T @ np.linalg.solve(JJt, nu), lb, ub)
-        return qd if np.all(np.isfinite(qd)) else stop
+_ZERO3, _ZERO6 = np.zeros(3), np.zeros(6)  # read-only defaults
+_ZERO3.flags.writeable = False
+_ZERO6.flags.writeable = False
 
 
 class SlaveArm:
@@ -144,9 +59,19 @@ class SlaveArm:
         self.tau = pin.rnea(self.model, self.data, self.q, self.qd, self.qdd).copy()
 
     def _kinematics(self):
+        """J (6, nv) and the pose matrix T_WE (4, 4) of the tool frame, new arrays."""
         self.J = pin.computeFrameJacobian(self.model, self.data, self.q, self.frame_E, pin.LOCAL_WORLD_ALIGNED)
-        M = self.data.oMf[self.frame_E]
-        self.p, self.R = M.translation.copy(), M.rotation.copy()
+        self.T_WE = pin.updateFramePlacement(self.model, self.data, self.frame_E).homogeneous  # a copy
+
+    @property
+    def p(self) -> np.ndarray:
+        """Origin of the tool frame E (3,), m: a view of T_WE."""
+        return self.T_WE[:3, 3]
+
+    @property
+    def R(self) -> np.ndarray:
+        """R_WE (3, 3): a view of T_WE."""
+        return self.T_WE[:3, :3]
 
     def tool_pose(self) -> tuple[np.ndarray, np.ndarray]:
         """(p (3,) m, R_WE (3, 3)) of the tool frame E."""
@@ -199,45 +124,47 @@ class SlaveArm:
         ``F_tip_W``: an optional contact wrench (N, N*m) on the tool at the tip, world axes, that
         the motors resist; it enters the reported torques ``tau`` (N*m).
         """
-        cfg, dt = self.cfg, self.dt
-        v_t = np.zeros(3) if v_target is None else v_target
-        w_t = np.zeros(3) if w_target is None else w_target
-        lb, ub = self.limits.compute_velocity_bounds(self.q, self.qd_cmd, dt)
-        qp = self.qp
-        finite = np.isfinite(np.sum(p_target) + np.sum(R_target) + np.sum(v_t) + np.sum(w_t))
-        if not finite:  # never let a bad target near the solver: stop within the bounds
-            p_target, R_target, v_t, w_t = self.p, self.R, np.zeros(3), np.zeros(3)
-        e = qp.build(self.q, self.J, self.p, self.R, p_target, R_target, v_t, w_t, self.q_post, lb, ub)
-        qd, s, y, ok = qp.solve()
-        if not finite:
-            qd = qp.compute_fallback(self.J, e, lb, ub, True, self.qd_cmd)
+        cfg, qp = self.cfg, self.qp
+        v_t = _ZERO3 if v_target is None else v_target
+        w_t = _ZERO3 if w_target is None else w_target
+        lb, ub = self.limits.compute_velocity_bounds(self.q, self.qd_cmd, self.dt)
+        e = qp.build(self.q, self.J, self.T_WE, p_target, R_target, v_t, w_t, self.q_post, lb, ub)
+        if e is None:  # a target that is not finite never reaches the solver: stop within the bounds
+            qd, status = qp.compute_fallback(self.J, _ZERO6, lb, ub, True, self.qd_cmd), "invalid_target"
             self.slack, self.fixture_forces = np.zeros(qp.m), np.zeros(qp.m)
-            status = "invalid_target"
-        elif ok and np.all(np.isfinite(qd)):
-            qd = np.clip(qd, lb, ub)  # solver tolerance only
-            self.slack = s
-            self.fixture_forces = -cfg.impedance_Ns_per_m * y
-            if np.abs(s).max(initial=0.0) > cfg.relaxed_tol_mps:
-                status = "fixtures_relaxed"
-            elif float(np.linalg.norm(e[:3])) > cfg.tracking_alarm_m:
-                status = "tracking_error"
-            elif np.any(np.minimum(qd - lb, ub - qd) <= 1e-9):
-                status = "saturated"
-            else:
-                status = "ok"
         else:
-            qd = qp.compute_fallback(self.J, e, lb, ub, cfg.fallback == "hold", self.qd_cmd)
-            self.slack = np.zeros(qp.m)
-            self.fixture_forces = np.zeros(qp.m)
-            status = "infeasible_fallback"
-        self.qd_cmd = qd
-        qd_new = self.qd + self._alpha * (qd - self.qd) if cfg.servo_lag_s > 0 else qd.copy()
+            qd, s, y, ok = qp.solve()
+            if ok:
+                self.slack = s
+                self.fixture_forces = y * -cfg.impedance_Ns_per_m
+                tol = cfg.relaxed_tol_mps  # on max |s|; |s|_2 <= tol rules it out with one product
+                if np.vdot(s, s) > tol * tol and max(np.abs(s).tolist()) > tol:
+                    status = "fixtures_relaxed"
+                elif qp.position_error_m > cfg.tracking_alarm_m:
+                    status = "tracking_error"
+                elif qp.bound_margin <= 1e-9:  # a joint on a bound, rad/s
+                    status = "saturated"
+                else:
+                    status = "ok"
+            else:
+                qd = qp.compute_fallback(self.J, e, lb, ub, cfg.fallback == "hold", self.qd_cmd)
+                self.slack, self.fixture_forces = np.zeros(qp.m), np.zeros(qp.m)
+                status = "infeasible_fallback"
+        self._advance(qd, F_tip_W)
+        self.status = status
+        return status
+
+    def _advance(self, qd_cmd, F_tip_W):
+        """Command the joint velocity qd_cmd (rad/s) through the servo lag for one tick; update
+        the state, the kinematics and the joint torques."""
+        dt = self.dt
+        self.qd_cmd = qd_cmd
+        qd_new = self.qd + self._alpha * (qd_cmd - self.qd) if self.cfg.servo_lag_s > 0 else qd_cmd.copy()
         self.qdd = (qd_new - self.qd) / dt
         self.qd = qd_new
-        self.q = pin.integrate(self.model, self.q, qd_new * dt)
+        # build_model admits only nq == nv, i.e. revolute and prismatic joints: pin.integrate is a sum
+        self.q = self.q + qd_new * dt
         self._kinematics()
         self.tau = pin.rnea(self.model, self.data, self.q, self.qd, self.qdd)
         if F_tip_W is not None:
             self.tau = self.tau - self.J.T @ np.asarray(F_tip_W, dtype=float)
-        self.status = status
-        return status

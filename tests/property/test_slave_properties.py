@@ -49,3 +49,32 @@ def test_tissue_wrench_is_finite_and_never_pulls_in(depth, v, w):
     assert rep.in_contact == (depth > 0)
     # cutting and lateral forces dissipate: they never push along the tip's motion
     assert rep.wrench[:2] @ np.array(v)[:2] <= 1e-12
+
+
+def _reference_bounds(lim, q, qd_prev, dt):
+    """compute_velocity_bounds written out joint by joint (the formulas of teleop.slave.limits)."""
+    lb, ub = np.empty(lim.nv), np.empty(lim.nv)
+    for i in range(lim.nv):
+        up, dn = lim.q_max[i] - lim.margin_rad - q[i], q[i] - lim.q_min[i] - lim.margin_rad
+        a, v = lim.a_max[i], lim.v_max[i]
+        hi = min(v, up / dt, np.sqrt(2 * a * max(up, 0.0)))
+        lo = -min(v, dn / dt, np.sqrt(2 * a * max(dn, 0.0)))
+        hi = max(hi, 0.0) if np.isfinite(hi) else v
+        lo = min(lo, 0.0) if np.isfinite(lo) else -v
+        lb[i], ub[i] = max(lo, qd_prev[i] - a * dt), min(hi, qd_prev[i] + a * dt)
+        if lb[i] > ub[i]:
+            lb[i] = ub[i] = min(max(qd_prev[i], lo), hi)
+    return lb, ub
+
+
+@settings(max_examples=300, deadline=None)
+@given(q=vec3, qd=vec3, near=st.floats(0.0, 1.0), dt=st.sampled_from([1e-4, 1e-3, 1e-2]),
+       bad=st.sampled_from([None, np.nan, np.inf, -np.inf]))
+def test_velocity_bounds_match_the_joint_by_joint_formulas(q, qd, near, dt, bad):
+    """Near and far from the limits (the fast path), at rest or moving, and with q not finite."""
+    q = np.array(q) * near
+    if bad is not None:
+        q[1] = bad
+    lb, ub = LIM.compute_velocity_bounds(q, np.array(qd), dt)
+    rlb, rub = _reference_bounds(LIM, q, np.array(qd), dt)
+    assert np.allclose(lb, rlb, rtol=1e-12, atol=1e-12) and np.allclose(ub, rub, rtol=1e-12, atol=1e-12)

@@ -46,6 +46,7 @@ def test_ur5_and_urdf_arms_load():
     ({"weight_position": "x"}, "slave.weight_position"),
     ({"servo_lag_s": -0.1}, "slave.servo_lag_s"),
     ({"fallback": "panic"}, "slave.fallback"),
+    ({"kkt_shortcut": "yes"}, "slave.kkt_shortcut"),
     ({"q0": [0, 0, 0]}, "slave.q0"),
     ({"arm": {"urdf": "/nope.urdf", "flange": "x"}}, "slave.arm.urdf"),
 ])

@@ -33,7 +33,7 @@ def test_fixture_rows_match_finite_differences_through_the_arm():
     arm = _arm(cons=cons)
     rng = np.random.default_rng(1)
     qd = rng.normal(size=arm.nv)
-    G, _ = arm.qp.compute_fixture_rows(arm.p, arm.R, 0.0)
+    G, _ = arm.qp.compute_fixture_rows(arm.p, arm.R)
     h = 1e-6
     res = []
     for sgn in (1.0, -1.0):
@@ -54,7 +54,7 @@ def test_solution_matches_independent_solver(solver):
     p, R = arm.tool_pose()
     lb, ub = arm.limits.compute_velocity_bounds(arm.q, arm.qd_cmd, arm.dt)
     qp = arm.qp
-    args = (arm.q, arm.J, p, R, p + [0.002, 0.0, 0.0], R, np.array([0.01, 0, 0]), np.zeros(3), arm.q_post)
+    args = (arm.q, arm.J, arm.T_WE, p + [0.002, 0.0, 0.0], R, np.array([0.01, 0, 0]), np.zeros(3), arm.q_post)
     qp.build(*args, lb, ub)
     qd, s, y, ok = qp.solve()
     j = int(np.argmax(np.abs(qd)))  # make this joint's bound active: half its free velocity
@@ -62,14 +62,15 @@ def test_solution_matches_independent_solver(solver):
     bound = 0.5 * qd[j]
     qp.build(*args, lb, ub)
     qd, s, y, ok = qp.solve()
-    assert ok
+    assert ok and qp.used_solver  # a bound binds: the QP solver ran
+    H, g, A, b, lb, ub = (a.copy() for a in qp.problem())
     for ref in ("daqp", "quadprog"):
-        x = qpsolvers.solve_qp(qp.H, qp.g, A=qp.A, b=qp.b, lb=qp.lb, ub=qp.ub, solver=ref)
+        x = qpsolvers.solve_qp(H, g, A=A, b=b, lb=lb, ub=ub, solver=ref)
         assert np.allclose(np.concatenate([qd, s]), x, atol=1e-6, rtol=0), (ref, np.abs(x[: arm.nv] - qd).max())
     assert np.isclose(qd[j], bound, atol=1e-7)
     # duals: stationarity H x + g + A'y + (multipliers of the active bounds only) = 0
-    r = qp.H @ np.concatenate([qd, s]) + qp.g + qp.A.T @ y
-    active = np.isclose(qd, qp.lb[: arm.nv], atol=1e-7) | np.isclose(qd, qp.ub[: arm.nv], atol=1e-7)
+    r = H @ np.concatenate([qd, s]) + g + A.T @ y
+    active = np.isclose(qd, lb[: arm.nv], atol=1e-7) | np.isclose(qd, ub[: arm.nv], atol=1e-7)
     assert active[j] and not active.all()
     r[: arm.nv][active] = 0.0
     assert np.abs(r).max() < 1e-5
@@ -100,3 +101,83 @@ def test_servo_lag_slows_the_response():
         fast.step(p + [0.01, 0, 0], R)
         slow.step(p + [0.01, 0, 0], R)
     assert np.linalg.norm(slow.tool_pose()[0] - p) < np.linalg.norm(fast.tool_pose()[0] - p)
+
+
+class _Bent(C.Constraint):
+    """A row that is not polynomial in the pose (h = sin(k p_x)): FixtureRows must evaluate it
+    with its own methods."""
+
+    rows, holonomic = 1, True
+
+    def jacobian(self, p, R):
+        return np.array([[5.0 * np.cos(5.0 * p[0]), 0, 0, 0, 0, 0]])
+
+    def residual(self, p, R):
+        return np.array([np.sin(5.0 * p[0])])
+
+    def bias(self, p, R, v, w):
+        return np.zeros(1)
+
+
+def test_fixture_rows_match_the_constraints():
+    """The fitted rows equal every constraint class's own G and h (scaled) at random poses."""
+    from teleop.slave.rows import FixtureRows
+
+    cons = (fixtures.scalpel((0.5, 0, 0.2), (0.1, 0.2, 1.0), 0.005, (0.01, 0.0, 0.12)).constraints
+            + fixtures.rolling_disk(0.03).constraints + fixtures.sphere((0.01, -0.02, 0.03), 0.05).constraints
+            + fixtures.laparoscopic(plane_origin=PLANE_O, trocar=PLANE_O + [0, 0, 0.075]).constraints
+            + (C.PlaneHeight(origin=(0, 0, 0.3), normal=(0, 0, 1), height=0.01), _Bent()))
+    rows = FixtureRows(cons, h_scale=-300.0)
+    assert rows.direct == (cons[-1],)
+    rng = np.random.default_rng(3)
+    for _ in range(200):
+        p, R = rng.uniform(-1.0, 1.0, 3), pin.exp3(rng.normal(size=3) * 2.0)
+        G, b = rows.evaluate(p, R)
+        h = np.concatenate([c.residual(p, R) if c.holonomic else np.zeros(c.rows) for c in cons])
+        assert np.abs(G - C.stack_jacobian(cons, p, R)).max() < 1e-12
+        assert np.abs(b + 300.0 * h).max() < 1e-10
+
+
+def test_kkt_shortcut_is_the_qp_solution_when_no_bound_binds():
+    """Wide bounds: the follower solves the linear system, not the QP solver, and the result is
+    the QP's solution (independent solvers, 1e-6) with stationary duals."""
+    arm = _arm("osqp")
+    p, R = arm.tool_pose()
+    qp = arm.qp
+    lb, ub = -arm.limits.v_max, arm.limits.v_max
+    v_t = np.array([0.01, 0.0, 0.0])
+    qp.build(arm.q, arm.J, arm.T_WE, p + [2e-5, 1e-5, 0.0], R, v_t, np.zeros(3), arm.q_post, lb, ub)
+    qd, s, y, ok = qp.solve()
+    assert ok and not qp.used_solver and qp.bound_margin > 0.0
+    H, g, A, b, lb_, ub_ = (a.copy() for a in qp.problem())
+    x = np.concatenate([qd, s])
+    for ref in ("daqp", "quadprog"):
+        x_ref = qpsolvers.solve_qp(H, g, A=A, b=b, lb=lb_, ub=ub_, solver=ref)
+        assert np.allclose(x, x_ref, atol=1e-6, rtol=0)
+    r = qp.solver.solve(H, g, A, b, lb_, ub_)  # the persistent solver itself
+    assert r.ok and np.allclose(x, r.x, atol=1e-6, rtol=0)
+    assert np.allclose(y, r.y_eq, atol=1e-4 * (1 + np.abs(y).max()))
+    assert np.abs(H @ x + g + A.T @ y).max() < 1e-8 and np.abs(A @ x - b).max() < 1e-12
+
+
+@pytest.mark.parametrize("solver", ["osqp", "daqp"])
+def test_shortcut_and_solver_follow_the_same_path(solver):
+    """An incision start (bounds active for some ticks, then free): with and without the
+    shortcut the arm takes the same steps and reports the same statuses."""
+    runs = []
+    for shortcut in (True, False):
+        cons = fixtures.scalpel(plane_origin=PLANE_O, depth=0.005).constraints
+        cfg = SlaveConfig.from_dict({"solver": solver, "kkt_shortcut": shortcut}, "slave")
+        arm = SlaveArm(cfg, cons, 1e-3)
+        arm.reset((PLANE_O + [-0.03, 0.0, -0.005], R_CUT))
+        qs, statuses, used = [], [], []
+        for k in range(1, 301):
+            p_t = PLANE_O + [-0.03 + 1e-5 * k, 0.0, -0.005]
+            statuses.append(arm.step(p_t, R_CUT, np.array([0.01, 0, 0]), np.zeros(3)))
+            qs.append(arm.q.copy())
+            used.append(arm.qp.used_solver)
+        runs.append((np.array(qs), statuses, used))
+    (q1, st1, used1), (q2, st2, used2) = runs
+    assert any(used1) and not all(used1) and all(used2)
+    assert st1 == st2 and "saturated" in st1 and "ok" in st1
+    assert np.abs(q1 - q2).max() < 1e-9

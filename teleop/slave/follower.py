@@ -1,0 +1,181 @@
+"""The follower's QP: its workspace, filled in place every tick, and how it is solved.
+
+Decision variables x = (qd, s): joint velocities qd (rad/s, nv) and one slack s per fixture row
+(row units per second: m/s or rad/s). With J the tool frame's LOCAL_WORLD_ALIGNED Jacobian (6, nv)
+and the target twist nu* = (v_t + k e_p, w_t + k e_R) (feedforward plus proportional pose error,
+e_R = log(R_t R'), world frame):
+
+    minimize   1/2 |J qd - nu*|^2_W + 1/2 lam |qd|^2 + 1/2 w_post |qd - k_post (q_post - q)|^2
+               + 1/2 rho |s|^2
+    subject to G J qd + s = -k_h h(p, R)   (holonomic fixture rows; nonholonomic rows: = 0)
+               lb <= qd <= ub               (joint position, velocity and acceleration limits)
+
+lam = damping + lm_damping * |e|^2_W is a Levenberg-Marquardt damping that grows with the pose
+error, so an unreachable target or a singular pose cannot ask for wild joint velocities. The slack
+(weight rho >> 1) keeps the problem feasible when fixtures conflict with the joint limits. The
+rows' multipliers y, times an impedance (N s/m), are the fixture forces (N or N*m).
+
+Without the bounds, the QP's optimality conditions are a linear system in (y, qd), with
+Hq = J'WJ + (lam + w_post) I, gq = -(WJ)' nu* - w_post k_post (q_post - q), Aq = G J and
+b = -k_h h:
+
+    [-I / rho  Aq] [y ]   [ b ]
+    [ Aq'      Hq] [qd] = [-gq],      s = -y / rho.
+
+When its qd lies within the bounds it is the QP's exact solution (no bound is active).
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pinocchio as pin
+from scipy.linalg.lapack import dgesv
+
+from teleop.slave.rows import FixtureRows
+from teleop.slave.solvers import make_solver
+
+
+def compute_target_twist(p, R, p_t, R_t, v_t, w_t, k: float) -> tuple[np.ndarray, np.ndarray]:
+    """(nu*, e): target twist (6,) (m/s, rad/s) and pose error e = (p_t - p, log(R_t R')) (m, rad)."""
+    e = np.empty(6)
+    e[:3] = p_t - p
+    e[3:] = pin.log3(R_t @ R.T)
+    nu = k * e
+    nu[:3] += v_t
+    nu[3:] += w_t
+    return nu, e
+
+
+class FollowerQP:
+    """Workspace and solver of the follower for one arm and one fixed set of fixture constraints.
+
+    ``build`` fills the linear system above in place. ``solve`` solves it when ``cfg.kkt_shortcut``
+    is set (one LU solve of size m + nv) and keeps its solution when within the bounds; otherwise
+    the persistent QP solver ``cfg.solver`` runs on the full problem, which ``problem()`` writes.
+    """
+
+    def __init__(self, nv: int, constraints, cfg, dt: float):
+        self.nv = nv
+        self.rows = FixtureRows(constraints, h_scale=-cfg.k_fixture_1ps)
+        self.constraints = self.rows.constraints
+        self.m = m = self.rows.m
+        self.n = n = nv + m
+        self.cfg, self.dt = cfg, float(dt)
+        self.W = np.array([cfg.weight_position] * 3 + [cfg.weight_orientation] * 3)
+        rho, k = cfg.slack_weight, cfg.k_task_1ps
+        # -gq = P' x with x = (q_post - q, R_t, e, v_t, w_t) and P = [w_post k_post I; 0; k W J; W J]
+        # (R_t, with no weight, sits in x so that one product tests the whole target's finiteness).
+        # One flat buffer holds [k W; W; G] (12 + m, 6), then b (m), then -gq (nv), in this order so
+        # that each product writes where the next reads: the rows write (G, b) at once, the product
+        # [k W; W; G] J gives P's last rows and Aq = G J, and (b, -gq) is the system's right side.
+        top, gb = 6 * 12, 6 * 12 + 7 * m
+        buf = np.zeros(gb + nv)
+        self._kWWG = buf[: top + 6 * m].reshape(12 + m, 6)
+        self._kWWG[:6] = k * np.diag(self.W)
+        self._kWWG[6:12] = np.diag(self.W)
+        self._G_b, self._rhs = buf[top:gb], buf[top + 6 * m :]
+        self.b, self._mgq = buf[top + 6 * m : gb], buf[gb:]
+        self._PJ = np.zeros((nv + 21 + m, nv))  # [w_post k_post I; 0 (9 rows); k W J; W J; G J]
+        self._PJ[:nv] = cfg.weight_posture * cfg.k_posture_1ps * np.eye(nv)
+        self._P, self._kWJ_WJ_GJ = self._PJ[: nv + 21], self._PJ[nv + 9 :]
+        self._WJ, self._GJ = self._PJ[nv + 15 : nv + 21], self._PJ[nv + 21 :]
+        x = self._x = np.zeros(nv + 21)
+        self._x_dq, self._x_target = x[:nv], x[nv:]
+        self._x_Rt = x[nv : nv + 9].reshape(3, 3)
+        self._e, self._e_p, self._e_R = x[nv + 9 : nv + 15], x[nv + 9 : nv + 12], x[nv + 12 : nv + 15]
+        self._x_v, self._x_w = x[nv + 15 : nv + 18], x[nv + 18 :]
+        self.position_error_m = 0.0  # |p_t - p| (m) at the last build
+        # the linear system in (y, qd) and views of its blocks
+        self._K = np.zeros((n, n))
+        self._K[:m, :m] = -np.eye(m) / rho
+        self._Aq, self._AqT, self._Hq = self._K[:m, m:], self._K[m:, :m], self._K[m:, m:]
+        self._Hq_diag = self._K.reshape(-1)[m * (n + 1) :: n + 1]
+        self._lbq = self._ubq = np.zeros(nv)
+        self.bound_margin = 0.0  # after a successful solve: min over joints of (qd - lb, ub - qd)
+        self._minus_inv_rho = -1.0 / rho
+        self._lam0 = cfg.damping + cfg.weight_posture
+        self._lm_W = (cfg.lm_damping * cfg.weight_position, cfg.lm_damping * cfg.weight_orientation)
+        # the full problem in x = (qd, s), for the QP solver
+        self._H = np.zeros((n, n))
+        self._H[nv:, nv:] = rho * np.eye(m)
+        self._g = np.zeros(n)
+        self._A = np.zeros((m, n))
+        self._A[:, nv:] = np.eye(m)
+        self._lb = np.full(n, -np.inf)
+        self._ub = np.full(n, np.inf)
+        self.solver = make_solver(cfg.solver, n, m, eps=cfg.eps, max_iter=cfg.max_iter)
+        self.used_solver = False  # whether the last solve() ran the QP solver
+
+    def compute_fixture_rows(self, p, R):
+        """(G (m, 6), b (m,)) at the tool pose p (m), R: the rows and the right-hand side
+        b = -k_fixture h (holonomic rows) or 0, new arrays."""
+        return self.rows.evaluate(p, R)
+
+    def build(self, q, J, T, p_t, R_t, v_t, w_t, q_post, lb, ub):
+        """Fill the linear system from the state (q rad, J, the tool's pose matrix T (4, 4)) and the
+        target; keep the bounds lb, ub (nv,) rad/s. Returns the pose error e (6,), a buffer valid
+        until the next build, or None when the target is not finite (the system is then unusable)."""
+        e, x_target = self._e, self._x_target
+        self._x_Rt[:] = R_t
+        np.subtract(p_t, T[:3, 3], out=self._e_p)
+        self._e_R[:] = pin.log3(np.dot(R_t, T[:3, :3].T))  # NaN, never an error, if R_t is not finite
+        self._x_v[:] = v_t
+        self._x_w[:] = w_t
+        if not math.isfinite(np.vdot(x_target, x_target)):
+            return None
+        np.subtract(q_post, q, out=self._x_dq)
+        if self.m:
+            self.rows.evaluate_into(T, self._G_b)
+        np.dot(self._kWWG, J, out=self._kWJ_WJ_GJ)
+        np.matmul(J.T, self._WJ, out=self._Hq)
+        ep2, eR2 = np.vdot(self._e_p, self._e_p), np.vdot(self._e_R, self._e_R)
+        self.position_error_m = math.sqrt(ep2)
+        self._Hq_diag += self._lam0 + self._lm_W[0] * ep2 + self._lm_W[1] * eR2  # lam + w_post
+        self._Aq[:] = self._GJ
+        self._AqT[:] = self._GJ.T
+        np.dot(self._x, self._P, out=self._mgq)
+        self._lbq, self._ubq = lb, ub
+        return e
+
+    def problem(self):
+        """(H, g, A, b, lb, ub) of the built QP in x = (qd, s), for a QP solver; buffers that the
+        next call overwrites."""
+        nv = self.nv
+        self._H[:nv, :nv] = self._Hq
+        np.negative(self._mgq, out=self._g[:nv])
+        self._A[:, :nv] = self._Aq
+        self._lb[:nv] = self._lbq
+        self._ub[:nv] = self._ubq
+        return self._H, self._g, self._A, self.b, self._lb, self._ub
+
+    def solve(self):
+        """Solve the built QP: (qd, slack, y_eq, ok), new arrays. When ok, qd is finite and within
+        the bounds, and ``bound_margin`` (rad/s) is its least distance to them."""
+        lb, ub, m = self._lbq, self._ubq, self.m
+        if self.cfg.kkt_shortcut:
+            z, info = dgesv(self._K, self._rhs)[2:]
+            qd = z[m:]
+            if info == 0 and math.isfinite(np.vdot(z, z)):
+                margin = min(np.minimum(qd - lb, ub - qd).tolist())
+                if margin >= 0.0:  # no bound is active: this is the QP's solution
+                    self.bound_margin, self.used_solver = margin, False
+                    y = z[:m]
+                    return qd, y * self._minus_inv_rho, y, True
+        self.used_solver = True
+        r = self.solver.solve(*self.problem())
+        nv = self.nv
+        qd = np.minimum(np.maximum(r.x[:nv], lb), ub)  # solver tolerance only
+        self.bound_margin = min(np.minimum(qd - lb, ub - qd).tolist())
+        return qd, r.x[nv:], r.y_eq, r.ok and math.isfinite(np.vdot(qd, qd))
+
+    def compute_fallback(self, J, e, lb, ub, hold: bool, qd_prev) -> np.ndarray:
+        """Damped least squares toward the target (or a stop), clipped into the bounds (rad/s)."""
+        stop = np.clip(np.zeros(self.nv), lb, ub)
+        if hold or not np.all(np.isfinite(e)):
+            return stop
+        nu = self.cfg.k_task_1ps * e
+        JJt = J @ J.T + (1e-4 + float(e @ e)) * np.eye(6)
+        qd = np.clip(J.T @ np.linalg.solve(JJt, nu), lb, ub)
+        return qd if np.all(np.isfinite(qd)) else stop
