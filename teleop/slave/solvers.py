@@ -160,7 +160,8 @@ class DaqpSolver(QPSolver):
                     self._model = None
                     return QPResult(np.zeros(n), np.zeros(self.m), False, f"setup exitflag {flag}", 0)
             else:
-                self._model.update(H=self._H, f=self._g, A=self._A, bupper=self._bu, blower=self._bl)
+                mats = {"A": self._A} if self.m else {}  # daqp's update indexes A's first row
+                self._model.update(H=self._H, f=self._g, bupper=self._bu, blower=self._bl, **mats)
             x, _, flag, info = self._model.solve()
             if flag != 1:
                 self._model = None
