@@ -31,8 +31,10 @@ import math
 
 import numpy as np
 import pinocchio as pin
+from numba.core.errors import NumbaError
 from scipy.linalg.lapack import dgesv
 
+from teleop.slave import kernels
 from teleop.slave.rows import FixtureRows
 from teleop.slave.solvers import make_solver
 
@@ -54,9 +56,13 @@ class FollowerQP:
     ``build`` fills the linear system above in place. ``solve`` solves it when ``cfg.kkt_shortcut``
     is set (one LU solve of size m + nv) and keeps its solution when within the bounds; otherwise
     the persistent QP solver ``cfg.solver`` runs on the full problem, which ``problem()`` writes.
+
+    ``compiled``: build the system and solve it without bounds in the kernels of
+    :mod:`teleop.slave.kernels` (when every fixture row is of the fitted form); ``False`` keeps the
+    numpy reference, which the tests hold equal.
     """
 
-    def __init__(self, nv: int, constraints, cfg, dt: float):
+    def __init__(self, nv: int, constraints, cfg, dt: float, compiled: bool = True):
         self.nv = nv
         self.rows = FixtureRows(constraints, h_scale=-cfg.k_fixture_1ps)
         self.constraints = self.rows.constraints
@@ -107,6 +113,10 @@ class FollowerQP:
         self._ub = np.full(n, np.inf)
         self.solver = make_solver(cfg.solver, n, m, eps=cfg.eps, max_iter=cfg.max_iter)
         self.used_solver = False  # whether the last solve() ran the QP solver
+        self.compiled = bool(compiled) and not self.rows.direct
+        self._kernel_consts = (self.rows._C, self.W, float(k), cfg.weight_posture * cfg.k_posture_1ps,
+                               float(self._lam0), float(self._lm_W[0]), float(self._lm_W[1]))
+        self._z = np.zeros(n)
 
     def compute_fixture_rows(self, p, R):
         """(G (m, 6), b (m,)) at the tool pose p (m), R: the rows and the right-hand side
@@ -117,6 +127,20 @@ class FollowerQP:
         """Fill the linear system from the state (q rad, J, the tool's pose matrix T (4, 4)) and the
         target; keep the bounds lb, ub (nv,) rad/s. Returns the pose error e (6,), a buffer valid
         until the next build, or None when the target is not finite (the system is then unusable)."""
+        if self.compiled:
+            try:
+                ep2 = kernels.build_system(q, J, T, p_t, R_t, v_t, w_t, q_post, *self._kernel_consts,
+                                           self._K, self._rhs, self._e)
+            except (TypeError, ValueError, NumbaError):  # not float arrays of the right shapes
+                return self._build_numpy(q, J, T, p_t, R_t, v_t, w_t, q_post, lb, ub)
+            if ep2 < 0.0:
+                return None
+            self.position_error_m = math.sqrt(ep2)
+            self._lbq, self._ubq = lb, ub
+            return self._e
+        return self._build_numpy(q, J, T, p_t, R_t, v_t, w_t, q_post, lb, ub)
+
+    def _build_numpy(self, q, J, T, p_t, R_t, v_t, w_t, q_post, lb, ub):
         e, x_target = self._e, self._x_target
         self._x_Rt[:] = R_t
         np.subtract(p_t, T[:3, 3], out=self._e_p)
@@ -154,7 +178,14 @@ class FollowerQP:
         """Solve the built QP: (qd, slack, y_eq, ok), new arrays. When ok, qd is finite and within
         the bounds, and ``bound_margin`` (rad/s) is its least distance to them."""
         lb, ub, m = self._lbq, self._ubq, self.m
-        if self.cfg.kkt_shortcut:
+        if self.cfg.kkt_shortcut and self.compiled:
+            z = self._z
+            margin = kernels.solve_unbounded(self._K, self._rhs, self.nv, lb, ub, z)
+            if margin >= 0.0:  # no bound is active: this is the QP's solution (NaN: singular)
+                self.bound_margin, self.used_solver = margin, False
+                y = z[:m].copy()
+                return z[m:].copy(), y * self._minus_inv_rho, y, True
+        elif self.cfg.kkt_shortcut:
             z, info = dgesv(self._K, self._rhs)[2:]
             qd = z[m:]
             if info == 0 and math.isfinite(np.vdot(z, z)):

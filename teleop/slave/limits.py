@@ -22,8 +22,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from teleop.errors import ConfigError
-
-_SIDES = np.array([[-1.0], [1.0]])  # room above: (q_max - margin) - q; below: q - (q_min + margin)
+from teleop.slave.kernels import velocity_bounds
 
 
 @dataclass(frozen=True, eq=False)
@@ -55,48 +54,17 @@ class JointLimits:
                 raise ConfigError(f"slave.limits.{key}: expected finite positive values, got {arrs[key].tolist()}")
         if not np.isfinite(self.margin_rad) or self.margin_rad < 0:
             raise ConfigError(f"slave.limits.margin_rad: expected >= 0, got {self.margin_rad}")
-        # for compute_velocity_bounds, stacked (2, nv): row 0 the upper side, row 1 the lower one
-        # (negated), so that both sides take the same formulas
-        edge = np.array([arrs["q_max"] - self.margin_rad, -(arrs["q_min"] + self.margin_rad)])
-        object.__setattr__(self, "_edge", edge)
-        object.__setattr__(self, "_two_a", np.array([2.0 * arrs["a_max"]] * 2))
-        object.__setattr__(self, "_v2", np.array([arrs["v_max"]] * 2))
-        object.__setattr__(self, "_neg_v", -arrs["v_max"])
-        object.__setattr__(self, "_by_dt", {})  # dt -> _for_dt(dt)
 
     @property
     def nv(self) -> int:
         return self.q_min.shape[0]
 
-    def _for_dt(self, dt: float):
-        """(a_max dt (nv,) rad/s, q_lo, q_hi (nv,) rad): with q_lo < q < q_hi, each joint is at least
-        v_max dt and v_max^2 / (2 a_max) inside its limits, so only the velocity limit binds."""
-        if dt not in self._by_dt:
-            if len(self._by_dt) > 16:
-                self._by_dt.clear()
-            far = np.maximum(self._v2 * dt, self._v2**2 / self._two_a) * (1.0 + 1e-12)
-            self._by_dt[dt] = (self.a_max * dt, -(self._edge[1] - far[1]), self._edge[0] - far[0])
-        return self._by_dt[dt]
-
     def compute_velocity_bounds(self, q: np.ndarray, qd_prev: np.ndarray, dt: float):
-        """(lb, ub) in rad/s for the joint velocity held over the next tick of ``dt`` s."""
-        a_dt, q_lo, q_hi = self._by_dt[dt] if dt in self._by_dt else self._for_dt(dt)
-        if np.count_nonzero((q <= q_lo) | (q >= q_hi)):  # near a limit: stop in time, do not cross it
-            room = self._edge + _SIDES * q  # rad left above, below (negative beyond the limit)
-            cap = np.minimum(room / dt, np.sqrt(self._two_a * np.maximum(room, 0.0)))
-            np.minimum(cap, self._v2, out=cap)
-            # caps on (qd, -qd), containing 0; when q is not finite only the velocity limit is known
-            cap = np.where(np.isfinite(cap), np.maximum(cap, 0.0), self._v2)
-            ub_pv, lb_pv = cap[0], -cap[1]
-        else:
-            ub_pv, lb_pv = self.v_max, self._neg_v
-        lb = np.maximum(lb_pv, qd_prev - a_dt)  # with the acceleration box
-        ub = np.minimum(ub_pv, qd_prev + a_dt)
-        if np.count_nonzero(lb > ub):  # empty: collapse onto the p/v box's point nearest qd_prev
-            empty = lb > ub
-            nearest = np.clip(qd_prev, lb_pv, ub_pv)
-            lb = np.where(empty, nearest, lb)
-            ub = np.where(empty, nearest, ub)
+        """(lb, ub) in rad/s for the joint velocity held over the next tick of ``dt`` s (new arrays;
+        one compiled call, :func:`teleop.slave.kernels.velocity_bounds`)."""
+        lb, ub = np.empty(self.q_min.shape[0]), np.empty(self.q_min.shape[0])
+        velocity_bounds(np.asarray(q, dtype=float), np.asarray(qd_prev, dtype=float), float(dt), self.q_min,
+                        self.q_max, float(self.margin_rad), self.v_max, self.a_max, lb, ub)
         return lb, ub
 
     def clip_position(self, q: np.ndarray) -> np.ndarray:

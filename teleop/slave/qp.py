@@ -25,9 +25,10 @@ class SlaveArm:
     """The slave arm and its follower: joint state q (rad), qd (rad/s), tau (N*m), the tool frame E.
 
     ``step(p_t, R_t, v_t, w_t)`` runs one tick of ``dt_s`` and returns a status from ``STATUSES``.
+    ``compiled=False`` builds and solves the follower's system in numpy (the reference).
     """
 
-    def __init__(self, cfg, fixture_constraints=(), dt_s: float = 1e-3):
+    def __init__(self, cfg, fixture_constraints=(), dt_s: float = 1e-3, compiled: bool = True):
         from teleop.errors import ConfigError
         from teleop.slave.arm import build_model
 
@@ -41,7 +42,7 @@ class SlaveArm:
         self.data = self.model.createData()
         self.nv = self.model.nv
         self.q_post = am.q0.copy()
-        self.qp = FollowerQP(self.nv, fixture_constraints, cfg, dt_s)
+        self.qp = FollowerQP(self.nv, fixture_constraints, cfg, dt_s, compiled)
         self.fixture_constraints = self.qp.constraints
         self._alpha = dt_s / (cfg.servo_lag_s + dt_s)
         self.status = "ok"

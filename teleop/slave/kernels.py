@@ -1,0 +1,156 @@
+"""Compiled kernels (numba) of the slave tick: joint velocity bounds, the follower's linear system
+and its unbounded solve.
+
+Why compiled: the follower's tick is some thirty numpy operations on arrays of 6 to 13 entries,
+each costing about a microsecond of call overhead whatever its size; here it is three calls.
+
+The readable definitions stay in Python and are the reference: ``JointLimits`` documents the
+bounds (and tests/property/test_slave_properties.py holds them against joint-by-joint formulas),
+and ``FollowerQP`` with ``compiled=False`` builds and solves the same system in numpy;
+tests/unit/test_slave_kernels.py holds the two equal. Units as in :mod:`teleop.slave.follower`.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from numba import njit
+
+from teleop.control.kernels import log3
+
+
+@njit(cache=True)
+def velocity_bounds(q, qd_prev, dt, q_min, q_max, margin, v_max, a_max, lb, ub):
+    """Write into lb, ub (nv,) the joint velocity bounds (rad/s) for the next tick of dt s.
+
+    Per joint: the velocity limit, no crossing of [q_min + margin, q_max - margin] within the tick,
+    room to stop at a_max (sqrt(2 a room)), and the acceleration box qd_prev +- a dt; the position
+    caps always contain 0. When the boxes do not meet, both bounds collapse onto the point of the
+    position/velocity box nearest qd_prev. A q that is not finite leaves only the velocity limit.
+    """
+    for i in range(q.shape[0]):
+        v, a = v_max[i], a_max[i]
+        cap_up, cap_dn = v, v  # caps on qd and on -qd
+        if math.isfinite(q[i]):
+            up = q_max[i] - margin - q[i]  # rad left above (negative beyond the limit)
+            dn = q[i] - q_min[i] - margin
+            cap_up = max(min(v, up / dt, math.sqrt(2.0 * a * max(up, 0.0))), 0.0)
+            cap_dn = max(min(v, dn / dt, math.sqrt(2.0 * a * max(dn, 0.0))), 0.0)
+        lo = max(-cap_dn, qd_prev[i] - a * dt)
+        hi = min(cap_up, qd_prev[i] + a * dt)
+        if lo > hi:
+            lo = hi = min(max(qd_prev[i], -cap_dn), cap_up)
+        lb[i], ub[i] = lo, hi
+
+
+@njit(cache=True)
+def build_system(q, J, T, p_t, R_t, v_t, w_t, q_post, C, W, k_task, w_post_k, lam0, lm_p, lm_o, K, rhs, e):
+    """Fill the follower's linear system (see :mod:`teleop.slave.follower`) in place.
+
+    K (m + nv, m + nv): writes the blocks Aq = G J, Aq' and Hq (the block -I/rho is left as it is);
+    rhs (m + nv,): (b, -gq); e (6,): the pose error (m, rad). C (28 m, 16): the fitted fixture rows
+    of :class:`teleop.slave.rows.FixtureRows` with b's scale folded in. Returns |p_t - p|^2 (m^2),
+    or -1 when the target (p_t, R_t, v_t, w_t) is not finite, leaving K and rhs unusable.
+    """
+    nv = q.shape[0]
+    m = K.shape[0] - nv
+    for i in range(3):
+        e[i] = p_t[i] - T[i, 3]
+    Rerr = np.empty((3, 3))
+    for i in range(3):
+        for j in range(3):
+            Rerr[i, j] = R_t[i, 0] * T[j, 0] + R_t[i, 1] * T[j, 1] + R_t[i, 2] * T[j, 2]
+    e[3:] = log3(Rerr)
+    check = 0.0
+    for i in range(3):
+        check += e[i] * e[i] + e[i + 3] * e[i + 3] + v_t[i] * v_t[i] + w_t[i] * w_t[i]
+        for j in range(3):
+            check += R_t[i, j] * R_t[i, j]
+    if not math.isfinite(check):
+        return -1.0
+    ep2 = e[0] * e[0] + e[1] * e[1] + e[2] * e[2]
+    eR2 = e[3] * e[3] + e[4] * e[4] + e[5] * e[5]
+    # fixture rows: out_j = sum_a (sum_b C[4 j + a, b] T.flat[b]) T[a, 3], out = (G.ravel(), b)
+    rows = np.empty(7 * m)
+    for j in range(7 * m):
+        acc = 0.0
+        for a in range(4):
+            ct = 0.0
+            for b in range(16):
+                ct += C[4 * j + a, b] * T[b // 4, b % 4]
+            acc += ct * T[a, 3]
+        rows[j] = acc
+    for r in range(m):
+        rhs[r] = rows[6 * m + r]
+        for i in range(nv):
+            s = 0.0
+            for c in range(6):
+                s += rows[6 * r + c] * J[c, i]
+            K[r, m + i] = s
+            K[m + i, r] = s
+    # Hq = J' W J + lam I, with lam = lam0 + LM damping on the pose error
+    lam = lam0 + lm_p * ep2 + lm_o * eR2
+    for i in range(nv):
+        for j in range(i, nv):
+            s = 0.0
+            for c in range(6):
+                s += W[c] * J[c, i] * J[c, j]
+            K[m + i, m + j] = s
+            K[m + j, m + i] = s
+        K[m + i, m + i] += lam
+    # -gq = w_post k_post (q_post - q) + J' W (k e + (v_t, w_t))
+    wnu = np.empty(6)
+    for c in range(3):
+        wnu[c] = W[c] * (k_task * e[c] + v_t[c])
+        wnu[c + 3] = W[c + 3] * (k_task * e[c + 3] + w_t[c])
+    for i in range(nv):
+        s = w_post_k * (q_post[i] - q[i])
+        for c in range(6):
+            s += J[c, i] * wnu[c]
+        rhs[m + i] = s
+    return ep2
+
+
+@njit(cache=True)
+def solve_unbounded(K, rhs, nv, lb, ub, z):
+    """Solve K z = rhs (LU with partial pivoting on a copy of K) into z; return the least distance
+    (rad/s) of qd = z[-nv:] to its bounds lb, ub (nv,): >= 0 when qd is within them, negative when
+    a bound binds, NaN when K is singular or z is not finite."""
+    n = K.shape[0]
+    A = K.copy()
+    for i in range(n):
+        z[i] = rhs[i]
+    for k in range(n):
+        piv, best = k, abs(A[k, k])
+        for r in range(k + 1, n):
+            if abs(A[r, k]) > best:
+                piv, best = r, abs(A[r, k])
+        if not best > 0.0:
+            return np.nan
+        if piv != k:
+            for c in range(n):
+                A[k, c], A[piv, c] = A[piv, c], A[k, c]
+            z[k], z[piv] = z[piv], z[k]
+        inv = 1.0 / A[k, k]
+        for r in range(k + 1, n):
+            f = A[r, k] * inv
+            if f != 0.0:
+                for c in range(k + 1, n):
+                    A[r, c] -= f * A[k, c]
+                z[r] -= f * z[k]
+    for k in range(n - 1, -1, -1):
+        s = z[k]
+        for c in range(k + 1, n):
+            s -= A[k, c] * z[c]
+        z[k] = s / A[k, k]
+    check = 0.0
+    for i in range(n):
+        check += z[i] * z[i]
+    if not math.isfinite(check):
+        return np.nan
+    margin = np.inf
+    m = n - nv
+    for i in range(nv):
+        margin = min(margin, z[m + i] - lb[i], ub[i] - z[m + i])
+    return margin
