@@ -114,7 +114,7 @@ class FollowerQP:
         self.solver = make_solver(cfg.solver, n, m, eps=cfg.eps, max_iter=cfg.max_iter)
         self.used_solver = False  # whether the last solve() ran the QP solver
         self.compiled = bool(compiled) and not self.rows.direct
-        self._kernel_consts = (self.rows._C, self.W, float(k), cfg.weight_posture * cfg.k_posture_1ps,
+        self._kernel_consts = (self.rows.coefficients, self.W, float(k), cfg.weight_posture * cfg.k_posture_1ps,
                                float(self._lam0), float(self._lm_W[0]), float(self._lm_W[1]))
         self._z = np.zeros(n)
 

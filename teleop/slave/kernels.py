@@ -18,6 +18,9 @@ import numpy as np
 from numba import njit
 
 from teleop.control.kernels import log3
+from teleop.master.kernels import exp3
+
+_EPS = np.finfo(np.float64).eps
 
 
 @njit(cache=True)
@@ -42,6 +45,22 @@ def velocity_bounds(q, qd_prev, dt, q_min, q_max, margin, v_max, a_max, lb, ub):
         if lo > hi:
             lo = hi = min(max(qd_prev[i], -cap_dn), cap_up)
         lb[i], ub[i] = lo, hi
+
+
+@njit(cache=True)
+def fixture_rows(C, T):
+    """(G.ravel(), scale h) (7 m,) of :class:`teleop.slave.rows.FixtureRows`' fitted rows C (28 m, 16)
+    at the pose matrix T (4, 4): out_j = sum_a (sum_b C[4 j + a, b] T.flat[b]) T[a, 3]."""
+    out = np.empty(C.shape[0] // 4)
+    for j in range(out.shape[0]):
+        acc = 0.0
+        for a in range(4):
+            ct = 0.0
+            for b in range(16):
+                ct += C[4 * j + a, b] * T[b // 4, b % 4]
+            acc += ct * T[a, 3]
+        out[j] = acc
+    return out
 
 
 @njit(cache=True)
@@ -71,16 +90,7 @@ def build_system(q, J, T, p_t, R_t, v_t, w_t, q_post, C, W, k_task, w_post_k, la
         return -1.0
     ep2 = e[0] * e[0] + e[1] * e[1] + e[2] * e[2]
     eR2 = e[3] * e[3] + e[4] * e[4] + e[5] * e[5]
-    # fixture rows: out_j = sum_a (sum_b C[4 j + a, b] T.flat[b]) T[a, 3], out = (G.ravel(), b)
-    rows = np.empty(7 * m)
-    for j in range(7 * m):
-        acc = 0.0
-        for a in range(4):
-            ct = 0.0
-            for b in range(16):
-                ct += C[4 * j + a, b] * T[b // 4, b % 4]
-            acc += ct * T[a, 3]
-        rows[j] = acc
+    rows = fixture_rows(C, T)
     for r in range(m):
         rhs[r] = rows[6 * m + r]
         for i in range(nv):
@@ -154,3 +164,33 @@ def solve_unbounded(K, rhs, nv, lb, ub, z):
     for i in range(nv):
         margin = min(margin, z[m + i] - lb[i], ub[i] - z[m + i])
     return margin
+
+
+@njit(cache=True)
+def project_onto_fixture(C_hol, C_all, p, R, v, w, iters, tol):
+    """A pose and twist moved onto fixture rows: up to ``iters`` Newton steps on the holonomic rows
+    C_hol (minimum-norm twist corrections d, p += d_v, R <- exp(d_w) R) until max |h| < tol, then the
+    twist (v, w) minus its least-squares component along every row's G (C_all). C_hol, C_all as in
+    :func:`fixture_rows`, with scale 1 (h in m or rad); the singular-value cut is numpy's lstsq default. Returns (p, R, v, w), new arrays."""
+    T = np.eye(4)
+    T[:3, :3] = R
+    T[:3, 3] = p
+    mh = C_hol.shape[0] // 28
+    for _ in range(iters if mh else 0):
+        rows = fixture_rows(C_hol, T)
+        h = rows[6 * mh :]
+        if np.abs(h).max() < tol:
+            break
+        d = -np.linalg.lstsq(rows[: 6 * mh].reshape(mh, 6), h, rcond=_EPS * max(mh, 6))[0]
+        E = exp3(d[3:])
+        T[:3, :3] = E @ T[:3, :3].copy()
+        for i in range(3):
+            T[i, 3] += d[i]
+    nu = np.empty(6)
+    nu[:3] = v
+    nu[3:] = w
+    m = C_all.shape[0] // 28
+    if m:
+        G = fixture_rows(C_all, T)[: 6 * m].reshape(m, 6)
+        nu -= np.linalg.lstsq(G, G @ nu, rcond=_EPS * max(m, 6))[0]
+    return T[:3, 3].copy(), T[:3, :3].copy(), nu[:3].copy(), nu[3:].copy()

@@ -100,6 +100,12 @@ class FixtureRows:
         self._Ct4 = self._Ct.reshape(self.m * 7, 4)
 
     @property
+    def coefficients(self) -> np.ndarray:
+        """C (28 m, 16): the fitted rows, ``h_scale`` folded in, as
+        :func:`teleop.slave.kernels.fixture_rows` reads them (zero rows for ``direct`` ones)."""
+        return self._C
+
+    @property
     def direct(self) -> tuple:
         """The constraints evaluated by their own methods each tick (not of the fitted form)."""
         return tuple(c for c, _ in self._direct)

@@ -16,8 +16,13 @@ import math
 
 import numpy as np
 
+from numba.core.errors import NumbaError
+
 from teleop.dynamics.constraints import RemoteCenter
+from teleop.dynamics.rotations import cross
 from teleop.errors import ConfigError, SceneError
+from teleop.slave.kernels import project_onto_fixture
+from teleop.slave.rows import FixtureRows
 
 
 class SlaveSide:
@@ -55,6 +60,13 @@ class SlaveSide:
         self._alpha = 1.0 - math.exp(-2.0 * math.pi * fc * scene.dt_s) if fc > 0 else 1.0
         self._feedback = np.zeros(6)
         self.rcm = [c for c in self.constraints if isinstance(c, RemoteCenter)]
+        # fitted rows (holonomic ones, all) for project_target, or None: a row not of that form
+        hol = FixtureRows(tuple(c for c in self.constraints if c.holonomic))
+        every = FixtureRows(self.constraints)
+        self._rows = None if hol.direct or every.direct else (hol.coefficients, every.coefficients)
+        normal = np.asarray(self.spec.plane_normal, dtype=float)
+        self._normal = normal / np.linalg.norm(normal)
+        self._plane_origin = np.asarray(self.spec.plane_origin_m, dtype=float)
         self.n = 0
         self.log = {k: np.zeros(n_ticks) for k in ("track_m", "depth_err_m", "dir_err_rad", "contact_N", "rcm_m")}
         self.log["q"] = np.zeros((n_ticks, self.arm.nv))
@@ -69,7 +81,18 @@ class SlaveSide:
         """The target moved onto the patient-frame fixture: Newton steps on the holonomic rows
         (minimum-norm twist corrections, retraction by exp), then the twist onto every row. The
         virtual tool carries the device's tracking error (tens of um, mrad); the slave follows its
-        closest admissible pose instead of fighting its own fixture rows."""
+        closest admissible pose instead of fighting its own fixture rows. One compiled call
+        (:func:`teleop.slave.kernels.project_onto_fixture`) when every row has the fitted form;
+        :meth:`project_target_reference` otherwise, and as the reference."""
+        if self._rows is not None:
+            try:
+                return project_onto_fixture(self._rows[0], self._rows[1], p, R, v, w, 3, 1e-12)
+            except (TypeError, ValueError, NumbaError):  # not float arrays of the right shapes
+                pass
+        return self.project_target_reference(p, R, v, w)
+
+    def project_target_reference(self, p, R, v, w):
+        """:meth:`project_target` with the constraints' own methods and numpy."""
         import pinocchio as pin
 
         from teleop.dynamics.constraints import stack_jacobian, stack_residual
@@ -99,13 +122,11 @@ class SlaveSide:
         v, w = self.arm.tool_twist()
         # the slave's tool frame sits at the blade tip (the scene's tip_m is then 0); allow an offset
         d = R @ (self.tip_B / self.reg.scale)
-        tip, v_tip = p + d, v + np.cross(w, d)
+        tip, v_tip = p + d, v + cross(w, d)
         contact = self.tissue.wrench(tip, R, v_tip, w) if self.tissue is not None else np.zeros(6)
         self._last_contact = contact
         i = self.n
-        n = np.asarray(self.spec.plane_normal, dtype=float)
-        n = n / np.linalg.norm(n)
-        depth = -float(n @ (tip - np.asarray(self.spec.plane_origin_m)))
+        depth = -float(self._normal @ (tip - self._plane_origin))
         self.log["track_m"][i] = float(np.linalg.norm(p - p_t))
         # error while the blade is in the tissue; a tiny floor marks "inside" for the cut length
         self.log["depth_err_m"][i] = max(abs(depth - self.spec.depth_m), 1e-15) if depth > 0 else 0.0
@@ -120,7 +141,7 @@ class SlaveSide:
         # to the master: scaled, in master axes, moved from the slave tip to the master tool origin
         F = self.reg.wrench_to_master(contact)
         r_M = self.reg.X_PM_R.T @ d * self.reg.scale
-        F[3:] += np.cross(r_M, F[:3])
+        F[3:] += cross(r_M, F[:3])
         self._feedback = self._feedback + self._alpha * (F - self._feedback)
         return self._feedback
 

@@ -41,8 +41,9 @@ def _state(arm, rng):
 @given(stack=st.sampled_from(sorted(STACKS)), seed=st.integers(0, 2**32 - 1),
        angle=st.sampled_from([1e-9, 1e-3, 0.5, 3.0, np.pi - 1e-6]), bound=st.floats(0.01, 3.0))
 def test_build_and_solve_match_the_numpy_reference(stack, seed, angle, bound):
-    """K, the right-hand side, the pose error and the solution agree to 1e-10 relative, at random
-    states, targets up to a half-turn away, and bounds that bind or not."""
+    """K, the right-hand side and the pose error agree to 1e-10 relative, at random states, targets
+    up to a half-turn away, and bounds that bind or not; so do the solutions, to the QP solver's
+    tolerance when a bound binds."""
     rng = np.random.default_rng(seed)
     fast, ref = _pair(stack)
     q, J, T = _state(fast, rng)
@@ -62,8 +63,10 @@ def test_build_and_solve_match_the_numpy_reference(stack, seed, angle, bound):
     assert np.abs(e1 - e2).max() < 1e-10 and abs(pe1 - pe2) < 1e-12
     assert np.abs(K1 - K2).max() < 1e-10 * scale and np.abs(r1 - r2).max() < 1e-10 * (1 + np.abs(r2).max())
     assert used1 == used2 and sol1[3] == sol2[3]
+    # the unbounded solve is exact; the QP solver (a bound binds) agrees to its tolerance, 1e-7
+    tol = 1e-6 if used1 else 1e-9
     for a, b in zip(sol1[:3], sol2[:3]):
-        assert np.abs(a - b).max(initial=0.0) < 1e-7 * (1 + np.abs(b).max(initial=0.0))
+        assert np.abs(a - b).max(initial=0.0) < tol * (1 + np.abs(b).max(initial=0.0))
     if not used1:
         assert abs(m1 - m2) < 1e-9
 
@@ -100,3 +103,23 @@ def test_whole_runs_agree():
             path.append(arm.q.copy())
         qs.append(np.array(path))
     assert np.abs(qs[0] - qs[1]).max() < 1e-9
+
+
+@pytest.mark.parametrize("scene", ["straight_incision", "curved_incision", "laparoscopic_incision"])
+def test_target_projection_matches_the_reference(scene):
+    """The compiled projection onto the patient-frame fixture equals the constraints' own methods
+    and numpy's lstsq (1e-10), for targets off the fixture by up to 5 mm and 0.05 rad."""
+    from teleop.scenario.schema import load_scene
+    from teleop.slave.side import SlaveSide
+
+    side = SlaveSide(load_scene(scene), 10)
+    assert side._rows is not None
+    rng = np.random.default_rng(7)
+    p0, R0, _, _ = side.reg.target(np.zeros(3), np.eye(3), np.zeros(3), np.zeros(3))
+    for _ in range(50):
+        p = p0 + rng.normal(size=3) * 0.005
+        R = pin.exp3(rng.normal(size=3) * 0.05) @ R0
+        v, w = rng.normal(size=3) * 0.01, rng.normal(size=3) * 0.1
+        fast, ref = side.project_target(p, R, v, w), side.project_target_reference(p, R, v, w)
+        for a, b in zip(fast, ref):
+            assert np.abs(np.asarray(a) - b).max() < 1e-10
