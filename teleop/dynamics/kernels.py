@@ -359,6 +359,16 @@ def _solve(S, mode, rhs):
     return lam
 
 
+@njit(cache=True, inline="always")
+def _add_product(A, x, sign, out):
+    """out += sign * A x, for A (n, m), x (m,), out (n,)."""
+    for i in range(A.shape[0]):
+        s = 0.0
+        for r in range(A.shape[1]):
+            s += A[i, r] * x[r]
+        out[i] += sign * s
+
+
 @njit(cache=True)
 def newton_euler(R, Iinv, J, inv_m, coriolis, G, MinvGt, S, mode, kinds, offsets, params, p, v, w, F_in,
                  fx):
@@ -403,11 +413,7 @@ def newton_euler(R, Iinv, J, inv_m, coriolis, G, MinvGt, S, mode, kinds, offsets
                 s -= G[r, i] * free[i]
             rhs[r] = s
         lam = _solve(S, mode, rhs)
-        for i in range(6):
-            s = 0.0
-            for r in range(m):
-                s += MinvGt[i, r] * lam[r]
-            nudot[i] += s
+        _add_product(MinvGt, lam, 1.0, nudot)
     return nudot, lam, F
 
 
@@ -450,12 +456,7 @@ def project_twist(G, MinvGt, S, mode, nu):
         for i in range(6):
             s += G[r, i] * nu[i]
         Gnu[r] = s
-    lam = _solve(S, mode, Gnu)
-    for i in range(6):
-        s = 0.0
-        for r in range(m):
-            s += MinvGt[i, r] * lam[r]
-        out[i] -= s
+    _add_product(MinvGt, _solve(S, mode, Gnu), -1.0, out)
     return out
 
 
