@@ -533,16 +533,8 @@ def project_parameter_rates(R, E, Einv, G, MinvGt, S, mode, qd, P, Pinv):
     Returns zd (k,), qd (6,)."""
     qp = project_rates(R, E, Einv, G, MinvGt, S, mode, qd)
     n, k = P.shape
-    zd = np.empty(k)
-    for i in range(k):
-        s = 0.0
-        for j in range(n):
-            s += Pinv[i, j] * qp[j]
-        zd[i] = s
-    out = np.empty(n)
-    for j in range(n):
-        s = 0.0
-        for i in range(k):
-            s += P[j, i] * zd[i]
-        out[j] = s
+    zd = np.zeros(k)
+    _add_product(Pinv, qp, 1.0, zd)
+    out = np.zeros(n)
+    _add_product(P, zd, 1.0, out)
     return zd, out
