@@ -30,7 +30,8 @@ from teleop.control.admittance import AdmittanceController, AdmittanceGains, Phi
 from teleop.control.clutch import Clutch
 from teleop.master.cobot import GRAVITY_W, CobotDevice, CobotModel, DeviceParams
 from teleop.master.config import CobotConfig
-from teleop.master.kernels import advance_prediction, dls_command, hand_wrench_W, handle_command
+from teleop.master.kernels import (advance_prediction, dls_command, hand_wrench_W, handle_command, host_command,
+                                   host_feedback)
 from teleop.master.observer import HISTORY, JointObserver
 
 
@@ -66,10 +67,19 @@ SIMULATED_INTERFACES = ("teleop_lockstep", "virtual")
 
 
 class CobotMaster:
-    """The simulated cobot behind the runtime's master interface (see module docstring)."""
+    """The simulated cobot behind the runtime's master interface (see module docstring).
 
-    def __init__(self, tool, cfg: CobotConfig, dt_s: float, rng: np.random.Generator):
+    compiled: while the clutch is engaged, run a period's math as two fused kernels
+    (:func:`~teleop.master.kernels.host_feedback` before the reference tool's step,
+    :func:`~teleop.master.kernels.host_command` after it); False runs it piece by piece (observer,
+    kinematics, load cell, φ, PID, DLS, prediction), the reference the fused path is tested against.
+    The fused path needs the closed-form kinematics and the compiled controller and observer; it
+    falls back to the pieces otherwise.
+    """
+
+    def __init__(self, tool, cfg: CobotConfig, dt_s: float, rng: np.random.Generator, compiled: bool = True):
         self.tool, self.cfg, self.dt, self.rng = tool, cfg, float(dt_s), rng
+        self.compiled = compiled
         self.log = logging.getLogger(__name__)
         self.model = CobotModel()
         R_off = pin.exp3(np.array(cfg.offset_rotvec_rad))
@@ -118,6 +128,7 @@ class CobotMaster:
         self.status = "ok"
         self.err_max = (0.0, 0.0)  # tracking error maxima (m, rad)
         self._ws_hi = self._ws_lo = None
+        self._fused_key = self._fused_consts = None
         self.steps = 0
         self.closed = self.entered = False
         self._wall0 = None
@@ -215,16 +226,14 @@ class CobotMaster:
             self.device.hand_wrench_W = phi.wrench_to_handle(_finite(hand_wrench_W))
         k = self._link_cycle_begin()
         obs = self.observer
+        fused = self._fused(phi) if self.compiled and self.clutch.engaged else None
+        if fused is not None:
+            return self._step_fused(k, drv, obs, fused, contact_wrench_W)
         if drv.fresh_joints:  # a reading of SYNC joints_counter (this one, or late)
             obs.correct(drv.joints_rad_m, drv.joints_counter, k)
         fault = drv.end_cycle()
         if fault is not None:
-            drv.send_command(np.zeros(6))
-            obs.predict(k, np.zeros(6))
-            self._advance_prediction(k, np.zeros(6))
-            self._link_cycle_end()
-            self.status = fault
-            return fault
+            return self._fault(k, fault)
         joints = drv.joints_rad_m
         p_m, R_m, J = self.model.compute_pose_and_jacobian(joints)
         # carry the measurement (cycle j) forward by the commanded motion since
@@ -235,9 +244,7 @@ class CobotMaster:
             self.p_H_est = p_m + self.pred_p[k] - self.pred_p[j]
             self.R_H_est = self.pred_R[k] @ self.pred_R[j].T @ R_m
         F_hand_W = self._hand_wrench_W(R_m)
-        if self._ws_hi is None:
-            m = self.cfg.workspace_margin_m
-            self._ws_hi, self._ws_lo = self.model.upper - m, self.model.lower + m
+        self._workspace()
         if self.clutch.engaged:
             nu_V, a_V, st = self._admittance(phi, F_hand_W, contact_wrench_W)
             nu_H, a_H, qd = handle_command(J, phi.twist_map_to_handle, nu_V, a_V, self.tau_s, joints,
@@ -250,6 +257,71 @@ class CobotMaster:
         drv.send_command(qd, self.vmax)
         obs.predict(k, qd)
         self._advance_prediction(k, nu_H)
+        self.nu_H_cmd, self.accel_H_cmd = nu_H, a_H
+        self._link_cycle_end()
+        self.steps += 1
+        self.status = st
+        return st
+
+    def _fault(self, k: int, fault: str) -> str:
+        """A latched link fault: zero velocity, the observer and the prediction follow it."""
+        self.driver.send_command(np.zeros(6))
+        self.observer.predict(k, np.zeros(6))
+        self._advance_prediction(k, np.zeros(6))
+        self._link_cycle_end()
+        self.status = fault
+        return fault
+
+    def _workspace(self) -> None:
+        if self._ws_hi is None:
+            m = self.cfg.workspace_margin_m
+            self._ws_hi, self._ws_lo = self.model.upper - m, self.model.lower + m
+
+    def _fused(self, phi):
+        """The constants of the fused kernels for φ ``phi`` and the current gains and observer
+        limits (rebuilt when one of them is replaced), or None where the fused path does not apply."""
+        ctrl, obs = self.ctrl, self.observer
+        if not (self.model.closed_form and ctrl.compiled and obs.compiled):
+            return None
+        key = (phi, ctrl.gains, obs.vmax, obs.amax, self.cfg)
+        if self._fused_key is None or any(a is not b for a, b in zip(key, self._fused_key)):
+            self._workspace()
+            g, m, cfg = ctrl.gains, self.model, self.cfg
+            self._fused_key = key
+            self._fused_consts = (
+                (m.handle_mass_kg, m.handle_com_H, m.handle_J_H, GRAVITY_W, cfg.max_force_N, cfg.max_torque_Nm,
+                 phi._maps[2], phi.offset_p, phi.scale, phi.offset_R),
+                np.array([g.kp, g.ki, g.kd, g.integral_limit, g.max_accel, g.max_velocity]),
+                np.array([self._ws_hi, self._ws_lo]),
+                np.array([obs.vmax, obs.amax]),
+                phi.twist_map_to_handle)
+        return self._fused_consts
+
+    def _step_fused(self, k: int, drv, obs, fused, contact_wrench_W) -> str:
+        """The engaged period of :meth:`_step` with its math in the two fused kernels."""
+        if drv.fresh_joints:  # a reading of SYNC joints_counter (this one, or late)
+            obs.correct(drv.joints_rad_m, drv.joints_counter, k)
+        fault = drv.end_cycle()
+        if fault is not None:
+            return self._fault(k, fault)
+        feedback, gains, ws, obs_lim, to_handle = fused
+        joints, tool, ctrl = drv.joints_rad_m, self.tool, self.ctrl
+        J, self.p_H_est, self.R_H_est, f_v, p_v, R_v = host_feedback(
+            joints, k, drv.joints_counter, self.pred_p, self.pred_R, drv.wrench_S, self.bias_S, self.accel_H_cmd,
+            self.nu_H_cmd, *feedback)
+        if contact_wrench_W is not None:
+            f_v = f_v + _finite(contact_wrench_W)
+        p_r, R_r = tool.pose()
+        v_r, w_r = tool.twist()
+        st = tool.step(self.dt, f_v)
+        (ctrl.nu_cmd, ctrl.accel_cmd, ctrl.error, ctrl.integral, nu_H, a_H, qd, obs.x, obs.qd_model, obs.u,
+         e_p, e_r) = host_command(p_r, R_r, v_r, w_r, tool.acceleration_W, p_v, R_v, gains, ctrl.dt, ctrl.integral,
+                                  ctrl.nu_cmd, to_handle, self.tau_s, J, joints, ws, DLS_SIGMA0, DLS_LAMBDA0, k,
+                                  self.pred_p, self.pred_R, self.dt, obs.x, obs.qd_model, obs.u, obs.bias, obs_lim,
+                                  obs.dt, obs.window, obs.tau, obs.history)
+        err = self.err_max
+        self.err_max = (max(err[0], e_p), max(err[1], e_r))
+        drv.send_command(qd, self.vmax)
         self.nu_H_cmd, self.accel_H_cmd = nu_H, a_H
         self._link_cycle_end()
         self.steps += 1

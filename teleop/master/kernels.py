@@ -1,8 +1,10 @@
-"""Compiled kernel (numba) of the host's load-cell compensation, run every period.
+"""Compiled kernels (numba) of the host's period: load-cell compensation, DLS, kinematics,
+prediction, and the two fused halves of a period (:func:`host_feedback`, :func:`host_command`).
 
-The readable reference is :func:`compute_hand_wrench_W` below (numpy, with the device model's
-:meth:`~teleop.master.cobot.CobotModel.compute_distal_wrench_W`); tests/unit/test_master_kernels.py
-checks the kernel against it. SI units: N, N*m, m/s^2, rad/s, rad/s^2.
+The readable reference of the load-cell kernel is :func:`compute_hand_wrench_W` below (numpy, with
+the device model's :meth:`~teleop.master.cobot.CobotModel.compute_distal_wrench_W`);
+tests/unit/test_master_kernels.py checks the kernel against it. SI units: N, N*m, m/s^2, rad/s,
+rad/s^2.
 """
 
 from __future__ import annotations
@@ -11,6 +13,9 @@ import math
 
 import numpy as np
 from numba import njit
+
+from teleop.control.kernels import pid_step as _pid_step
+from teleop.master.observer import _predict as _observer_predict
 
 
 def compute_hand_wrench_W(model, wrench_S, bias_S, R, accel_W, w_W, max_force_N, max_torque_Nm):
@@ -129,3 +134,59 @@ def advance_prediction(pred_p, pred_R, k, nu, dt):
         pred_p[n, i] = pred_p[k, i] + nu[i] * dt
         for j in range(3):
             pred_R[n, i, j] = E[i, 0] * pred_R[k, 0, j] + E[i, 1] * pred_R[k, 1, j] + E[i, 2] * pred_R[k, 2, j]
+
+
+# -- the host period fused: two calls instead of seven ---------------------------------------------
+# The per-piece path of CobotMaster (``compiled=False``: observer, kinematics, load-cell kernel, φ in
+# numpy, PID, DLS, prediction, one call each) is the reference of these two; they run the same
+# arithmetic in the same order (tests/unit/test_master_fused.py holds them equal).
+
+@njit(cache=True)
+def host_feedback(joints, k, j, pred_p, pred_R, wrench_S, bias_S, accel_H_cmd, nu_H_cmd, mass_kg, com_H,
+                  inertia_H, gravity_W, max_force_N, max_torque_Nm, wrench_map, off_p, scale, off_R):
+    """The feedback half of a period (gantry + Z-X-Z closed form): the handle pose and Jacobian from
+    ``joints``, the measurement of SYNC j carried forward to SYNC k by the predicted poses, the
+    hand's wrench (:func:`hand_wrench_W` at the measured rotation) mapped to the virtual tool by
+    φ's ``wrench_map`` (6, 6), and φ of the estimated pose (offset off_p, off_R, scale).
+
+    Returns J (6, 6), p_H_est (3,), R_H_est (3, 3), f_v (6,), p_v (3,), R_v (3, 3)."""
+    p_m, R_m, J = gantry_zxz_pose_jacobian(joints)
+    if j == k:
+        p_est, R_est = p_m, R_m
+    else:
+        p_est = p_m + pred_p[k] - pred_p[j]
+        R_est = pred_R[k] @ pred_R[j].T @ R_m
+    F = hand_wrench_W(wrench_S, bias_S, R_m, accel_H_cmd, nu_H_cmd[3:], mass_kg, com_H, inertia_H, gravity_W,
+                      max_force_N, max_torque_Nm)
+    f_v = wrench_map @ F
+    p_v = off_p + scale * (off_R @ p_est)
+    R_v = off_R @ R_est
+    return J, p_est, R_est, f_v, p_v, R_v
+
+
+@njit(cache=True)
+def host_command(p_r, R_r, v_r, w_r, accel_r, p_v, R_v, gains, dt_ctrl, integral, nu_cmd, to_handle, tau, J,
+                 joints, ws, sigma0, lam0, k, pred_p, pred_R, dt, obs_x, obs_qd, obs_u, obs_bias, obs_lim,
+                 obs_dt, obs_window, obs_tau, history):
+    """The command half of a period: the PID (``teleop.control.kernels.pid_step`` with the gains
+    (6, 6): kp, ki, kd, integral_limit, max_accel, max_velocity by row), :func:`handle_command`
+    (ws (2, 6): workspace upper, lower), the observer's prediction for SYNC k+1 (obs_lim (2, 6):
+    velocity, acceleration limits; ``history`` row k+1 in place) and :func:`advance_prediction`
+    (pred_p, pred_R in place; the handle twist held for dt s). dt_ctrl, obs_dt: the controller's
+    and the observer's periods (s).
+
+    Returns (nu_V, a_V, e, integral, nu_H, a_H, qd, obs_x, obs_qd, obs_u) (6,) each, and the
+    position and rotation error norms |e[:3]|, |e[3:]|."""
+    nu_r = np.empty(6)
+    nu_r[:3] = v_r
+    nu_r[3:] = w_r
+    nu_V, a_V, e, integ = _pid_step(p_r, R_r, nu_r, accel_r, p_v, R_v, gains[0], gains[1], gains[2], gains[3],
+                                    gains[4], gains[5], dt_ctrl, integral, nu_cmd)
+    e_p = math.sqrt(e[0] * e[0] + e[1] * e[1] + e[2] * e[2])
+    e_r = math.sqrt(e[3] * e[3] + e[4] * e[4] + e[5] * e[5])
+    nu_H, a_H, qd = handle_command(J, to_handle, nu_V, a_V, tau, joints, ws[0], ws[1], sigma0, lam0)
+    x, qdm, u = _observer_predict(obs_x, obs_qd, obs_u, qd, obs_bias, obs_lim[0], obs_lim[1], obs_dt,
+                                  obs_window, obs_tau)
+    history[(k + 1) % history.shape[0]] = x
+    advance_prediction(pred_p, pred_R, k, nu_H, dt)
+    return nu_V, a_V, e, integ, nu_H, a_H, qd, x, qdm, u, e_p, e_r
