@@ -15,6 +15,7 @@ Values are SI (the DBC's units); raw values are the integers on the wire.
 from __future__ import annotations
 
 import math
+import operator
 import struct
 
 from teleop.errors import CanError
@@ -69,6 +70,8 @@ class MessageCodec:
         self.signals = signals
         self.names = tuple(s.name for s in signals)
         self._scale_offset = tuple((s.conversion.scale, s.conversion.offset) for s in signals)
+        self._scales = tuple(sc for sc, _ in self._scale_offset)
+        self._offsets = tuple(off for _, off in self._scale_offset)
         self._to_raw = tuple(s.conversion.numeric_scaled_to_raw for s in signals)
         # cantools' strict encode: the range widened by a millionth of the scale, except for raw
         # values of the signal's value table
@@ -117,4 +120,5 @@ class MessageCodec:
         if self.struct is None:
             raw = self.message.decode(data, decode_choices=False, scaling=False)
             return tuple(raw[n] * sc + off for n, (sc, off) in zip(self.names, self._scale_offset))
-        return tuple(r * sc + off for r, (sc, off) in zip(self.struct.unpack(data), self._scale_offset))
+        # raw * scale + offset per signal, the loop in C
+        return tuple(map(operator.add, map(operator.mul, self.struct.unpack(data), self._scales), self._offsets))

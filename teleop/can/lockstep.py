@@ -18,6 +18,7 @@ from __future__ import annotations
 from collections import deque
 
 import can
+from can.bus import LOG as _LOG  # python-can's own receive log
 
 #: open buses per channel name
 _CHANNELS: dict[str, list["LockstepBus"]] = {}
@@ -44,6 +45,17 @@ class LockstepBus(can.BusABC):
         for peer in self._peers:
             if peer is not self or self.receive_own_messages:
                 peer._queue.append(msg)
+
+    def recv(self, timeout: float | None = None) -> can.Message | None:
+        """:meth:`can.BusABC.recv`; a poll (``timeout=0``) without filters takes the queue's head
+        directly, without the base class's timing loop (same frames, same receive log)."""
+        if timeout != 0.0 or self._filters is not None:
+            return super().recv(timeout)
+        msg = self._queue.popleft() if self._queue else None
+        if msg:
+            _LOG.log(self.RECV_LOGGING_LEVEL, "Received: %s", msg)
+            return msg
+        return None
 
     def _recv_internal(self, timeout: float | None):
         # lockstep: a frame is either queued now or will only come after the caller advances time

@@ -283,8 +283,10 @@ class CobotMaster:
         ctrl, obs = self.ctrl, self.observer
         if not (self.model.closed_form and ctrl.compiled and obs.compiled):
             return None
-        key = (phi, ctrl.gains, obs.vmax, obs.amax, self.cfg)
-        if self._fused_key is None or any(a is not b for a, b in zip(key, self._fused_key)):
+        key = self._fused_key
+        if (key is None or phi is not key[0] or ctrl.gains is not key[1] or obs.vmax is not key[2]
+                or obs.amax is not key[3] or self.cfg is not key[4]):
+            key = (phi, ctrl.gains, obs.vmax, obs.amax, self.cfg)
             self._workspace()
             g, m, cfg = ctrl.gains, self.model, self.cfg
             self._fused_key = key
