@@ -27,3 +27,20 @@ class SolverError(TeleopError):
 
 class CanError(TeleopError):
     """A CAN frame, database or bus problem."""
+
+
+def check_table(d, where: str, known, what: str = "key", hint: str = "") -> None:
+    """Raise ConfigError unless ``d`` is a dict whose keys are all in ``known``.
+
+    The message names ``where`` (the table's dotted path) and the bad key, suggests the closest
+    known key, and lists them all; ``what`` names a key ("fault", "setting"), ``hint`` what the
+    table holds ("a table of fault settings")."""
+    import difflib
+
+    if not isinstance(d, dict):
+        raise ConfigError(f"{where}: expected {hint or 'a table'}, got {type(d).__name__}")
+    for key in d:
+        if key not in known:
+            close = difflib.get_close_matches(str(key), [str(k) for k in known], n=1, cutoff=0.8)
+            guess = f"did you mean {close[0]!r}? " if close else ""
+            raise ConfigError(f"{where}.{key}: unknown {what}; {guess}known: {sorted(known)}")

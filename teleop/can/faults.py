@@ -11,7 +11,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass, fields
 
-from teleop.errors import ConfigError
+from teleop.errors import ConfigError, check_table
 
 
 @dataclass(frozen=True)
@@ -45,12 +45,7 @@ class Faults:
 
     @classmethod
     def from_dict(cls, d: dict, where: str = "faults") -> "Faults":
-        if not isinstance(d, dict):
-            raise ConfigError(f"{where}: expected a table of fault settings, got {type(d).__name__}")
-        known = {f.name for f in fields(cls)}
-        for key in d:
-            if key not in known:
-                raise ConfigError(f"{where}.{key}: unknown fault; known: {sorted(known)}")
+        check_table(d, where, {f.name for f in fields(cls)}, "fault", "a table of fault settings")
         try:
             return cls(**d)
         except ConfigError as e:

@@ -19,7 +19,7 @@ from dataclasses import dataclass, field, fields
 import numpy as np
 
 from teleop.contact.cutting import CuttingModel
-from teleop.errors import ConfigError
+from teleop.errors import ConfigError, check_table
 
 
 @dataclass(frozen=True, eq=False)
@@ -77,13 +77,9 @@ class TissueBlock:
     @classmethod
     def from_dict(cls, d: dict, where: str = "tissue") -> "TissueBlock":
         """Build from a table; cutting coefficients sit in a sub-table ``cutting``."""
-        if not isinstance(d, dict):
-            raise ConfigError(f"{where}: expected a table, got {type(d).__name__}")
-        known = {f.name for f in fields(cls)}
+        check_table(d, where, {f.name for f in fields(cls)})
         kw = {}
         for key, val in d.items():
-            if key not in known:
-                raise ConfigError(f"{where}.{key}: unknown key; known keys: {sorted(known)}")
             if key == "cutting":
                 ck = {f.name for f in fields(CuttingModel)}
                 if not isinstance(val, dict) or set(val) - ck:

@@ -23,7 +23,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from teleop.dynamics import constraints as C
-from teleop.errors import ConfigError
+from teleop.errors import ConfigError, check_table
 
 
 def _rotation(R, name: str) -> np.ndarray:
@@ -66,10 +66,7 @@ class Registration:
         """Keys: position_m (3), rpy_rad (3), scale, force_scale, torque_scale."""
         import pinocchio as pin
 
-        known = ("position_m", "rpy_rad", "scale", "force_scale", "torque_scale")
-        for k in d:
-            if k not in known:
-                raise ConfigError(f"{where}.{k}: unknown key; known keys: {list(known)}")
+        check_table(d, where, ("position_m", "rpy_rad", "scale", "force_scale", "torque_scale"))
         rpy = np.asarray(d.get("rpy_rad", (0.0, 0.0, 0.0)), dtype=float)
         if rpy.shape != (3,) or not np.all(np.isfinite(rpy)):
             raise ConfigError(f"{where}.rpy_rad: expected 3 finite angles, got {d.get('rpy_rad')!r}")

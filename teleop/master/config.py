@@ -8,7 +8,7 @@ from dataclasses import dataclass, field, fields
 import numpy as np
 
 from teleop.can.faults import Faults
-from teleop.errors import ConfigError
+from teleop.errors import ConfigError, check_table
 
 PREFIX = "cobot"
 
@@ -121,12 +121,7 @@ class CobotConfig:
     def from_dict(cls, d: dict, where: str = "cobot") -> "CobotConfig":
         """Build from a scene's table; unknown keys and bad values raise ConfigError naming
         ``f"{where}.{key}"`` and the reason."""
-        if not isinstance(d, dict):
-            raise ConfigError(f"{where}: expected a table, got {type(d).__name__}")
-        known = {f.name for f in fields(cls)}
-        for key in d:
-            if key not in known:
-                raise ConfigError(f"{where}.{key}: unknown setting; known: {sorted(known)}")
+        check_table(d, where, {f.name for f in fields(cls)}, "setting")
         kw = dict(d)
         if "faults" in kw:
             kw["faults"] = Faults.from_dict(kw["faults"], f"{where}.faults")

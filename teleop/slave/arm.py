@@ -19,7 +19,7 @@ from pathlib import Path
 import numpy as np
 import pinocchio as pin
 
-from teleop.errors import ConfigError
+from teleop.errors import ConfigError, check_table
 from teleop.slave.limits import JointLimits
 from teleop.slave.solvers import installed_solvers
 
@@ -101,21 +101,14 @@ class SlaveConfig:
 
     @classmethod
     def from_dict(cls, d: dict, where: str = "slave") -> "SlaveConfig":
-        if not isinstance(d, dict):
-            raise ConfigError(f"{where}: expected a table, got {type(d).__name__}")
-        known = {f.name for f in fields(cls)}
-        for key in d:
-            if key not in known:
-                raise ConfigError(f"{where}.{key}: unknown key; known keys: {sorted(known)}")
+        check_table(d, where, {f.name for f in fields(cls)})
         kw = {}
         arm = d.get("arm", "panda")
         if isinstance(arm, str):
             if arm not in ARMS:
                 raise ConfigError(f"{where}.arm: unknown arm {arm!r}; expected one of {sorted(ARMS)} or a table")
         elif isinstance(arm, dict):
-            for k in arm:
-                if k not in ("urdf", "flange", "q0", "a_max", "package_dirs"):
-                    raise ConfigError(f"{where}.arm.{k}: unknown key")
+            check_table(arm, f"{where}.arm", ("urdf", "flange", "q0", "a_max", "package_dirs"))
             if "urdf" not in arm or "flange" not in arm:
                 raise ConfigError(f"{where}.arm: a URDF arm needs both 'urdf' and 'flange'")
             if not Path(arm["urdf"]).is_file():
