@@ -28,6 +28,14 @@ PANELS = {
     ],
 }
 FIGURE_NAME = {"rolling_disk": "figure8", "sphere": "figure10", "scalpel": "scalpel"}
+# the slave's side of a run with a slave (patient frame); the RCM panel only where a trocar is
+SLAVE_PANELS = [
+    ("slave_track_m", "A) tip tracking error [µm]", 1e6),
+    ("slave_depth_err_m", "B) cut depth error [µm]", 1e6),
+    ("slave_dir_err_rad", "C) cut direction error [mrad]", 1e3),
+    ("slave_contact_N", "D) tissue contact force [N]", 1.0),
+    ("slave_rcm_m", "E) trocar (RCM) error [µm]", 1e6),
+]
 
 
 def _kind(log) -> str | None:
@@ -68,6 +76,8 @@ def plot_log(log_path, out_dir) -> list[Path]:
         fig.savefig(path, dpi=110)
         plt.close(fig)
         written.append(path)
+    if "slave_contact_N" in log:
+        written.append(_plot_slave(plt, log, summary, out_dir / "incision.png"))
     fig, ax = plt.subplots(figsize=(7, 2.2))
     ax.plot(log["t"], log["tick_us"], lw=0.5)
     ax.set_xlabel("time [s]")
@@ -79,3 +89,21 @@ def plot_log(log_path, out_dir) -> list[Path]:
     plt.close(fig)
     written.append(path)
     return written
+
+
+def _plot_slave(plt, log, summary, path: Path) -> Path:
+    """The slave's panels of ``SLAVE_PANELS`` against time: tracking, depth, direction, the tissue
+    force that goes back to the operator, and the trocar error when the scene has one."""
+    panels = [p for p in SLAVE_PANELS if p[0] in log and (p[0] != "slave_rcm_m" or np.any(log[p[0]] > 0))]
+    fig, axes = plt.subplots(len(panels), 1, figsize=(7, 1.8 * len(panels)), sharex=True)
+    t = log["t"][: len(log[panels[0][0]])]
+    for ax, (key, label, scale) in zip(axes, panels):
+        ax.plot(t, log[key] * scale, lw=0.8)
+        ax.set_ylabel(label, fontsize=8)
+        ax.grid(alpha=0.3)
+    axes[-1].set_xlabel("time [s]")
+    fig.suptitle(f"{summary['scenario']}: the slave ({summary['master']} master)", fontsize=9)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    return path

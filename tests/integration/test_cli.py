@@ -63,3 +63,13 @@ def test_replay_writes_a_recording_of_a_logged_run(tmp_path, capsys):
     assert main(["replay", str(tmp_path / "run")]) == 0
     assert (tmp_path / "run" / "recording.html").stat().st_size > 100_000
     assert "replayed" in capsys.readouterr().out
+
+
+def test_an_incision_run_plots_the_slave_and_its_contact_force(tmp_path):
+    """Issue #4: the contact force against time, with the slave's tracking, depth and direction."""
+    import numpy as np
+
+    assert main(["run", "straight_incision", "--duration", "1.5", "--out", str(tmp_path)]) == 0
+    assert (tmp_path / "incision.png").stat().st_size > 5000
+    log = np.load(tmp_path / "log.npz")
+    assert log["slave_contact_N"].max() > 0 and len(log["slave_contact_N"]) == 1500
