@@ -67,6 +67,14 @@ class IdealMaster:
     def virtual_twist(self):
         return self.tool.twist()
 
+    def virtual_estimate(self):
+        """The virtual tool for the slave (p, R, v, w): here the tool itself."""
+        return (*self.tool.pose(), *self.tool.twist())
+
+    def hand_state(self):
+        """What the operator's hand touches: the tool itself (p, R, v, w)."""
+        return (*self.tool.pose(), *self.tool.twist())
+
     def stats(self) -> dict:
         return {}
 
@@ -134,14 +142,15 @@ def run_scene(scene: Scene, progress=None, realtime: bool = False, operator=None
     with make_master(scene, tool, rng) as master:
         for i in range(n):
             t0 = time.perf_counter_ns()
-            p_v, R_v = master.virtual_pose()
+            p_v, R_v = master.virtual_pose()  # what the encoders measure: the metrics
             v_v, w_v = master.virtual_twist()
-            wrench = operator.wrench(i * scene.dt_s, p_v, R_v, v_v, w_v)
+            # the hand acts on the handle itself, not on the host's estimate of it
+            wrench = operator.wrench(i * scene.dt_s, *master.hand_state())
             if hasattr(operator, "clutch_engaged"):  # the operator reads the clutch pedal too
                 master.set_clutch(operator.clutch_engaged)
             st = master.step(wrench, contact)
             if slave is not None:
-                contact = slave.step(*master.virtual_pose(), *master.virtual_twist())
+                contact = slave.step(*master.virtual_estimate())
                 if tremor is not None:
                     tremor.update(i * scene.dt_s, R_v, slave.log["tip"][i])
             t1 = time.perf_counter_ns()

@@ -382,6 +382,28 @@ class CobotMaster:
         nu = self.clutch.phi.twist_to_virtual(self.model.compute_jacobian(obs.x) @ obs.rates)
         return nu[:3], nu[3:]
 
+    def virtual_estimate(self):
+        """(p, R, v, w) of the virtual tool from the joint observer: its pose and twist (m, -, m/s,
+        rad/s) estimated below the encoders' 25 µm / 0.5 mrad resolution, for the slave's target.
+        The raw read-outs (:meth:`virtual_pose`) stay what the metrics use, as in the paper."""
+        obs, phi = self.observer, self.clutch.phi
+        p_H, R_H = self.model.compute_handle_pose(obs.x)
+        nu = phi.twist_to_virtual(self.model.compute_jacobian(obs.x) @ obs.rates)
+        return (*phi.compute_virtual_pose(p_H, R_H), nu[:3], nu[3:])
+
+    def hand_state(self):
+        """(p, R, v, w) of the handle the operator's hand holds, through φ into the virtual tool's
+        space (m, -, m/s, rad/s). On the simulated device it is the handle's true state, so that a
+        simulated hand's stiffness and damping act on the physical handle as a real hand's do
+        (through the host's encoder estimate they would add its quantization and lag to the hand);
+        on hardware, where a real hand needs no model, the encoder read-outs."""
+        if self.sim is None:
+            return (*self.virtual_pose(), *self.virtual_twist())
+        dev, phi = self.device, self.clutch.phi
+        p_H, R_H = self.model.compute_handle_pose(dev.joints)
+        nu = phi.twist_to_virtual(self.model.compute_jacobian(dev.joints) @ dev.qd)
+        return (*phi.compute_virtual_pose(p_H, R_H), nu[:3], nu[3:])
+
     def stats(self) -> dict:
         out = {"can_bus_load_pct": 0.0, "can_frames_lost": 0}
         if self.sim is not None:

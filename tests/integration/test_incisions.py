@@ -87,3 +87,18 @@ def test_cut_through_a_faulty_can_bus():
     assert m["tip_tracking_rms_m"] <= 1e-4
     assert m["cut_depth_error_max_m"] <= 5e-5
     assert m["cut_length_m"] > 0.03
+
+
+def test_straight_incision_through_the_cobot():
+    """`teleop run straight_incision --master cobot`: the light scalpel (2e-5 kg m^2 about the
+    blade) rendered by the CAN cobot while cutting. The slave follows the observer's estimate of
+    the virtual tool; following the raw 25 µm / 0.5 mrad read-outs, the quantization reached the
+    cutting force (steep in speed) and the loop went into a 0.5 m/s limit cycle. Issue #4's bounds."""
+    s = run_scene(load_scene("straight_incision").with_overrides(master="cobot")).summary
+    m = s["metrics"]
+    assert s["status"] == "ok" and not s["nan"] and s["watchdog_trips"] == 0
+    assert m["tip_tracking_rms_m"] <= 1e-4
+    assert m["cut_depth_error_max_m"] <= 5e-5
+    assert m["cut_direction_error_max_rad"] <= 1e-3
+    assert m["cut_speed_max_m_per_s"] <= 0.04  # the hand's 30 mm/s at the master, no limit cycle
+    assert m["cut_length_m"] == pytest.approx(0.05, abs=0.003)
