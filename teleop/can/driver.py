@@ -238,6 +238,10 @@ class CobotDriver:
             self._trip("heartbeat", f"no device heartbeat for {self.hb_timeout} s")
         return self.fault
 
+    def latch_fault(self, fault: str, why: str) -> None:
+        """Latch a host-side fault (from then on zero velocity, mode 0), logged with ``why``."""
+        self._trip(fault, why)
+
     def _trip(self, fault: str, why: str) -> None:
         if self.fault is None:
             self.fault = fault

@@ -247,6 +247,8 @@ class CobotMaster:
         self._workspace()
         if self.clutch.engaged:
             nu_V, a_V, st = self._admittance(phi, F_hand_W, contact_wrench_W)
+            e = self.ctrl.error
+            st = self._check_tracking(float(np.linalg.norm(e[:3])), float(np.linalg.norm(e[3:])), st)
             nu_H, a_H, qd = handle_command(J, phi.twist_map_to_handle, nu_V, a_V, self.tau_s, joints,
                                            self._ws_hi, self._ws_lo, DLS_SIGMA0, DLS_LAMBDA0)
         else:
@@ -261,6 +263,17 @@ class CobotMaster:
         self._link_cycle_end()
         self.steps += 1
         self.status = st
+        return st
+
+    def _check_tracking(self, e_p: float, e_r: float, st: str) -> str:
+        """Latch "tracking_error" when the virtual tool is ``tracking_fault_m`` / ``_rad`` from the
+        reference tool (m, rad): the device cannot render it (an end stop, a limit cycle). This
+        period's command still goes out; from the next one the device holds at zero velocity."""
+        cfg = self.cfg
+        if st == "ok" and (e_p > cfg.tracking_fault_m or e_r > cfg.tracking_fault_rad):
+            self.driver.latch_fault("tracking_error", f"|q_r - q_v| = {e_p:.4g} m, {e_r:.4g} rad, beyond "
+                                    f"{cfg.tracking_fault_m} m / {cfg.tracking_fault_rad} rad")
+            return "tracking_error"
         return st
 
     def _fault(self, k: int, fault: str) -> str:
@@ -323,6 +336,7 @@ class CobotMaster:
                                   obs.dt, obs.window, obs.tau, obs.history)
         err = self.err_max
         self.err_max = (max(err[0], e_p), max(err[1], e_r))
+        st = self._check_tracking(e_p, e_r, st)
         drv.send_command(qd, self.vmax)
         self.nu_H_cmd, self.accel_H_cmd = nu_H, a_H
         self._link_cycle_end()

@@ -65,6 +65,10 @@ class CobotConfig:
     channel: str | None = None  #: python-can channel; None: a fresh private channel
     read_window_s: float = 3e-4  #: host reads feedback and sends commands this long after SYNC, s
     stale_cycles: int = 3  #: cycles without fresh feedback that trip the watchdog
+    #: |q_r - q_v| that latches the fault "tracking_error" (the device has lost the reference tool:
+    #: zero velocity, the tool held), m and rad in the virtual tool's space
+    tracking_fault_m: float = 0.02
+    tracking_fault_rad: float = 0.35
     heartbeat_period_s: float = 0.01  #: host and device heartbeat period, s
     heartbeat_timeout_s: float = 0.05  #: device heartbeat timeout at the host, s
     tare_cycles: int = 20  #: start-up cycles averaged to tare the load cell
@@ -86,6 +90,8 @@ class CobotConfig:
         s(self, "servo_bandwidth_hz", _num(self.servo_bandwidth_hz, "servo_bandwidth_hz", 0.0, 1e4, lo_open=True))
         for key in ("encoder_m", "encoder_rad"):
             s(self, key, _num(getattr(self, key), key, 0.0, 1e-2, lo_open=True))
+        for key in ("tracking_fault_m", "tracking_fault_rad"):
+            s(self, key, _num(getattr(self, key), key, 0.0, 100.0, lo_open=True))
         for key in ("force_noise_N", "torque_noise_Nm", "workspace_margin_m"):
             s(self, key, _num(getattr(self, key), key, 0.0, 10.0))
         for key in ("max_force_N", "max_torque_Nm"):

@@ -73,3 +73,27 @@ def test_silent_device_trips_watchdog_within_three_cycles():
 def test_bus_off_is_reported():
     statuses, _, stats, m = run({"bus_off_at_s": 0.1}, 300)
     assert statuses[-1] == "bus_off" and stats["link_fault"] == "bus_off"
+
+
+def test_a_device_out_of_travel_latches_a_tracking_fault_and_stops():
+    """A free tool pushed at 20 N runs past the gantry's 0.4 m travel; the device stops at its
+    workspace limit and the reference tool runs on. Beyond tracking_fault_m the master latches
+    "tracking_error", commands zero velocity and holds the tool, instead of letting it run away."""
+    tool = ReferenceTool(RigidBody(0.25, [0.0025] * 3), fixtures.free(), [LinearDamper(1.0), AngularDamper(0.1)],
+                         integrator="parametric")
+    tool.reset([0.3, 0.0, 0.0, 0.0, 0.0, 0.0])
+    m = CobotMaster(tool, CobotConfig.from_dict({}, "cobot"), 1e-3, np.random.default_rng(3))
+    statuses = []
+    with m:
+        for _ in range(3000):
+            statuses.append(m.step(np.array([20.0, 0.0, 0.0, 0.0, 0.0, 0.0]), None))
+            if statuses[-1] != "ok":
+                break
+        assert statuses[-1] == "tracking_error" and set(statuses[:-1]) == {"ok"}
+        stats = m.stats()
+        assert stats["link_fault"] == "tracking_error" and 0.02 < stats["tracking_error_max_m"] < 0.03
+        q_held = tool.q.copy()
+        for _ in range(5):  # latched: zero velocity reaches the device, the tool is held
+            assert m.step(np.array([20.0, 0.0, 0.0, 0.0, 0.0, 0.0]), None) == "tracking_error"
+        assert np.all(m.device.qd_cmd == 0.0) and np.array_equal(tool.q, q_held)
+        assert np.all(np.isfinite(m.virtual_pose()[0]))

@@ -27,3 +27,10 @@ def test_vectors_and_faults():
 def test_errors_name_where_and_key(d, key, why):
     with pytest.raises(ConfigError, match=rf"^scene\.cobot\.{key}: .*{why}"):
         CobotConfig.from_dict(d, "scene.cobot")
+
+
+@pytest.mark.parametrize("key, bad", [("tracking_fault_m", 0.0), ("tracking_fault_rad", -1.0),
+                                      ("tracking_fault_m", float("nan"))])
+def test_tracking_fault_thresholds_must_be_positive(key, bad):
+    with pytest.raises(ConfigError, match=f"cobot.{key}"):
+        CobotConfig.from_dict({key: bad}, "cobot")
