@@ -101,4 +101,5 @@ def test_straight_incision_through_the_cobot():
     assert m["cut_depth_error_max_m"] <= 5e-5
     assert m["cut_direction_error_max_rad"] <= 1e-3
     assert m["cut_speed_max_m_per_s"] <= 0.04  # the hand's 30 mm/s at the master, no limit cycle
+    assert m["blade_tilt_max_rad"] <= 2e-3  # φ turned: the wrist is off its end stop
     assert m["cut_length_m"] == pytest.approx(0.05, abs=0.003)
