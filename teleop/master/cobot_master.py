@@ -90,6 +90,7 @@ class CobotMaster:
         p_r, R_r = tool.pose()
         p_H, R_H = self.clutch.phi.compute_handle_pose(p_r, R_r)
         joints0 = self.model.compute_joints(p_H, R_H)
+        self._warn_end_stops(joints0)
         params = DeviceParams(cfg.servo_bandwidth_hz, cfg.max_velocity, cfg.max_acceleration, cfg.encoder_m,
                               cfg.encoder_rad, cfg.force_noise_N, cfg.torque_noise_Nm, cfg.force_bias_N,
                               cfg.torque_bias_Nm)
@@ -404,6 +405,17 @@ class CobotMaster:
         p_H, R_H = self.model.compute_handle_pose(obs.x)
         nu = phi.twist_to_virtual(self.model.compute_jacobian(obs.x) @ obs.rates)
         return (*phi.compute_virtual_pose(p_H, R_H), nu[:3], nu[3:])
+
+    def _warn_end_stops(self, joints0) -> None:
+        """Log a warning when the tool's start pose puts a device joint outside its travel: the
+        device starts on its end stop and renders that pose off by the excess (m or rad)."""
+        lo, hi = self.model.lower, self.model.upper
+        for i in np.flatnonzero((joints0 < lo) | (joints0 > hi)):
+            self.log.warning(
+                "cobot: the tool's start pose needs device joint %d at %.4g, outside its travel [%.4g, %.4g]; "
+                "the device starts on its end stop. Move the tool with cobot.offset_m, or turn it with "
+                "cobot.offset_rotvec_rad (a tool pointing straight down: [1.5708, 0, 0])",
+                i, joints0[i], lo[i], hi[i])
 
     def hand_state(self):
         """(p, R, v, w) of the handle the operator's hand holds, through φ into the virtual tool's

@@ -97,3 +97,20 @@ def test_a_device_out_of_travel_latches_a_tracking_fault_and_stops():
             assert m.step(np.array([20.0, 0.0, 0.0, 0.0, 0.0, 0.0]), None) == "tracking_error"
         assert np.all(m.device.qd_cmd == 0.0) and np.array_equal(tool.q, q_held)
         assert np.all(np.isfinite(m.virtual_pose()[0]))
+
+
+def test_a_start_pose_beyond_the_wrist_travel_is_warned_about(caplog):
+    """A tool pointing straight down needs the Z-X-Z wrist's X joint at pi, past its end stop: the
+    master says which joint and which setting turns the tool; turned, nothing is said."""
+    for rotvec, warned in (([0.0, 0.0, 0.0], True), ([np.pi / 2, 0.0, 0.0], False)):
+        tool = ReferenceTool(RigidBody(0.25, [0.0025] * 3), fixtures.free(), [], integrator="parametric")
+        tool.reset([0.0, 0.0, 0.0, 0.0, 0.0, np.pi])  # ZYX: roll pi, the body z axis down
+        caplog.clear()
+        with caplog.at_level("WARNING", logger="teleop.master.cobot_master"):
+            with CobotMaster(tool, CobotConfig.from_dict({"offset_rotvec_rad": rotvec}, "cobot"), 1e-3,
+                             np.random.default_rng(0)):
+                pass
+        said = [r.getMessage() for r in caplog.records if "end stop" in r.getMessage()]
+        assert bool(said) == warned
+        if warned:
+            assert "joint 4" in said[0] and "cobot.offset_rotvec_rad" in said[0]
