@@ -91,6 +91,7 @@ class CobotMaster:
         p_H, R_H = self.clutch.phi.compute_handle_pose(p_r, R_r)
         joints0 = self.model.compute_joints(p_H, R_H)
         self._warn_end_stops(joints0)
+        self._warn_light_tool(tool)
         params = DeviceParams(cfg.servo_bandwidth_hz, cfg.max_velocity, cfg.max_acceleration, cfg.encoder_m,
                               cfg.encoder_rad, cfg.force_noise_N, cfg.torque_noise_Nm, cfg.force_bias_N,
                               cfg.torque_bias_Nm)
@@ -416,6 +417,19 @@ class CobotMaster:
                 "the device starts on its end stop. Move the tool with cobot.offset_m, or turn it with "
                 "cobot.offset_rotvec_rad (a tool pointing straight down: [1.5708, 0, 0])",
                 i, joints0[i], lo[i], hi[i])
+
+    def _warn_light_tool(self, tool) -> None:
+        """Log a warning when the rendered tool is lighter than the handle behind the load cell.
+        The load cell feels that handle's inertia, compensated from the commanded motion; below it,
+        what the compensation misses outweighs the tool, and the loop is stable only with a hand's
+        damping on the handle (a scripted force alone ends on the tracking fault)."""
+        m_tool, m_handle = getattr(getattr(tool, "body", None), "mass_kg", None), self.model.handle_mass_kg
+        s2 = self.cfg.scale ** 2  # p_V = s p_H: the tool's mass m appears at the handle as s^2 m
+        if m_tool is not None and m_tool * s2 < m_handle:
+            self.log.warning(
+                "cobot: the tool renders %.4g kg at the handle, lighter than the %.4g kg of handle behind the "
+                "load cell; it is stable only with a hand's damping on the handle. Render at least %.4g kg "
+                "(tool.mass_kg)", m_tool * s2, m_handle, m_handle / s2)
 
     def hand_state(self):
         """(p, R, v, w) of the handle the operator's hand holds, through φ into the virtual tool's

@@ -114,3 +114,19 @@ def test_a_start_pose_beyond_the_wrist_travel_is_warned_about(caplog):
         assert bool(said) == warned
         if warned:
             assert "joint 4" in said[0] and "cobot.offset_rotvec_rad" in said[0]
+
+
+def test_a_tool_lighter_than_the_handle_is_warned_about(caplog):
+    """The load cell carries 0.15 kg of handle; a tool rendered lighter than that (after φ's scale:
+    s^2 m at the handle) is stable only with a hand's damping, and the master says so."""
+    for mass, scale, warned in ((0.1, 1.0, True), (0.25, 1.0, False), (0.1, 2.0, False)):
+        tool = ReferenceTool(RigidBody(mass, [0.0025] * 3), fixtures.free(), [], integrator="parametric")
+        tool.reset([0.0, 0.0, 0.0, 0.0, 0.0, 0.0])
+        caplog.clear()
+        with caplog.at_level("WARNING", logger="teleop.master.cobot_master"):
+            with CobotMaster(tool, CobotConfig.from_dict({"scale": scale}, "cobot"), 1e-3, np.random.default_rng(0)):
+                pass
+        said = [r.getMessage() for r in caplog.records if "behind the load cell" in r.getMessage()]
+        assert bool(said) == warned, (mass, scale)
+        if warned:
+            assert "tool.mass_kg" in said[0] and "0.15" in said[0]

@@ -61,6 +61,17 @@ def test_curved_incision_steers_on_the_knife_edge():
     assert np.ptp(heading) > 0.3  # it really turned
 
 
+def test_curved_incision_through_the_cobot():
+    """The knife-edge steering rendered by the CAN cobot (a 0.25 kg tool, above the handle's mass
+    behind the load cell; φ turned so the wrist starts off its end stop). Issue #4's bounds."""
+    r = run_scene(load_scene("curved_incision").with_overrides(master="cobot"))
+    s, m = r.summary, r.summary["metrics"]
+    assert s["status"] == "ok" and not s["nan"] and s["tracking_error_max_m"] < 1e-3
+    assert m["tip_tracking_rms_m"] <= 1e-4 and m["cut_depth_error_max_m"] <= 5e-5
+    assert m["cut_direction_error_max_rad"] <= 1e-3 and m["blade_tilt_max_rad"] <= 2e-3
+    assert np.ptp(r.log["q_r"][:, 3]) > 0.3  # it really turned
+
+
 def test_tremor_is_removed_across_the_cut():
     s = run_scene(load_scene("tremor_incision")).summary
     m = s["metrics"]
