@@ -132,7 +132,7 @@ def sweep(seconds: float):
 
 
 INCISION = "straight_incision"
-SHIPPED_SOLVER = "daqp"  # what the incision scenes ship with (library default: osqp, issue #4)
+SHIPPED_SOLVER = "osqp"  # what the incision scenes ship with: the library default (issue #4), in the base install
 SOLVERS = (("osqp", 1e-3), ("osqp", 1e-5), ("osqp", 1e-7), ("proxqp", 1e-3), ("proxqp", 1e-7), ("daqp", None), ("quadprog", None))
 
 

@@ -21,7 +21,7 @@ import pinocchio as pin
 
 from teleop.errors import ConfigError, check_table
 from teleop.slave.limits import JointLimits
-from teleop.slave.solvers import installed_solvers
+from teleop.slave.solvers import PACKAGES, installed_solvers
 
 ROBOTS_DIR = Path(__file__).resolve().parents[2] / "robots"
 SCALPEL_URDF = ROBOTS_DIR / "scalpel" / "scalpel.urdf"
@@ -137,7 +137,9 @@ class SlaveConfig:
             kw["q0"] = _vec(where, "q0", d["q0"])
         solver = d.get("solver", "osqp")
         if solver not in installed_solvers():
-            raise ConfigError(f"{where}.solver: unknown QP solver {solver!r}; installed: {list(installed_solvers())}")
+            known = (f"QP solver {solver!r} is supported but not installed (pip install {PACKAGES[solver]})"
+                     if solver in PACKAGES else f"unknown QP solver {solver!r}")
+            raise ConfigError(f"{where}.solver: {known}; installed: {list(installed_solvers())}")
         kw["solver"] = solver
         fallback = d.get("fallback", "dls")
         if fallback not in ("dls", "hold"):

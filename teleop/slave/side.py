@@ -48,7 +48,8 @@ class SlaveSide:
                     tissue = replace(tissue, cutting=CuttingModel(0.0, 0.0, 0.0, 0.0))
                 self.tissue = tissue
         except ConfigError as e:
-            raise SceneError(scene.path, str(e).split(":")[0], str(e)) from None
+            key, _, reason = str(e).partition(": ")
+            raise SceneError(scene.path, key, reason) from None
         self.tip_B = np.asarray(scene.fixture.tip_m, dtype=float)
         # Force feedback through a first-order low-pass. The cutting force is steep in velocity
         # (~2000 N*s/m below 1 mm/s); fed raw to a light reference tool integrated explicitly with

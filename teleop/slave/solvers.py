@@ -223,6 +223,7 @@ class QuadprogSolver(QPSolver):
 
 
 SOLVERS = {"osqp": OsqpSolver, "daqp": DaqpSolver, "proxqp": ProxqpSolver, "quadprog": QuadprogSolver}
+PACKAGES = {"osqp": "osqp", "daqp": "daqp", "proxqp": "proxsuite", "quadprog": "quadprog"}  # pip names
 
 
 def installed_solvers() -> tuple[str, ...]:

@@ -1,5 +1,7 @@
 """SlaveConfig parsing, model building, solver registry and joint-limit bounds."""
 
+from pathlib import Path
+
 import numpy as np
 import pytest
 
@@ -67,6 +69,38 @@ def test_unknown_solver_lists_installed():
     for name in installed_solvers():
         assert name in str(exc.value)
     assert set(installed_solvers()) >= {"osqp", "daqp", "quadprog", "proxqp"}
+
+
+def test_a_supported_solver_that_is_not_installed_says_how_to_install_it(monkeypatch):
+    import teleop.slave.arm as arm
+
+    monkeypatch.setattr(arm, "installed_solvers", lambda: ("osqp",))
+    with pytest.raises(ConfigError, match=r"^slave\.solver: QP solver 'proxqp' is supported but not installed "
+                                          r"\(pip install proxsuite\); installed: \['osqp'\]$"):
+        SlaveConfig.from_dict({"solver": "proxqp"}, "slave")
+
+
+def test_shipped_scenes_run_on_the_base_install():
+    """The README's first command installs no test extras: a shipped scene may only name the QP
+    solver of the base dependencies (OSQP; daqp, proxqp, quadprog come with the test extras)."""
+    from teleop.scenario.schema import list_scenes, load_scene
+
+    for name in list_scenes():
+        assert load_scene(name).extra.get("slave", {}).get("solver", "osqp") == "osqp", name
+
+
+def test_scene_errors_name_the_key_once(tmp_path):
+    from teleop.errors import SceneError
+    from teleop.scenario.schema import load_scene
+    from teleop.slave.side import SlaveSide
+
+    text = (Path(load_scene("straight_incision").path).read_text()
+            .replace('arm = "panda"', 'arm = "panda"\nsolver = "gurobi"'))
+    path = tmp_path / "bad.toml"
+    path.write_text(text)
+    with pytest.raises(SceneError) as exc:
+        SlaveSide(load_scene(str(path)), 10)
+    assert str(exc.value) == f"{path}: slave.solver: unknown QP solver 'gurobi'; installed: {list(installed_solvers())}"
 
 
 def test_limits_bounds():
