@@ -42,8 +42,9 @@ from teleop.dynamics.multipliers import (
 from teleop.dynamics.rotations import EulerChart, cross, rate_map_terms
 
 
+# no wrench; the kernels only read it. Writable on purpose: a read-only array is another numba type,
+# and passing one would compile the kernel a second time in mid-run
 _ZERO6 = np.zeros(6)
-_ZERO6.setflags(write=False)
 
 
 def _wrench6(F) -> np.ndarray:

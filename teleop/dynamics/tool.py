@@ -98,14 +98,21 @@ class ReferenceTool:
     def step(self, h: float, operator_W=None) -> str:
         """Advance by h s under the operator wrench (6,: N, N*m, world, at the body origin).
 
-        Returns the status. Never raises: on a singular or non-finite step the tool holds its last
-        valid pose with zero velocity (the safe state of an admittance display).
+        Returns the status. Never raises: an input that is not 6 finite numbers is dropped (status
+        "nan"); on a singular or non-finite step the tool holds its last valid pose with zero
+        velocity (the safe state of an admittance display).
         """
         s = self.state
         saved = (s.chart, s.q, s.qd, s.t, s.z, s.zd)  # integrators replace arrays, never mutate them
-        bad_input = operator_W is not None and not math.isfinite(float(operator_W @ operator_W))
+        bad_input = False
+        if operator_W is not None:  # 6 finite floats, or dropped: the kernels index it unchecked
+            try:
+                operator_W = np.asarray(operator_W, dtype=float)
+                bad_input = operator_W.shape != (6,) or not math.isfinite(float(operator_W @ operator_W))
+            except (TypeError, ValueError):
+                bad_input = True
         if bad_input:
-            operator_W = None  # a non-finite input never reaches the math
+            operator_W = None  # a non-finite or misshapen input never reaches the math
         try:
             ev = self.integrator.step(self.model, s, h, operator_W)
             x, y, z, a, b, c = s.qd.tolist()  # scalar arithmetic: cheaper than numpy for 6 values

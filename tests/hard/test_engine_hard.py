@@ -91,6 +91,31 @@ def test_non_finite_operator_wrench_never_reaches_the_math(bad):
     assert tool.step(1e-3, np.zeros(6)) == "ok"  # and it recovers on the next good input
 
 
+@pytest.mark.parametrize("integrator", sorted(INTEGRATORS))
+@pytest.mark.parametrize("bad", [np.ones(3), np.ones((2, 3)), "push", [1.0] * 7])
+def test_a_misshapen_operator_wrench_is_dropped_by_every_integrator(integrator, bad):
+    """The compiled kernels index the wrench unchecked: a wrench that is not 6 numbers must never
+    reach them (the Lie-group step once returned 'ok' with garbage accelerations for a 3-vector)."""
+    tool = _sphere_tool(integrator)
+    q_before = tool.q.copy()
+    assert tool.step(1e-3, bad) == "nan"
+    np.testing.assert_allclose(tool.q, q_before, atol=1e-12)
+    assert tool.step(1e-3, np.zeros(6)) == "ok"
+
+
+def test_no_operator_wrench_needs_no_second_compilation():
+    """A step without an operator wrench runs the same compiled evaluation as one with it (a
+    read-only zero wrench was a second numba type: a second compilation in mid-run)."""
+    from teleop.dynamics import kernels
+
+    tool = _sphere_tool("parametric")
+    tool.step(1e-3, np.zeros(6))
+    n = len(kernels.evaluate.signatures)
+    tool.step(1e-3, None)
+    tool.step(1e-3, np.array([np.nan, 0, 0, 0, 0, 0]))
+    assert len(kernels.evaluate.signatures) == n
+
+
 def test_singular_step_goes_to_safe_state():
     """A body so light that a finite push overflows the acceleration: the step fails, the tool holds."""
     tool = ReferenceTool(RigidBody(1e-300, [1e-300] * 3), fixtures.free("ZYX"), integrator="parametric")
