@@ -89,8 +89,9 @@ def test_tremor_effect_off_means_no_tremor():
     assert "tremor_in_rms_m" not in run_scene(scene).summary["metrics"]
 
 
-def test_cut_through_a_faulty_can_bus():
-    s = run_scene(load_scene("can_faults_incision")).summary
+@pytest.mark.parametrize("seed", [None, 3])
+def test_cut_through_a_faulty_can_bus(seed):
+    s = run_scene(load_scene("can_faults_incision").with_overrides(seed=seed)).summary
     m = s["metrics"]
     assert s["status"] == "ok" and not s["nan"]
     assert s["can_frames_lost"] > 500  # 5 % of ~2 x 7000 x frames per cycle
