@@ -31,7 +31,6 @@ import math
 
 import numpy as np
 import pinocchio as pin
-from numba.core.errors import NumbaError
 from scipy.linalg.lapack import dgesv
 
 from teleop.slave import kernels
@@ -126,13 +125,12 @@ class FollowerQP:
     def build(self, q, J, T, p_t, R_t, v_t, w_t, q_post, lb, ub):
         """Fill the linear system from the state (q rad, J, the tool's pose matrix T (4, 4)) and the
         target; keep the bounds lb, ub (nv,) rad/s. Returns the pose error e (6,), a buffer valid
-        until the next build, or None when the target is not finite (the system is then unusable)."""
+        until the next build, or None when the target is not finite (the system is then unusable).
+        The target is C-ordered float arrays of shapes (3,), (3, 3), (3,), (3,), as
+        ``SlaveArm.step`` makes it: the kernel indexes them unchecked."""
         if self.compiled:
-            try:
-                ep2 = kernels.build_system(q, J, T, p_t, R_t, v_t, w_t, q_post, *self._kernel_consts,
-                                           self._K, self._rhs, self._e)
-            except (TypeError, ValueError, NumbaError):  # not float arrays of the right shapes
-                return self._build_numpy(q, J, T, p_t, R_t, v_t, w_t, q_post, lb, ub)
+            ep2 = kernels.build_system(q, J, T, p_t, R_t, v_t, w_t, q_post, *self._kernel_consts,
+                                       self._K, self._rhs, self._e)
             if ep2 < 0.0:
                 return None
             self.position_error_m = math.sqrt(ep2)

@@ -21,6 +21,16 @@ _ZERO3.flags.writeable = False
 _ZERO6.flags.writeable = False
 
 
+def _target_arrays(p, R, v, w):
+    """(p, R, v, w) as C-ordered float arrays of shapes (3,), (3, 3), (3,), (3,) (what the kernels
+    index unchecked; already such arrays pass through without a copy), or None when they are not."""
+    try:
+        out = tuple(np.ascontiguousarray(x, dtype=float) for x in (p, R, v, w))
+    except (TypeError, ValueError):
+        return None
+    return out if [a.shape for a in out] == [(3,), (3, 3), (3,), (3,)] else None
+
+
 class SlaveArm:
     """The slave arm and its follower: joint state q (rad), qd (rad/s), tau (N*m), the tool frame E.
 
@@ -126,10 +136,10 @@ class SlaveArm:
         the motors resist; it enters the reported torques ``tau`` (N*m).
         """
         cfg, qp = self.cfg, self.qp
-        v_t = _ZERO3 if v_target is None else v_target
-        w_t = _ZERO3 if w_target is None else w_target
+        target = _target_arrays(p_target, R_target, _ZERO3 if v_target is None else v_target,
+                                _ZERO3 if w_target is None else w_target)
         lb, ub = self.limits.compute_velocity_bounds(self.q, self.qd_cmd, self.dt)
-        e = qp.build(self.q, self.J, self.T_WE, p_target, R_target, v_t, w_t, self.q_post, lb, ub)
+        e = None if target is None else qp.build(self.q, self.J, self.T_WE, *target, self.q_post, lb, ub)
         if e is None:  # a target that is not finite never reaches the solver: stop within the bounds
             qd, status = qp.compute_fallback(self.J, _ZERO6, lb, ub, True, self.qd_cmd), "invalid_target"
             self.slack, self.fixture_forces = np.zeros(qp.m), np.zeros(qp.m)

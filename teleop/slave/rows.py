@@ -12,6 +12,10 @@ u = T[:, 3] = (p, 1), t = T.ravel() and a constant C_k (4, 16) per row entry k.
 poses (least squares: the constraint classes stay the only definition of the rows), checks it at
 other random poses, and per tick needs only two products instead of a Python call per constraint.
 A constraint that is not of this form (the check fails) is evaluated by its own methods.
+
+Why not the engine's row kernels (:mod:`teleop.dynamics.kernels.rows`): those cover the built-in
+kinds only and give G and the velocity product, not h. The fit covers any constraint whose rows are
+of this form, a user's own included, and gives G and h from one product.
 """
 
 from __future__ import annotations
@@ -104,6 +108,14 @@ class FixtureRows:
         """C (28 m, 16): the fitted rows, ``h_scale`` folded in, as
         :func:`teleop.slave.kernels.fixture_rows` reads them (zero rows for ``direct`` ones)."""
         return self._C
+
+    def coefficients_of(self, rows, h_scale: float = 1.0) -> np.ndarray:
+        """The coefficients (28 k, 16) of the k rows ``rows`` (indices into the m rows), with
+        ``h_scale`` in place of this object's: the same fit, no new identification."""
+        rows, m = np.asarray(rows, dtype=int), self.m
+        G = self._C[: 24 * m].reshape(m, 24, 16)[rows].reshape(-1, 16)
+        h = self._C[24 * m :].reshape(m, 4, 16)[rows].reshape(-1, 16) * (h_scale / self.h_scale)
+        return np.concatenate([G, h])
 
     @property
     def direct(self) -> tuple:

@@ -16,13 +16,10 @@ import math
 
 import numpy as np
 
-from numba.core.errors import NumbaError
-
 from teleop.dynamics.constraints import RemoteCenter
 from teleop.dynamics.rotations import cross
 from teleop.errors import ConfigError, SceneError
 from teleop.slave.kernels import project_onto_fixture
-from teleop.slave.rows import FixtureRows
 
 
 class SlaveSide:
@@ -61,10 +58,12 @@ class SlaveSide:
         self._alpha = 1.0 - math.exp(-2.0 * math.pi * fc * scene.dt_s) if fc > 0 else 1.0
         self._feedback = np.zeros(6)
         self.rcm = [c for c in self.constraints if isinstance(c, RemoteCenter)]
-        # fitted rows (holonomic ones, all) for project_target, or None: a row not of that form
-        hol = FixtureRows(tuple(c for c in self.constraints if c.holonomic))
-        every = FixtureRows(self.constraints)
-        self._rows = None if hol.direct or every.direct else (hol.coefficients, every.coefficients)
+        # the follower's fitted rows, for project_target: the holonomic ones with h unscaled, and all
+        # (only their G is read); None when a row is not of the fitted form
+        rows = self.arm.qp.rows
+        hol = [i for c, r0 in zip(rows.constraints, np.cumsum([0] + [c.rows for c in rows.constraints]))
+               if c.holonomic for i in range(r0, r0 + c.rows)]
+        self._rows = None if rows.direct else (rows.coefficients_of(hol), rows.coefficients)
         normal = np.asarray(self.spec.plane_normal, dtype=float)
         self._normal = normal / np.linalg.norm(normal)
         self._plane_origin = np.asarray(self.spec.plane_origin_m, dtype=float)
@@ -85,12 +84,10 @@ class SlaveSide:
         closest admissible pose instead of fighting its own fixture rows. One compiled call
         (:func:`teleop.slave.kernels.project_onto_fixture`) when every row has the fitted form;
         :meth:`project_target_reference` otherwise, and as the reference."""
-        if self._rows is not None:
-            try:
-                return project_onto_fixture(self._rows[0], self._rows[1], p, R, v, w, 3, 1e-12)
-            except (TypeError, ValueError, NumbaError):  # not float arrays of the right shapes
-                pass
-        return self.project_target_reference(p, R, v, w)
+        if self._rows is None:
+            return self.project_target_reference(p, R, v, w)
+        p, R, v, w = (np.ascontiguousarray(x, dtype=float) for x in (p, R, v, w))  # the mapping's: (3,), (3, 3)
+        return project_onto_fixture(self._rows[0], self._rows[1], p, R, v, w, 3, 1e-12)
 
     def project_target_reference(self, p, R, v, w):
         """:meth:`project_target` with the constraints' own methods and numpy."""

@@ -90,12 +90,26 @@ def test_a_target_that_is_not_finite_is_refused_by_both(bad):
         assert arm.qp.build(q, J, T, p_t, T[:3, :3], np.zeros(3), np.zeros(3), arm.q_post, lb, ub) is None
 
 
-def test_plain_lists_take_the_numpy_path():
-    """A target given as lists cannot enter the kernel; the tick still runs, on the reference."""
+def test_plain_lists_and_transposed_views_are_converted_at_the_boundary():
+    """Lists and non-contiguous rotations become C-ordered float arrays before the kernel (which
+    indexes them unchecked); the tick runs compiled, with the same result as arrays."""
+    fast, _ = _pair("scalpel")
+    out = []
+    for convert in (np.array, list):
+        fast.reset((PLANE_O + [-0.03, 0.0, -0.005], R_CUT))
+        R = np.asfortranarray(R_CUT) if convert is np.array else R_CUT.tolist()
+        status = fast.step(convert(PLANE_O + [-0.0299, 0.0, -0.005]), R, convert([0.01, 0.0, 0.0]), [0.0] * 3)
+        out.append((status, fast.q.copy()))
+    assert out[0][0] == out[1][0] and out[0][0] in ("ok", "saturated") and np.array_equal(out[0][1], out[1][1])
+
+
+@pytest.mark.parametrize("bad", [dict(p=[0.5, 0.0]), dict(R=np.eye(2)), dict(v="fast"), dict(w=[[0.0] * 3])])
+def test_a_misshapen_target_is_refused_without_raising(bad):
     fast, _ = _pair("scalpel")
     fast.reset((PLANE_O + [-0.03, 0.0, -0.005], R_CUT))
-    status = fast.step((PLANE_O + [-0.0299, 0.0, -0.005]).tolist(), R_CUT.tolist(), [0.01, 0.0, 0.0], [0.0] * 3)
-    assert status in ("ok", "saturated") and np.all(np.isfinite(fast.q))
+    args = dict(p=PLANE_O + [-0.03, 0.0, -0.005], R=R_CUT, v=np.zeros(3), w=np.zeros(3)) | bad
+    assert fast.step(args["p"], args["R"], args["v"], args["w"]) == "invalid_target"
+    assert np.all(np.isfinite(fast.q)) and np.all(fast.qd_cmd == 0.0)
 
 
 def test_whole_runs_agree():
