@@ -71,9 +71,7 @@ class IdealMaster:
         """The virtual tool for the slave (p, R, v, w): here the tool itself."""
         return (*self.tool.pose(), *self.tool.twist())
 
-    def hand_state(self):
-        """What the operator's hand touches: the tool itself (p, R, v, w)."""
-        return (*self.tool.pose(), *self.tool.twist())
+    hand_state = virtual_estimate  # what the operator's hand touches: the tool itself too
 
     def stats(self) -> dict:
         return {}

@@ -386,26 +386,29 @@ class CobotMaster:
             self.ctrl.reset(np.concatenate([v, w]))
 
     # -- read-outs ----------------------------------------------------------------------------------
+    def _virtual_state(self, joints, rates):
+        """(p, R, v, w) through φ of the handle at ``joints`` moving at ``rates`` (m, -, m/s,
+        rad/s): one kinematics pass (the compiled closed form when the URDF allows)."""
+        p_H, R_H, J = self.model.compute_pose_and_jacobian(joints)
+        phi = self.clutch.phi
+        nu = phi.twist_to_virtual(J @ rates)
+        return (*phi.compute_virtual_pose(p_H, R_H), nu[:3], nu[3:])
+
     def virtual_pose(self):
         """q_v = φ(x) from the encoder readings: (p (3,) m, R (3, 3))."""
-        p_H, R_H = self.model.compute_handle_pose(self.driver.joints_rad_m)
+        p_H, R_H, _ = self.model.compute_pose_and_jacobian(self.driver.joints_rad_m)
         return self.clutch.phi.compute_virtual_pose(p_H, R_H)
 
     def virtual_twist(self):
         """(v (3,) m/s, w (3,) rad/s) of the virtual tool: the device Jacobian times the joint rates
         the observer estimates from the encoders (:mod:`teleop.master.observer`), through φ."""
-        obs = self.observer
-        nu = self.clutch.phi.twist_to_virtual(self.model.compute_jacobian(obs.x) @ obs.rates)
-        return nu[:3], nu[3:]
+        return self._virtual_state(self.observer.x, self.observer.rates)[2:]
 
     def virtual_estimate(self):
         """(p, R, v, w) of the virtual tool from the joint observer: its pose and twist (m, -, m/s,
         rad/s) estimated below the encoders' 25 µm / 0.5 mrad resolution, for the slave's target.
         The raw read-outs (:meth:`virtual_pose`) stay what the metrics use, as in the paper."""
-        obs, phi = self.observer, self.clutch.phi
-        p_H, R_H = self.model.compute_handle_pose(obs.x)
-        nu = phi.twist_to_virtual(self.model.compute_jacobian(obs.x) @ obs.rates)
-        return (*phi.compute_virtual_pose(p_H, R_H), nu[:3], nu[3:])
+        return self._virtual_state(self.observer.x, self.observer.rates)
 
     def _warn_end_stops(self, joints0) -> None:
         """Log a warning when the tool's start pose puts a device joint outside its travel: the
@@ -439,10 +442,7 @@ class CobotMaster:
         on hardware, where a real hand needs no model, the encoder read-outs."""
         if self.sim is None:
             return (*self.virtual_pose(), *self.virtual_twist())
-        dev, phi = self.device, self.clutch.phi
-        p_H, R_H = self.model.compute_handle_pose(dev.joints)
-        nu = phi.twist_to_virtual(self.model.compute_jacobian(dev.joints) @ dev.qd)
-        return (*phi.compute_virtual_pose(p_H, R_H), nu[:3], nu[3:])
+        return self._virtual_state(self.device.joints, self.device.qd)
 
     def stats(self) -> dict:
         out = {"can_bus_load_pct": 0.0, "can_frames_lost": 0}
