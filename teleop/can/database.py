@@ -80,7 +80,6 @@ class FrameDatabase:
         except (OSError, cantools.database.UnsupportedDatabaseFormatError) as e:
             raise CanError(f"can database {path}: cannot load: {e}") from None
         self.by_name = {m.name: m for m in self.db.messages}
-        self.by_id = {m.frame_id: m for m in self.db.messages}
         self.codecs = {m.name: MessageCodec(m) for m in self.db.messages}
         self._codec_by_id = {m.frame_id: self.codecs[m.name] for m in self.db.messages}
         self.checksum = {m.name: next((s.name for s in m.signals if s.name.endswith("Checksum")), None)

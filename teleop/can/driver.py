@@ -25,18 +25,12 @@ CAN_ERR_BUSOFF = 0x40
 JOINT_SIGNALS = ("PosX", "PosY", "PosZ", "AngA", "AngB", "AngC")
 WRENCH_SIGNALS = ("ForceX", "ForceY", "ForceZ", "TorqueX", "TorqueY", "TorqueZ")
 CMD_SIGNALS = ("CmdVelX", "CmdVelY", "CmdVelZ", "CmdRateA", "CmdRateB", "CmdRateC")
-REVOLUTE = slice(3, 6)
 #: frames the driver encodes or reads by position every period, and the signal order it assumes
 ORDERED_FRAMES = {"SYNC": ("SyncCounter",), "HOST_CMD": (*CMD_SIGNALS, "CmdMode", "CmdCounter"),
                   "DEV_JOINTS": (*JOINT_SIGNALS, "DevState", "JointsCounter"),
                   "DEV_WRENCH": WRENCH_SIGNALS}
 #: the HOST_CMD ranges of the DBC (m/s x3, rad/s x3)
 CMD_RANGE = (0.99996,) * 3 + (16.0,) * 3
-
-
-def wrap_angle(a):
-    """Angle(s) wrapped to [-pi, pi) (rad)."""
-    return (np.asarray(a) + np.pi) % (2.0 * np.pi) - np.pi
 
 
 class CobotDriver:
@@ -89,7 +83,7 @@ class CobotDriver:
             return
         self.closed = True
         if self.started:
-            self._send("HOST_CMD", self._cmd_signals(np.zeros(6), 0))
+            self._send("HOST_CMD", (0.0,) * 6 + (0, self._cmd % 256))  # zero velocity, mode 0
             self._send("HOST_HEARTBEAT", {"HostState": 0, "HostHbCounter": self._hb % 256})
         if self.own_bus:
             self.bus.shutdown()
@@ -132,11 +126,6 @@ class CobotDriver:
             state = 2 if self.fault is None else 1
             self._send("HOST_HEARTBEAT", {"HostState": state, "HostHbCounter": self._hb % 256})
             self._hb += 1
-
-    def _cmd_signals(self, qd, mode: int) -> dict:
-        sig = dict(zip(CMD_SIGNALS, (float(v) for v in qd)))
-        sig.update(CmdMode=mode, CmdCounter=self._cmd % 256)
-        return sig
 
     def send_command(self, qd_cmd, limits=None) -> None:
         """Joint velocity commands (6,: m/s x3, rad/s x3), clipped to ``limits`` (6,) and the DBC
