@@ -3,43 +3,18 @@
 Why compiled: one PID period is some twenty operations on 6-vectors and a rotation log; in numpy
 each costs about a microsecond of call overhead whatever its size. Here the period is one call.
 
-The readable definitions stay in Python and are the reference: ``pinocchio.log3`` for
-:func:`log3`, and ``AdmittanceController.step`` with ``compiled=False`` for :func:`pid_step`;
-tests/unit/test_control_kernels.py checks each kernel against them. Units as in
+The readable definition stays in Python and is the reference: ``AdmittanceController.step`` with
+``compiled=False`` for :func:`pid_step`; tests/unit/test_control_kernels.py checks the kernel
+against it. The rotation log is :func:`teleop.dynamics.kernels.so3.log3`. Units as in
 :mod:`teleop.control.admittance` (SI, world frame).
 """
 
 from __future__ import annotations
 
-import math
-
 import numpy as np
 from numba import njit
 
-#: below this angle (rad) log3 uses the series of theta / (2 sin theta)
-SMALL_ANGLE = 1e-4
-#: above this cos(theta) magnitude near pi (cos < -NEAR_PI_COS) the axis comes from R's symmetric part
-NEAR_PI_COS = 0.9
-
-
-@njit(cache=True)
-def log3(R):
-    """Rotation vector (3,) rad of a rotation matrix R (3, 3), angle in [0, pi]."""
-    s_vec = np.array([R[2, 1] - R[1, 2], R[0, 2] - R[2, 0], R[1, 0] - R[0, 1]]) * 0.5  # sin(theta) axis
-    s = math.sqrt(s_vec[0] ** 2 + s_vec[1] ** 2 + s_vec[2] ** 2)
-    c = min(1.0, max(-1.0, 0.5 * (R[0, 0] + R[1, 1] + R[2, 2] - 1.0)))
-    theta = math.atan2(s, c)
-    if theta < SMALL_ANGLE:
-        return s_vec * (1.0 + theta * theta / 6.0)  # theta / sin(theta) to second order
-    if c > -NEAR_PI_COS:
-        return s_vec * (theta / s)
-    # near pi: a a^T = ((R + R^T) / 2 - c I) / (1 - c); take the largest diagonal, sign from s_vec
-    B = (0.5 * (R + R.T) - c * np.eye(3)) / (1.0 - c)
-    i = np.argmax(np.diag(B))
-    axis = B[i] / math.sqrt(B[i, i])
-    if axis @ s_vec < 0.0:
-        axis = -axis
-    return axis * theta
+from teleop.dynamics.kernels.so3 import log3
 
 
 @njit(cache=True)

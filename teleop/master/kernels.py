@@ -15,6 +15,7 @@ import numpy as np
 from numba import njit
 
 from teleop.control.kernels import pid_step as _pid_step
+from teleop.dynamics.kernels.so3 import exp3
 from teleop.master.observer import _predict as _observer_predict
 
 
@@ -107,21 +108,6 @@ def gantry_zxz_pose_jacobian(joints):
     J[3, 4], J[4, 4] = ca, sa  # wrist b about Rz(a) x
     J[3, 5], J[4, 5], J[5, 5] = sa * sb, -ca * sb, cb  # wrist c about Rz(a) Rx(b) z
     return p, R, J
-
-
-@njit(cache=True)
-def exp3(r):
-    """Rotation matrix (3, 3) of a rotation vector r (3,) rad (Rodrigues; series near 0)."""
-    t2 = r[0] * r[0] + r[1] * r[1] + r[2] * r[2]
-    t = math.sqrt(t2)
-    if t < 1e-4:
-        a, b = 1.0 - t2 / 6.0, 0.5 - t2 / 24.0
-    else:
-        a, b = math.sin(t) / t, (1.0 - math.cos(t)) / t2
-    x, y, z = r[0], r[1], r[2]
-    return np.array([[1.0 - b * (y * y + z * z), -a * z + b * x * y, a * y + b * x * z],
-                     [a * z + b * x * y, 1.0 - b * (x * x + z * z), -a * x + b * y * z],
-                     [-a * y + b * x * z, a * x + b * y * z, 1.0 - b * (x * x + y * y)]])
 
 
 @njit(cache=True)

@@ -17,8 +17,7 @@ import math
 import numpy as np
 from numba import njit
 
-from teleop.control.kernels import log3
-from teleop.master.kernels import exp3
+from teleop.dynamics.kernels.so3 import exp3, log3
 
 _EPS = np.finfo(np.float64).eps
 

@@ -8,7 +8,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from teleop.control.admittance import AdmittanceController, AdmittanceGains
-from teleop.control.kernels import log3
+from teleop.dynamics.kernels.so3 import log3
 from teleop.master.cobot import GRAVITY_W, CobotModel
 from teleop.master.kernels import compute_hand_wrench_W, hand_wrench_W
 from teleop.master.observer import JointObserver
@@ -126,7 +126,8 @@ def test_dls_command_matches_the_numpy_reference(seed, singular):
 @settings(max_examples=60, deadline=None)
 @given(r=st.lists(st.floats(-3.0, 3.0), min_size=3, max_size=3), small=st.booleans())
 def test_exp3_and_prediction_match_pinocchio(r, small):
-    from teleop.master.kernels import advance_prediction, exp3
+    from teleop.dynamics.kernels.so3 import exp3
+    from teleop.master.kernels import advance_prediction
 
     r = np.array(r) * (1e-6 if small else 1.0)
     np.testing.assert_allclose(exp3(r), pin.exp3(r), atol=1e-14)
