@@ -94,7 +94,7 @@ def plot_log(log_path, out_dir) -> list[Path]:
 def _plot_slave(plt, log, summary, path: Path) -> Path:
     """The slave's panels of ``SLAVE_PANELS`` against time: tracking, depth, direction, the tissue
     force that goes back to the operator, and the trocar error when the scene has one."""
-    panels = [p for p in SLAVE_PANELS if p[0] in log and (p[0] != "slave_rcm_m" or np.any(log[p[0]] > 0))]
+    panels = [p for p in SLAVE_PANELS if p[0] in log]  # the RCM series only where there is a trocar
     fig, axes = plt.subplots(len(panels), 1, figsize=(7, 1.8 * len(panels)), sharex=True)
     t = log["t"][: len(log[panels[0][0]])]
     for ax, (key, label, scale) in zip(axes, panels):

@@ -81,9 +81,7 @@ class TissueBlock:
         kw = {}
         for key, val in d.items():
             if key == "cutting":
-                ck = {f.name for f in fields(CuttingModel)}
-                if not isinstance(val, dict) or set(val) - ck:
-                    raise ConfigError(f"{where}.cutting: expected a table with keys from {sorted(ck)}")
+                check_table(val, f"{where}.cutting", {f.name for f in fields(CuttingModel)})
                 try:
                     val = CuttingModel(**{k: float(v) for k, v in val.items()})
                 except (ConfigError, TypeError, ValueError) as exc:

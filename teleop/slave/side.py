@@ -68,7 +68,8 @@ class SlaveSide:
         self._normal = normal / np.linalg.norm(normal)
         self._plane_origin = np.asarray(self.spec.plane_origin_m, dtype=float)
         self.n = 0
-        self.log = {k: np.zeros(n_ticks) for k in ("track_m", "depth_err_m", "dir_err_rad", "contact_N", "rcm_m")}
+        series = ("track_m", "depth_err_m", "dir_err_rad", "contact_N") + (("rcm_m",) if self.rcm else ())
+        self.log = {k: np.zeros(n_ticks) for k in series}
         self.log["q"] = np.zeros((n_ticks, self.arm.nv))
         self.log["tip"] = np.zeros((n_ticks, 3))
         self.statuses: dict[str, int] = {}
