@@ -46,27 +46,13 @@ def cho_solve(L: np.ndarray, B: np.ndarray) -> np.ndarray:
 
 
 def solve_delassus(K: np.ndarray, rhs: np.ndarray) -> tuple[np.ndarray, int]:
-    """Solve K lam = rhs for symmetric PSD K (m, m). Returns (lam, rank).
-
-    Fast path: Cholesky with a pivot-ratio check. Fallback: eigendecomposition with eigenvalues
-    below RANK_RTOL * max dropped (minimum-norm, least-squares for inconsistent rows).
-    """
-    m = K.shape[0]
-    if m == 0:
+    """Solve K lam = rhs for symmetric PSD K (m, m) through :class:`DelassusFactor`: Cholesky with
+    a pivot-ratio check, else eigendecomposition with eigenvalues below RANK_RTOL * max dropped
+    (minimum-norm, least-squares for inconsistent rows). Returns (lam, rank)."""
+    if K.shape[0] == 0:
         return np.zeros(0), 0
-    L, info = dpotrf(K, lower=1, clean=1, overwrite_a=0)
-    if info == 0:
-        d = np.abs(np.diag(L))
-        if d.min() ** 2 > RANK_RTOL * d.max() ** 2:
-            lam, _ = dpotrs(L, rhs, lower=1)
-            return lam, m
-    w, V = np.linalg.eigh(K)
-    keep = w > RANK_RTOL * max(w[-1], 0.0)
-    if not np.any(keep):
-        return np.zeros(m), 0
-    Vk = V[:, keep]
-    lam = Vk @ ((Vk.T @ rhs) / w[keep])
-    return lam, int(keep.sum())
+    f = DelassusFactor(K)
+    return f.solve(rhs), f.rank
 
 
 class DelassusFactor:
