@@ -248,9 +248,8 @@ class CobotMaster:
         F_hand_W = self._hand_wrench_W(R_m)
         self._workspace()
         if self.clutch.engaged:
-            nu_V, a_V, st = self._admittance(phi, F_hand_W, contact_wrench_W)
-            e = self.ctrl.error
-            st = self._check_tracking(float(np.linalg.norm(e[:3])), float(np.linalg.norm(e[3:])), st)
+            nu_V, a_V, st, e_p, e_r = self._admittance(phi, F_hand_W, contact_wrench_W)
+            st = self._track(e_p, e_r, st)
             nu_H, a_H, qd = handle_command(J, phi.twist_map_to_handle, nu_V, a_V, self.tau_s, joints,
                                            self._ws_hi, self._ws_lo, DLS_SIGMA0, DLS_LAMBDA0)
         else:
@@ -267,10 +266,12 @@ class CobotMaster:
         self.status = st
         return st
 
-    def _check_tracking(self, e_p: float, e_r: float, st: str) -> str:
-        """Latch "tracking_error" when the virtual tool is ``tracking_fault_m`` / ``_rad`` from the
-        reference tool (m, rad): the device cannot render it (an end stop, a limit cycle). This
-        period's command still goes out; from the next one the device holds at zero velocity."""
+    def _track(self, e_p: float, e_r: float, st: str) -> str:
+        """Keep the maxima of the tracking error |q_r - q_v| (e_p m, e_r rad), and latch
+        "tracking_error" beyond ``tracking_fault_m`` / ``_rad``: the device cannot render the tool
+        (an end stop, a limit cycle). This period's command still goes out; from the next one the
+        device holds at zero velocity. Returns the period's status."""
+        self.err_max = (max(self.err_max[0], e_p), max(self.err_max[1], e_r))
         cfg = self.cfg
         if st == "ok" and (e_p > cfg.tracking_fault_m or e_r > cfg.tracking_fault_rad):
             self.driver.latch_fault("tracking_error", f"|q_r - q_v| = {e_p:.4g} m, {e_r:.4g} rad, beyond "
@@ -336,9 +337,7 @@ class CobotMaster:
                                   ctrl.nu_cmd, to_handle, self.tau_s, J, joints, ws, DLS_SIGMA0, DLS_LAMBDA0, k,
                                   self.pred_p, self.pred_R, self.dt, obs.x, obs.qd_model, obs.u, obs.bias, obs_lim,
                                   obs.dt, obs.window, obs.tau, obs.history)
-        err = self.err_max
-        self.err_max = (max(err[0], e_p), max(err[1], e_r))
-        st = self._check_tracking(e_p, e_r, st)
+        st = self._track(e_p, e_r, st)
         drv.send_command(qd, self.vmax)
         self.nu_H_cmd, self.accel_H_cmd = nu_H, a_H
         self._link_cycle_end()
@@ -365,9 +364,7 @@ class CobotMaster:
         st = tool.step(self.dt, f_v)
         nu_V, a_V = self.ctrl.step(p_r, R_r, np.concatenate([v_r, w_r]), tool.acceleration_W, p_v, R_v)
         ex, ey, ez, rx, ry, rz = self.ctrl.error.tolist()  # q_r - q_v before the step
-        self.err_max = (max(self.err_max[0], math.sqrt(ex * ex + ey * ey + ez * ez)),
-                        max(self.err_max[1], math.sqrt(rx * rx + ry * ry + rz * rz)))
-        return nu_V, a_V, st
+        return nu_V, a_V, st, math.sqrt(ex * ex + ey * ey + ez * ez), math.sqrt(rx * rx + ry * ry + rz * rz)
 
     def _advance_prediction(self, k: int, nu_H) -> None:
         """The handle pose at SYNC k+1 that the command nu_H (6,) predicts (compiled)."""
