@@ -2,7 +2,7 @@
 
 slave_step: kinematics + QP build + solve + integrate (``SlaveArm.step``) with the scalpel fixture,
 default settings (OSQP, ``kkt_shortcut``: the QP solver runs only on ticks where a joint bound
-binds; ``solver_ticks`` counts them). ``slave_step_daqp`` is the same with DAQP, and
+binds; ``solver_ticks`` counts them, so the solver barely shows here).
 ``slave_step_{osqp,daqp}_every_tick`` turn the shortcut off, so that the solver runs every tick.
 pink_step:  the same target (FrameTask on E + PostureTask, pink's default configuration and
 velocity limits) solved with ``pink.solve_ik`` and its fastest installed solver, then integrated.
@@ -81,11 +81,9 @@ def measure(n_steps: int = 3000) -> dict:
     """{"slave_step_us": {median, p99}, "pink_step_us": {median, p99}, ...} in microseconds."""
     slave_ts, arm, solver_ticks = _time_slave("osqp", n_steps)
     pink_ts, pink_solver = _time_pink(arm, n_steps)
-    daqp_ts = _time_slave("daqp", n_steps)[0]
     out = {
         "slave_step_us": _stats(slave_ts),
         "pink_step_us": _stats(pink_ts),
-        "slave_step_daqp_us": _stats(daqp_ts),
         "slave_step_osqp_every_tick_us": _stats(_time_slave("osqp", n_steps, False)[0]),
         "slave_step_daqp_every_tick_us": _stats(_time_slave("daqp", n_steps, False)[0]),
         "solver_ticks": f"{solver_ticks} of {n_steps}",

@@ -49,6 +49,11 @@ def compute_target_twist(p, R, p_t, R_t, v_t, w_t, k: float) -> tuple[np.ndarray
     return nu, e
 
 
+def _bound_margin(qd, lb, ub) -> float:
+    """The least distance (rad/s) of qd to its bounds: >= 0 within them (as the kernel's)."""
+    return min(np.minimum(qd - lb, ub - qd).tolist())
+
+
 class FollowerQP:
     """Workspace and solver of the follower for one arm and one fixed set of fixture constraints.
 
@@ -61,13 +66,13 @@ class FollowerQP:
     numpy reference, which the tests hold equal.
     """
 
-    def __init__(self, nv: int, constraints, cfg, dt: float, compiled: bool = True):
+    def __init__(self, nv: int, constraints, cfg, compiled: bool = True):
         self.nv = nv
         self.rows = FixtureRows(constraints, h_scale=-cfg.k_fixture_1ps)
         self.constraints = self.rows.constraints
         self.m = m = self.rows.m
-        self.n = n = nv + m
-        self.cfg, self.dt = cfg, float(dt)
+        n = nv + m
+        self.cfg = cfg
         self.W = np.array([cfg.weight_position] * 3 + [cfg.weight_orientation] * 3)
         rho, k = cfg.slack_weight, cfg.k_task_1ps
         # -gq = P' x with x = (q_post - q, R_t, e, v_t, w_t) and P = [w_post k_post I; 0; k W J; W J]
@@ -187,7 +192,7 @@ class FollowerQP:
             z, info = dgesv(self._K, self._rhs)[2:]
             qd = z[m:]
             if info == 0 and math.isfinite(np.vdot(z, z)):
-                margin = min(np.minimum(qd - lb, ub - qd).tolist())
+                margin = _bound_margin(qd, lb, ub)
                 if margin >= 0.0:  # no bound is active: this is the QP's solution
                     self.bound_margin, self.used_solver = margin, False
                     y = z[:m]
@@ -196,7 +201,7 @@ class FollowerQP:
         r = self.solver.solve(*self.problem())
         nv = self.nv
         qd = np.minimum(np.maximum(r.x[:nv], lb), ub)  # solver tolerance only
-        self.bound_margin = min(np.minimum(qd - lb, ub - qd).tolist())
+        self.bound_margin = _bound_margin(qd, lb, ub)
         return qd, r.x[nv:], r.y_eq, r.ok and math.isfinite(np.vdot(qd, qd))
 
     def compute_fallback(self, J, e, lb, ub, hold: bool, qd_prev) -> np.ndarray:

@@ -52,7 +52,7 @@ class SlaveArm:
         self.data = self.model.createData()
         self.nv = self.model.nv
         self.q_post = am.q0.copy()
-        self.qp = FollowerQP(self.nv, fixture_constraints, cfg, dt_s, compiled)
+        self.qp = FollowerQP(self.nv, fixture_constraints, cfg, compiled)
         self.fixture_constraints = self.qp.constraints
         self._alpha = dt_s / (cfg.servo_lag_s + dt_s)
         self.status = "ok"
