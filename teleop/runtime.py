@@ -154,7 +154,8 @@ def run_scene(scene: Scene, progress=None, realtime: bool = False, operator=None
             t1 = time.perf_counter_ns()
             nan = nan or not (np.all(np.isfinite(tool.q)) and np.all(np.isfinite(p_v)))
             # the tick's state, the wrench applied over it and the constraint force it produced
-            metrics.update(p_v, R_v, v_v, w_v, wrench, tool.constraint_wrench_W)
+            constraint_W = tool.constraint_wrench_W  # G^T lam (N, N*m): computed on each read
+            metrics.update(p_v, R_v, v_v, w_v, wrench, constraint_W)
             log["t"][i] = tool.t
             log["q_r"][i] = tool.q
             log["q_v_p"][i] = p_v
@@ -166,7 +167,7 @@ def run_scene(scene: Scene, progress=None, realtime: bool = False, operator=None
             log["p_r"][i], log["R_r"][i] = tool.pose()
             log["lam"][i] = tool.lam
             log["operator_W"][i] = wrench
-            log["constraint_W"][i] = tool.constraint_wrench_W
+            log["constraint_W"][i] = constraint_W
             log["tick_us"][i] = (t1 - t0) * 1e-3
             steps = i + 1
             if view is not None:

@@ -200,11 +200,8 @@ class ConstrainedBody:
         pt = self.pose_terms(chart, q)
         if self.compiled and stabilize is None:
             F = _ZERO6 if operator_W is None else _wrench6(operator_W)
-            if self._py_effects:
-                F = np.array(F, dtype=float)
-                v, w = qd[:3], pt.R @ (pt.E_B @ qd[3:])
-                for e in self._py_effects:
-                    e.add_wrench(pt.p, pt.R, v, w, t, F)
+            if self._py_effects:  # otherwise F goes to the kernel as it is, uncopied
+                F = total_wrench(self._py_effects, pt.p, pt.R, qd[:3], pt.R @ (pt.E_B @ qd[3:]), t, F)
             qdd, nudot, lam, F = kernels.evaluate(
                 pt.R, pt.E_B, pt.E_inv, pt.dE, pt.Iinv_W, self.body.J, self._inv_m, self.coriolis,
                 pt.G, pt.MinvGt, pt.S, pt.mode, self._kinds, self._offsets, self._params, pt.p, qd,
