@@ -68,6 +68,11 @@ class Phi:
         return self._maps[0] @ nu_H
 
     @property
+    def wrench_map_to_virtual(self) -> np.ndarray:
+        """The constant 6x6 map of :meth:`wrench_to_virtual` (for compiled callers)."""
+        return self._maps[2]
+
+    @property
     def twist_map_to_handle(self) -> np.ndarray:
         """The constant 6x6 map of :meth:`twist_to_handle` (for compiled callers)."""
         return self._maps[1]

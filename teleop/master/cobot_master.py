@@ -308,7 +308,7 @@ class CobotMaster:
             self._fused_key = key
             self._fused_consts = (
                 (m.handle_mass_kg, m.handle_com_H, m.handle_J_H, GRAVITY_W, cfg.max_force_N, cfg.max_torque_Nm,
-                 phi._maps[2], phi.offset_p, phi.scale, phi.offset_R),
+                 phi.wrench_map_to_virtual, phi.offset_p, phi.scale, phi.offset_R),
                 np.array([g.kp, g.ki, g.kd, g.integral_limit, g.max_accel, g.max_velocity]),
                 np.array([self._ws_hi, self._ws_lo]),
                 np.array([obs.vmax, obs.amax]),

@@ -46,7 +46,7 @@ def test_host_feedback_matches_the_pieces(seed, late, scale):
 
     J, p_est, R_est, f_v, p_v, R_v = host_feedback(
         joints, k, j, pred_p, pred_R, wrench_S, bias_S, accel, nu, MODEL.handle_mass_kg, MODEL.handle_com_H,
-        MODEL.handle_J_H, GRAVITY_W, fmax, tmax, phi._maps[2], phi.offset_p, phi.scale, phi.offset_R)
+        MODEL.handle_J_H, GRAVITY_W, fmax, tmax, phi.wrench_map_to_virtual, phi.offset_p, phi.scale, phi.offset_R)
 
     p_m, R_m, J_ref = MODEL._pin_pose_and_jacobian(joints)  # Pinocchio, not the closed form
     if j == k:
