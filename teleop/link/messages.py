@@ -1,0 +1,105 @@
+"""The two messages master and slave exchange, and nothing else crosses between the sides.
+
+Master -> slave, :class:`ToolCommand`: the virtual tool (the device's rendering of the reference
+tool) as a pose and twist in the master's world frame M, the clutch, a sequence number and the
+master's time. Slave -> master, :class:`ContactFeedback`: the contact wrench at the slave's tool
+frame origin in the patient frame P, the slave's status, the sequence number of the command it
+answered, its own sequence number and time.
+
+Both are frozen, slotted and checked when made: a message that exists is well formed (shapes,
+finite numbers, a known status). A side that cannot make a well-formed message sends none.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from teleop.errors import TeleopError
+
+
+class MessageError(TeleopError):
+    """A malformed message: names the field and the reason."""
+
+
+#: slave statuses a ContactFeedback may carry (the slave's own plus the link's safe states)
+SLAVE_STATUSES = ("ok", "saturated", "tracking_error", "fixtures_relaxed", "infeasible_fallback",
+                  "invalid_target", "hold", "link_lost")
+
+
+def _vec(x, n: int, name: str) -> np.ndarray:
+    a = np.array(x, dtype=float).reshape(-1) if not isinstance(x, np.ndarray) else x.astype(float).reshape(-1)
+    if a.shape != (n,):
+        raise MessageError(f"{name}: expected {n} numbers, got shape {a.shape}")
+    if not math.isfinite(float(a @ a)):
+        raise MessageError(f"{name}: not finite")
+    a.flags.writeable = False
+    return a
+
+
+def _seq(x, name: str) -> int:
+    if isinstance(x, bool) or not isinstance(x, (int, np.integer)) or not 0 <= int(x) < 2**63:
+        raise MessageError(f"{name}: expected an integer in [0, 2^63), got {x!r}")
+    return int(x)
+
+
+def _time(x, name: str) -> float:
+    t = float(x)
+    if not math.isfinite(t):
+        raise MessageError(f"{name}: not finite")
+    return t
+
+
+@dataclass(frozen=True, slots=True)
+class ToolCommand:
+    """Master -> slave: the virtual tool at master time ``t_s`` (s).
+
+    ``p_m`` (3,) m and ``R`` (3, 3) the pose in M; ``v_m_s`` (3,) m/s and ``w_rad_s`` (3,) rad/s the
+    twist in M; ``clutch`` True while the operator drives the slave.
+    """
+
+    seq: int
+    t_s: float
+    p_m: np.ndarray
+    R: np.ndarray
+    v_m_s: np.ndarray
+    w_rad_s: np.ndarray
+    clutch: bool = True
+
+    def __post_init__(self):
+        object.__setattr__(self, "seq", _seq(self.seq, "ToolCommand.seq"))
+        object.__setattr__(self, "t_s", _time(self.t_s, "ToolCommand.t_s"))
+        object.__setattr__(self, "p_m", _vec(self.p_m, 3, "ToolCommand.p_m"))
+        R = _vec(self.R, 9, "ToolCommand.R").reshape(3, 3)
+        if abs(float(np.linalg.det(R)) - 1.0) > 1e-6:
+            raise MessageError("ToolCommand.R: not a rotation (det != 1)")
+        object.__setattr__(self, "R", R)
+        object.__setattr__(self, "v_m_s", _vec(self.v_m_s, 3, "ToolCommand.v_m_s"))
+        object.__setattr__(self, "w_rad_s", _vec(self.w_rad_s, 3, "ToolCommand.w_rad_s"))
+        object.__setattr__(self, "clutch", bool(self.clutch))
+
+
+@dataclass(frozen=True, slots=True)
+class ContactFeedback:
+    """Slave -> master: the contact wrench ``wrench_P`` (6,: N, N*m) at the slave tool frame's
+    origin, in the patient frame P, at slave time ``t_s`` (s), with the slave's ``status`` and the
+    sequence number ``command_seq`` of the command it followed (-1 for none yet)."""
+
+    seq: int
+    t_s: float
+    wrench_P: np.ndarray
+    status: str
+    command_seq: int = -1
+
+    def __post_init__(self):
+        object.__setattr__(self, "seq", _seq(self.seq, "ContactFeedback.seq"))
+        object.__setattr__(self, "t_s", _time(self.t_s, "ContactFeedback.t_s"))
+        object.__setattr__(self, "wrench_P", _vec(self.wrench_P, 6, "ContactFeedback.wrench_P"))
+        if self.status not in SLAVE_STATUSES:
+            raise MessageError(f"ContactFeedback.status: unknown status {self.status!r}")
+        c = self.command_seq
+        if isinstance(c, bool) or not isinstance(c, (int, np.integer)) or not -1 <= int(c) < 2**63:
+            raise MessageError(f"ContactFeedback.command_seq: expected an integer >= -1, got {c!r}")
+        object.__setattr__(self, "command_seq", int(c))
