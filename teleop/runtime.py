@@ -1,218 +1,124 @@
-"""One control tick and the loop: operator -> master -> reference tool -> metrics (-> slave later).
+"""Build a run from a scene and run it: the scene's tool, master, slave, link and operator handed
+to a :class:`~teleop.session.Session`, with the scene's metrics as hooks.
 
-Simulated time by default: the loop advances ``dt_s`` per tick with no wall clock, so a run is a
-pure function of its scene and seed. Every tick is timed (CPU ``perf_counter_ns``) for ``tick_us``.
-The loop never raises mid-flight: a fault ends the run with a status and the tool in a safe state.
+Only what the scene names is built: no slave, tissue, tremor probe or device effect it does not
+call for. The tick itself is :mod:`teleop.loop`.
 """
 
 from __future__ import annotations
 
-import json
-import time
-from dataclasses import dataclass, field
-from pathlib import Path
+from dataclasses import replace
 
 import numpy as np
 
-from teleop.scenario.build import build_tool, master_fixture_spec
+from teleop.contact import TissueBlock
+from teleop.contact.cutting import CuttingModel
+from teleop.control.feedback import FeedbackPath
+from teleop.dynamics.constraints import RemoteCenter
+from teleop.errors import ConfigError, SceneError
+from teleop.loop import Hook
+from teleop.master.ideal import IdealMaster
+from teleop.scenario.build import build_fixture, build_registration, build_tool, master_fixture_spec
+from teleop.scenario.metrics import MasterMetrics, SlaveMetrics, TremorProbe, make_metrics
 from teleop.scenario.operators import make_operator
-from teleop.scenario.metrics import make_metrics
 from teleop.scenario.schema import Scene
+from teleop.session import RunResult, Session
+from teleop.slave import SlaveArm, SlaveConfig
+from teleop.slave.side import SlaveSide
 
-
-@dataclass
-class RunResult:
-    """What a run produced: the JSON summary and the per-tick log arrays."""
-
-    summary: dict
-    log: dict = field(default_factory=dict)
-
-    def write_json(self, path) -> None:
-        Path(path).parent.mkdir(parents=True, exist_ok=True)
-        Path(path).write_text(json.dumps(self.summary, indent=2, sort_keys=False) + "\n")
-
-    def write_log(self, path) -> None:
-        Path(path).parent.mkdir(parents=True, exist_ok=True)
-        np.savez_compressed(path, **self.log, summary=json.dumps(self.summary))
-
-
-class IdealMaster:
-    """The operator's wrench goes straight to the reference tool; the virtual tool *is* the reference."""
-
-    def __init__(self, tool, dt_s: float):
-        self.tool, self.dt = tool, dt_s
-        self.engaged = True
-
-    def __enter__(self):
-        return self
-
-    def __exit__(self, *exc):
-        self.close()
-
-    def close(self) -> None:
-        pass
-
-    def set_clutch(self, engaged: bool) -> None:
-        """Clutch out: the hand lets go of the tool (its wrench no longer reaches it)."""
-        self.engaged = bool(engaged)
-
-    def step(self, hand_wrench_W, contact_wrench_W=None) -> str:
-        w = hand_wrench_W if self.engaged else np.zeros(6)
-        w = w if contact_wrench_W is None else w + contact_wrench_W
-        return self.tool.step(self.dt, w)
-
-    def virtual_pose(self):
-        return self.tool.pose()
-
-    def virtual_twist(self):
-        return self.tool.twist()
-
-    def virtual_estimate(self):
-        """The virtual tool for the slave (p, R, v, w): here the tool itself."""
-        return (*self.tool.pose(), *self.tool.twist())
-
-    hand_state = virtual_estimate  # what the operator's hand touches: the tool itself too
-
-    def stats(self) -> dict:
-        return {}
-
-
-def _pace(deadline: float) -> int:
-    """Wait for the wall-clock deadline (s, perf_counter): sleep, then spin the last 0.3 ms.
-    Returns 1 when the tick is already late, else 0."""
-    now = time.perf_counter()
-    if now > deadline:
-        return 1
-    if deadline - now > 3e-4:
-        time.sleep(deadline - now - 3e-4)
-    while time.perf_counter() < deadline:
-        pass
-    return 0
+__all__ = ["run_scene", "make_master", "RunResult"]
 
 
 def make_master(scene: Scene, tool, rng: np.random.Generator):
-    if scene.master == "cobot":
-        from teleop.master import CobotConfig, CobotMaster
+    """The scene's master: the ideal one, or the cobot with only the device effects it names."""
+    if scene.master != "cobot":
+        return IdealMaster(tool, scene.dt_s)
+    from teleop.master import CobotConfig, CobotMaster  # the CAN stack: loaded only for the cobot
 
-        cfg = dict(scene.master_config)
-        # the device's effects follow the scene: what it does not name is not simulated
-        if "can_faults" not in scene.effects:
-            cfg.pop("faults", None)
-        if "sensor_noise" not in scene.effects:
-            cfg.update(force_noise_N=0.0, torque_noise_Nm=0.0, force_bias_N=(0.0, 0.0, 0.0), torque_bias_Nm=(0.0, 0.0, 0.0))
-        if "servo_lag" not in scene.effects:
-            cfg["servo_bandwidth_hz"] = 1e4  # a 16 us lag: nothing at a 1 kHz tick
-        return CobotMaster(tool, CobotConfig.from_dict(cfg, "cobot"), scene.dt_s, rng)
-    return IdealMaster(tool, scene.dt_s)
+    cfg = dict(scene.master_config)
+    if "can_faults" not in scene.effects:
+        cfg.pop("faults", None)
+    if "sensor_noise" not in scene.effects:
+        cfg.update(force_noise_N=0.0, torque_noise_Nm=0.0, force_bias_N=(0.0, 0.0, 0.0), torque_bias_Nm=(0.0, 0.0, 0.0))
+    if "servo_lag" not in scene.effects:
+        cfg["servo_bandwidth_hz"] = 1e4  # a 16 us lag: nothing at a 1 kHz tick
+    p0, R0 = tool.pose()
+    return CobotMaster(CobotConfig.from_dict(cfg, "cobot"), scene.dt_s, rng, p0, R0, tool.body.mass_kg)
+
+
+def make_slave(scene: Scene, registration, constraints_P):
+    """The slave side of a scene with a [slave] table (None without one): the arm under the
+    patient-frame fixture ``constraints_P``, the tissue if the scene calls for it."""
+    if "slave" not in scene.extra:
+        return None
+    try:
+        arm = SlaveArm(SlaveConfig.from_dict(scene.extra["slave"], "slave"), constraints_P, scene.dt_s)
+        tissue = None
+        if "tissue" in scene.effects:
+            tissue = TissueBlock.from_dict(scene.extra.get("tissue", {}), "tissue")
+            if "cutting" not in scene.effects:  # normal contact only: no cutting resistance
+                tissue = replace(tissue, cutting=CuttingModel(0.0, 0.0, 0.0, 0.0))
+    except ConfigError as e:
+        key, _, reason = str(e).partition(": ")
+        raise SceneError(scene.path, key, reason) from None
+    return SlaveSide(arm, registration, tissue, scene.fixture.tip_m)
+
+
+def _feedback_cutoff_hz(scene: Scene) -> float:
+    fc = scene.extra.get("mapping", {}).get("feedback_cutoff_hz", 20.0)
+    if not isinstance(fc, (int, float)) or isinstance(fc, bool) or not np.isfinite(fc) or fc < 0:
+        raise SceneError(scene.path, "mapping.feedback_cutoff_hz", f"expected a number >= 0, got {fc!r}")
+    return float(fc)
+
+
+class _ViewHook(Hook):
+    """Hands each tick to a view (which throttles itself)."""
+
+    def __init__(self, view):
+        self.view = view
+
+    def after_tick(self, i, t_s, loop) -> None:
+        self.view.publish_tick(t_s, loop)
 
 
 def run_scene(scene: Scene, progress=None, realtime: bool = False, operator=None, view=None) -> RunResult:
-    """Run a scene. Simulated time by default; ``realtime`` paces each tick to the wall clock
-    (late ticks are counted, never skipped). ``operator`` replaces the scene's (e.g. a keyboard);
-    ``view`` gets a frame per tick and throttles itself. ``progress(i, n)`` is called now and then."""
+    """Run a scene. ``operator`` replaces the scene's (e.g. a keyboard); ``view`` gets every tick
+    and throttles itself; ``progress(i, n)`` is called every 1000 ticks."""
     rng = np.random.default_rng(scene.seed)
     tool = build_tool(scene)
+    spec_M = master_fixture_spec(scene)
     if operator is None:
-        operator = make_operator(scene.operator, master_fixture_spec(scene), scene.effects, rng)
+        operator = make_operator(scene.operator, spec_M, scene.effects, rng)
     n = int(round(scene.duration_s / scene.dt_s))
-    metrics = make_metrics(master_fixture_spec(scene), n, tool.body.mass_kg)
-    log = {
-        "t": np.zeros(n), "q_r": np.zeros((n, 6)), "q_v_p": np.zeros((n, 3)),
-        "p_r": np.zeros((n, 3)), "R_r": np.zeros((n, 3, 3)), "R_v": np.zeros((n, 3, 3)),
-        "lam": np.zeros((n, tool.model.m)), "operator_W": np.zeros((n, 6)),
-        "master_q": np.zeros((n, 6)), "can_frames_lost": np.zeros(n, dtype=np.int64),
-        "constraint_W": np.zeros((n, 6)), "tick_us": np.zeros(n),
-    }
-    slave = None
-    if "slave" in scene.extra:
-        from teleop.slave.side import SlaveSide
-
-        slave = SlaveSide(scene, n)
+    master_metrics = MasterMetrics(make_metrics(spec_M, n, tool.body.mass_kg))
+    hooks: list = [master_metrics]
+    reg = build_registration(scene)
+    constraints_P = build_fixture(scene.fixture).constraints  # the fixture where the patient is
+    slave = make_slave(scene, reg, constraints_P)
+    feedback = tremor = slave_metrics = None
+    if slave is not None:
         slave.reset(*tool.pose())
-    tremor = None
-    if slave is not None and getattr(operator, "tremor_on", False):
-        from teleop.scenario.metrics import TremorProbe
-
-        tremor = TremorProbe(operator, n, slave.reg.scale, slave.reg.X_PM_R, scene.fixture.plane_normal)
-    contact = None
-    status, steps, nan, late = "ok", 0, False, 0
-    wall0 = time.perf_counter()
-    with make_master(scene, tool, rng) as master:
-        for i in range(n):
-            t0 = time.perf_counter_ns()
-            p_v, R_v = master.virtual_pose()  # what the encoders measure: the metrics
-            v_v, w_v = master.virtual_twist()
-            # the hand acts on the handle itself, not on the host's estimate of it
-            wrench = operator.wrench(i * scene.dt_s, *master.hand_state())
-            if hasattr(operator, "clutch_engaged"):  # the operator reads the clutch pedal too
-                master.set_clutch(operator.clutch_engaged)
-            st = master.step(wrench, contact)
-            if slave is not None:
-                contact = slave.step(*master.virtual_estimate())
-                if tremor is not None:
-                    tremor.update(i * scene.dt_s, R_v, slave.log["tip"][i])
-            t1 = time.perf_counter_ns()
-            nan = nan or not (np.all(np.isfinite(tool.q)) and np.all(np.isfinite(p_v)))
-            # the tick's state, the wrench applied over it and the constraint force it produced
-            constraint_W = tool.constraint_wrench_W  # G^T lam (N, N*m): computed on each read
-            metrics.update(p_v, R_v, v_v, w_v, wrench, constraint_W)
-            log["t"][i] = tool.t
-            log["q_r"][i] = tool.q
-            log["q_v_p"][i] = p_v
-            log["R_v"][i] = R_v
-            driver = getattr(master, "driver", None)
-            if driver is not None:  # the cobot: its encoders and the bus's running loss count
-                log["master_q"][i] = driver.joints_rad_m
-                log["can_frames_lost"][i] = master.stats().get("can_frames_lost", 0)
-            log["p_r"][i], log["R_r"][i] = tool.pose()
-            log["lam"][i] = tool.lam
-            log["operator_W"][i] = wrench
-            log["constraint_W"][i] = constraint_W
-            log["tick_us"][i] = (t1 - t0) * 1e-3
-            steps = i + 1
-            if view is not None:
-                view.publish_tick(i * scene.dt_s, tool, master, wrench, slave)
-            if getattr(operator, "stop", False):
-                status = "stopped_by_operator"
-                break
-            if st != "ok":
-                status = st
-                break
-            if progress is not None and i % 1000 == 0:
-                progress(i, n)
-            if realtime:
-                late += _pace(wall0 + (i + 1) * scene.dt_s)
-        stats = master.stats()
-    log = {k: v[:steps] for k, v in log.items()}
-    log.update({f"m_{k}": v for k, v in metrics.trimmed().items()})
-    results = metrics.result()
-    if slave is not None:
-        log.update(slave.trimmed_log())
-        results.update(slave.result())
+        feedback = FeedbackPath(reg, _feedback_cutoff_hz(scene), scene.dt_s)
+        rcm = [c for c in constraints_P if isinstance(c, RemoteCenter)]
+        slave_metrics = SlaveMetrics(scene.fixture, n, slave.arm.nv, rcm)
+        hooks.append(slave_metrics)
+        if getattr(operator, "tremor_on", False):
+            tremor = TremorProbe(operator, n, reg.scale, reg.X_PM_R, scene.fixture.plane_normal)
+            hooks.append(tremor)
+    if view is not None:
+        hooks.append(_ViewHook(view))
+    master = make_master(scene, tool, rng)
+    session = Session(tool, master, operator, scene.dt_s, scene.duration_s, slave=slave, feedback=feedback,
+                      hooks=hooks, realtime=realtime, progress=progress)
+    result = session.run()
+    metrics = master_metrics.result()
+    result.log.update(master_metrics.log())
+    if slave_metrics is not None:
+        metrics.update(slave_metrics.result())
+        result.log.update(slave_metrics.log())
     if tremor is not None:
-        results.update(tremor.result(scene.dt_s))
-    ticks = log["tick_us"]
-    summary = {
-        "scenario": scene.name,
-        "status": status,
-        "steps": steps,
-        "dt_s": scene.dt_s,
-        "duration_s": steps * scene.dt_s,
-        "nan": bool(nan),
-        "tick_us": {
-            "median": float(np.median(ticks)) if steps else 0.0,
-            "p99": float(np.percentile(ticks, 99)) if steps else 0.0,
-        },
-        "integrator": scene.integrator,
-        "master": scene.master,
-        "seed": scene.seed,
-        "effects": list(scene.effects),
-        "metrics": results,
-        "engine": {"rank_min": int(tool.rank), "recharts": tool.recharts},
-    }
-    if slave is not None:
-        summary["slave_statuses"] = slave.statuses
-    if realtime:
-        summary["late_ticks"] = late
-    summary.update(stats)
-    return RunResult(summary, log)
+        metrics.update(tremor.result(scene.dt_s))
+    s = result.summary
+    result.summary = {"scenario": scene.name, **s, "integrator": scene.integrator, "master": scene.master,
+                      "seed": scene.seed, "effects": list(scene.effects), "metrics": metrics}
+    return result

@@ -65,21 +65,26 @@ class RunView:
 
     def __init__(self, view, fps: float = 30.0):
         self.view, self.period, self.next_t = view, 1.0 / fps, 0.0
+        self.trace: list = []  # the slave's blade tip at each frame (m, patient frame)
 
-    def publish_tick(self, t: float, tool, master, wrench, slave) -> None:
+    def publish_tick(self, t: float, loop) -> None:
+        """A frame of the loop's state at simulated time t (s), at most ``fps`` a second."""
         if t + 1e-12 < self.next_t:
             return
         self.next_t = t + self.period
         from teleop.viz import VizFrame
 
+        tool = loop.tool
         kw = dict(
-            t=t, reference_pose=tool.pose(), virtual_pose=master.virtual_pose(),
-            operator_wrench=np.asarray(wrench, dtype=float), constraint_wrench=tool.constraint_wrench_W,
+            t=t, reference_pose=tool.pose(), virtual_pose=loop.master.virtual_pose(),
+            operator_wrench=np.asarray(loop.hand_W, dtype=float), constraint_wrench=tool.constraint_wrench_W,
         )
-        if slave is not None and slave.n:
+        slave = loop.slave
+        if slave is not None and slave.state.ticks:
+            self.trace.append(slave.state.tip.copy())
             kw.update(
                 slave_q=slave.arm.q.copy(), slave_tool_pose=slave.arm.tool_pose(),
-                contact_wrench=slave._last_contact, cut_trace=slave.log["tip"][: slave.n : 20].copy(),
+                contact_wrench=slave.state.contact_P, cut_trace=np.array(self.trace),
             )
         self.view.publish(VizFrame(**kw))
 

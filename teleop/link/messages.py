@@ -29,14 +29,32 @@ SLAVE_STATUSES = ("ok", "saturated", "tracking_error", "fixtures_relaxed", "infe
                   "invalid_target", "hold", "link_lost")
 
 
-def _vec(x, n: int, name: str) -> np.ndarray:
-    a = np.array(x, dtype=float).reshape(-1) if not isinstance(x, np.ndarray) else x.astype(float).reshape(-1)
-    if a.shape != (n,):
-        raise MessageError(f"{name}: expected {n} numbers, got shape {a.shape}")
-    if not math.isfinite(float(a @ a)):
-        raise MessageError(f"{name}: not finite")
-    a.flags.writeable = False
-    return a
+def _packed(parts, sizes, names) -> tuple:
+    """The parts as read-only float views into one array, after one finiteness check (a message
+    is made every tick: one concatenation instead of a check per field)."""
+    try:
+        flat = np.concatenate([np.asarray(x, dtype=float).reshape(-1) for x in parts])
+    except (TypeError, ValueError) as e:
+        raise MessageError(f"{'/'.join(names)}: not numbers ({e})") from None
+    if flat.size != sum(sizes):
+        for x, n, name in zip(parts, sizes, names):
+            if np.size(x) != n:
+                raise MessageError(f"{name}: expected {n} numbers, got {np.size(x)}")
+    if not math.isfinite(float(flat @ flat)):
+        bad = [name for x, name in zip(parts, names) if not np.all(np.isfinite(np.asarray(x, dtype=float)))]
+        raise MessageError(f"{', '.join(bad)}: not finite")
+    flat.flags.writeable = False
+    out, i = [], 0
+    for n in sizes:
+        out.append(flat[i:i + n])
+        i += n
+    return tuple(out)
+
+
+def _det3(r) -> float:
+    """det of a row-major 3x3 given as 9 floats."""
+    a, b, c, d, e, f, g, h, k = r
+    return a * (e * k - f * h) - b * (d * k - f * g) + c * (d * h - e * g)
 
 
 def _seq(x, name: str) -> int:
@@ -71,13 +89,14 @@ class ToolCommand:
     def __post_init__(self):
         object.__setattr__(self, "seq", _seq(self.seq, "ToolCommand.seq"))
         object.__setattr__(self, "t_s", _time(self.t_s, "ToolCommand.t_s"))
-        object.__setattr__(self, "p_m", _vec(self.p_m, 3, "ToolCommand.p_m"))
-        R = _vec(self.R, 9, "ToolCommand.R").reshape(3, 3)
-        if abs(float(np.linalg.det(R)) - 1.0) > 1e-6:
+        p, R, v, w = _packed((self.p_m, self.R, self.v_m_s, self.w_rad_s), (3, 9, 3, 3),
+                             ("ToolCommand.p_m", "ToolCommand.R", "ToolCommand.v_m_s", "ToolCommand.w_rad_s"))
+        if abs(_det3(R.tolist()) - 1.0) > 1e-6:
             raise MessageError("ToolCommand.R: not a rotation (det != 1)")
-        object.__setattr__(self, "R", R)
-        object.__setattr__(self, "v_m_s", _vec(self.v_m_s, 3, "ToolCommand.v_m_s"))
-        object.__setattr__(self, "w_rad_s", _vec(self.w_rad_s, 3, "ToolCommand.w_rad_s"))
+        object.__setattr__(self, "p_m", p)
+        object.__setattr__(self, "R", R.reshape(3, 3))
+        object.__setattr__(self, "v_m_s", v)
+        object.__setattr__(self, "w_rad_s", w)
         object.__setattr__(self, "clutch", bool(self.clutch))
 
 
@@ -96,7 +115,7 @@ class ContactFeedback:
     def __post_init__(self):
         object.__setattr__(self, "seq", _seq(self.seq, "ContactFeedback.seq"))
         object.__setattr__(self, "t_s", _time(self.t_s, "ContactFeedback.t_s"))
-        object.__setattr__(self, "wrench_P", _vec(self.wrench_P, 6, "ContactFeedback.wrench_P"))
+        object.__setattr__(self, "wrench_P", _packed((self.wrench_P,), (6,), ("ContactFeedback.wrench_P",))[0])
         if self.status not in SLAVE_STATUSES:
             raise MessageError(f"ContactFeedback.status: unknown status {self.status!r}")
         c = self.command_seq

@@ -19,7 +19,7 @@ import select
 
 import numpy as np
 
-from teleop.scenario.operators import task_frame
+from teleop.scenario.operators import Operator, task_frame
 
 KEYMAP = {
     "w": (0, +1), "s": (0, -1), "a": (1, +1), "d": (1, -1), "r": (2, +1), "f": (2, -1),
@@ -28,7 +28,7 @@ KEYMAP = {
 HELP = "w/s a/d r/f: push x/y/z   i/k j/l q/e: twist x/y/z   space: clutch   x: stop"
 
 
-class KeyboardOperator:
+class KeyboardOperator(Operator):
     """Wrench from key presses. ``force_N`` and ``torque_Nm`` are the push per key."""
 
     def __init__(self, fixture, fd: int | None = None, force_N: float = 2.0, torque_Nm: float = 0.02, hold_s: float = 0.25):

@@ -12,6 +12,7 @@ from abc import ABC, abstractmethod
 import numpy as np
 
 from teleop.dynamics.rotations import cross
+from teleop.loop import Hook
 from teleop.scenario.schema import FixtureSpec
 
 #: Rolling-error regulariser of Figure 8 D: 1 mm/s.
@@ -192,7 +193,85 @@ def band_rms(x: np.ndarray, dt: float, lo_hz: float, hi_hz: float) -> float:
     return float(np.sqrt((y**2).sum(axis=1).mean()))
 
 
-class TremorProbe:
+class MasterMetrics(Hook):
+    """A :class:`MetricSet` fed every tick from the virtual tool as the tick starts, the operator's
+    wrench of the tick and the constraint wrench it produced."""
+
+    def __init__(self, metrics: MetricSet):
+        self.metrics = metrics
+        self._state = None
+
+    def before_tick(self, i, t_s, loop) -> None:
+        m = loop.master
+        self._state = (*m.virtual_pose(), *m.virtual_twist())
+
+    def after_tick(self, i, t_s, loop) -> None:
+        self.metrics.update(*self._state, loop.hand_W, loop.tool.constraint_wrench_W)
+
+    def log(self) -> dict:
+        return {f"m_{k}": v for k, v in self.metrics.trimmed().items()}
+
+    def result(self) -> dict:
+        return self.metrics.result()
+
+
+class SlaveMetrics(Hook):
+    """The slave's accuracy, every tick, in the patient frame (``spec``: the scene's fixture):
+
+    * ``tip_tracking_rms_m`` - RMS distance of the slave's tool frame from its target;
+    * ``cut_depth_error_max_m`` - max |depth of the blade tip - fixture depth| while in tissue;
+    * ``cut_direction_error_max_rad`` - max angle between the slave's and the target's cutting axes;
+    * ``contact_force_max_N`` - max |tissue force| at the blade tip;
+    * ``cut_length_m`` - the tip's path while below the surface;
+    * ``rcm_error_max_m`` - max distance of the shaft from the trocar (``rcm``: RemoteCenter rows).
+    """
+
+    def __init__(self, spec: FixtureSpec, n: int, nq: int, rcm=()):
+        self.depth = spec.depth_m
+        self.normal = _unit(spec.plane_normal)
+        self.origin = np.asarray(spec.plane_origin_m, dtype=float)
+        self.rcm = tuple(rcm)
+        series = ("track_m", "depth_err_m", "dir_err_rad", "contact_N") + (("rcm_m",) if self.rcm else ())
+        self.series = {k: np.zeros(n) for k in series}
+        self.series["q"] = np.zeros((n, nq))
+        self.series["tip"] = np.zeros((n, 3))
+        self.n = 0
+
+    def after_tick(self, i, t_s, loop) -> None:
+        s, log = loop.slave.state, self.series
+        depth = -float(self.normal @ (s.tip - self.origin))
+        log["track_m"][i] = float(np.linalg.norm(s.p - s.p_t))
+        # error while the blade is in the tissue; a tiny floor marks "inside" for the cut length
+        log["depth_err_m"][i] = max(abs(depth - self.depth), 1e-15) if depth > 0 else 0.0
+        log["dir_err_rad"][i] = math.acos(float(np.clip(s.R[:, 0] @ s.R_t[:, 0], -1.0, 1.0)))
+        log["contact_N"][i] = float(np.linalg.norm(s.contact_P[:3]))
+        if self.rcm:
+            log["rcm_m"][i] = max(float(np.linalg.norm(r.residual(s.p, s.R))) for r in self.rcm)
+        log["q"][i] = loop.slave.arm.q
+        log["tip"][i] = s.tip
+        self.n = i + 1
+
+    def log(self) -> dict:
+        return {f"slave_{k}": v[: self.n] for k, v in self.series.items()}
+
+    def result(self) -> dict:
+        k, log = self.n, self.series
+        out = {
+            "tip_tracking_rms_m": float(np.sqrt(np.mean(log["track_m"][:k] ** 2))) if k else 0.0,
+            "cut_depth_error_max_m": float(log["depth_err_m"][:k].max(initial=0.0)),
+            "cut_direction_error_max_rad": float(log["dir_err_rad"][:k].max(initial=0.0)),
+            "contact_force_max_N": float(log["contact_N"][:k].max(initial=0.0)),
+        }
+        inside = log["depth_err_m"][:k] > 0  # tip below the surface
+        if k > 1:
+            steps = np.linalg.norm(np.diff(log["tip"][:k], axis=0), axis=1)
+            out["cut_length_m"] = float(steps[inside[1:] & inside[:-1]].sum())
+        if self.rcm:
+            out["rcm_error_max_m"] = float(log["rcm_m"][:k].max(initial=0.0))
+        return out
+
+
+class TremorProbe(Hook):
     """How much physiological tremor the fixtures remove: the hand's tremor and the slave tip's
     motion, both across the cut (the plane normal and the blade's side axis, in slave units), in the
     tremor band. ``tremor_removed_pct`` = 100 (1 - out / in)."""
@@ -203,6 +282,13 @@ class TremorProbe:
         self.hand_across = np.zeros((n, 2))
         self.tip_across = np.zeros((n, 2))
         self.k = 0
+        self._R_v = None
+
+    def before_tick(self, i, t_s, loop) -> None:
+        self._R_v = loop.master.virtual_pose()[1]
+
+    def after_tick(self, i, t_s, loop) -> None:
+        self.update(t_s, self._R_v, loop.slave.state.tip)
 
     def update(self, t: float, R_v: np.ndarray, tip_P: np.ndarray) -> None:
         side_P = self.R_PM @ R_v[:, 1]

@@ -11,6 +11,8 @@ from __future__ import annotations
 
 import math
 
+from abc import ABC, abstractmethod
+
 import numpy as np
 
 from teleop.dynamics.rotations import cross
@@ -34,7 +36,21 @@ def task_frame(spec: FixtureSpec, R: np.ndarray) -> np.ndarray:
     return np.column_stack([forward, cross(n, forward), n])
 
 
-class ScriptedWrench:
+class Operator(ABC):
+    """Who pushes the handle. ``wrench(t, p, R, v, w)`` -> (6,: N, N*m, world) from the time (s)
+    and the state of what the hand holds; ``clutch_engaged`` False lets go of the tool; ``stop``
+    True ends the run; ``tremor_on`` says a tremor is part of the hand's motion."""
+
+    clutch_engaged = True
+    stop = False
+    tremor_on = False
+
+    @abstractmethod
+    def wrench(self, t: float, p: np.ndarray, R: np.ndarray, v=None, w=None) -> np.ndarray:
+        """The hand's wrench at time t (s) on what it holds at (p, R) moving at (v, w)."""
+
+
+class ScriptedWrench(Operator):
     """Phases of constant wrench with linear ramps, optionally repeating every ``repeat_s``."""
 
     def __init__(self, spec: OperatorSpec, fixture: FixtureSpec):
@@ -64,7 +80,7 @@ class ScriptedWrench:
         return out
 
 
-class VirtualHand:
+class VirtualHand(Operator):
     """A hand holding the handle and pulling it toward a scripted path with a spring-damper.
 
     The path is piecewise linear in time through ``waypoints`` (t s, x, y, z m, world). Tremor, when

@@ -1,165 +1,88 @@
-"""The slave half of a teleoperation tick: map the virtual tool to a target, follow it with the QP
-under the patient-frame fixtures, cut the tissue, and return the contact wrench for the master.
+"""The slave side of the bilateral tick: a command in, a contact wrench out.
 
-Metrics, all in the patient frame, each tick:
-
-* ``tip_tracking_rms_m`` - RMS distance of the slave's tool frame from its target;
-* ``cut_depth_error_max_m`` - max |depth of the blade tip - fixture depth| while in tissue;
-* ``cut_direction_error_max_rad`` - max angle between the slave's and the target's cutting axes;
-* ``contact_force_max_N`` - max |tissue force| at the blade tip;
-* ``rcm_error_max_m`` - max distance of the shaft from the trocar (laparoscopic scenes only).
+``follow(cmd)`` maps the master's :class:`~teleop.link.messages.ToolCommand` into the patient frame
+(the registration), moves the target onto the patient-frame fixture, runs the follower QP under the
+same fixture rows, evaluates the tissue at the blade tip and answers with a
+:class:`~teleop.link.messages.ContactFeedback`: the contact wrench at the slave tool frame's origin,
+in the patient frame. No command (a late or lost message) holds the last target; a command with the
+clutch out holds the arm where it is. Plain arguments only: no scene, no runtime.
 """
 
 from __future__ import annotations
 
-import math
-
 import numpy as np
 
-from teleop.dynamics.constraints import RemoteCenter
+from teleop.control.mapping import Registration
 from teleop.dynamics.rotations import cross
-from teleop.errors import ConfigError, SceneError
+from teleop.link.messages import ContactFeedback, ToolCommand
 from teleop.slave.kernels import project_onto_fixture
+from teleop.slave.qp import SlaveArm
+
+
+class SlaveState:
+    """What the slave did this tick (patient frame): target ``p_t``, ``R_t``; tool pose ``p``,
+    ``R`` and twist ``v``, ``w``; blade ``tip`` (m); ``contact_P`` the tissue wrench at the tip
+    (6,: N, N*m); ``status`` of the follower."""
+
+    __slots__ = ("p_t", "R_t", "p", "R", "v", "w", "tip", "contact_P", "status", "ticks")
+
+    def __init__(self):
+        self.p_t = self.p = self.tip = np.zeros(3)
+        self.R_t = self.R = np.eye(3)
+        self.v = self.w = np.zeros(3)
+        self.contact_P = np.zeros(6)
+        self.status = "ok"
+        self.ticks = 0
 
 
 class SlaveSide:
-    """Arm, tissue and mapping of one scene; ``step`` runs one tick, ``result`` gives the metrics."""
+    """``arm`` the follower, ``registration`` master -> patient, ``tissue`` (or None) with a
+    ``wrench(tip, R, v_tip, w)`` method, ``tip_B`` the blade tip in the tool frame (m, slave
+    scale)."""
 
-    def __init__(self, scene, n_ticks: int):
-        from dataclasses import replace
-
-        from teleop.contact import TissueBlock
-        from teleop.contact.cutting import CuttingModel
-        from teleop.scenario.build import build_fixture, build_registration
-        from teleop.slave import SlaveArm, SlaveConfig
-
-        self.reg = build_registration(scene)
-        self.spec = scene.fixture
-        self.constraints = build_fixture(scene.fixture).constraints
-        try:
-            self.arm = SlaveArm(SlaveConfig.from_dict(scene.extra["slave"], "slave"), self.constraints, scene.dt_s)
-            self.tissue = None
-            if "tissue" in scene.effects:
-                tissue = TissueBlock.from_dict(scene.extra.get("tissue", {}), "tissue")
-                if "cutting" not in scene.effects:  # normal contact only: no cutting resistance
-                    tissue = replace(tissue, cutting=CuttingModel(0.0, 0.0, 0.0, 0.0))
-                self.tissue = tissue
-        except ConfigError as e:
-            key, _, reason = str(e).partition(": ")
-            raise SceneError(scene.path, key, reason) from None
-        self.tip_B = np.asarray(scene.fixture.tip_m, dtype=float)
-        # Force feedback through a first-order low-pass. The cutting force is steep in velocity
-        # (~2000 N*s/m below 1 mm/s); fed raw to a light reference tool integrated explicitly with
-        # a one-tick delay it makes a limit cycle (the tool and the arm chatter). 20 Hz keeps the
-        # cut's feel and removes it; 0 turns the filter off.
-        fc = scene.extra.get("mapping", {}).get("feedback_cutoff_hz", 20.0)
-        if not isinstance(fc, (int, float)) or isinstance(fc, bool) or not math.isfinite(fc) or fc < 0:
-            raise SceneError(scene.path, "mapping.feedback_cutoff_hz", f"expected a number >= 0, got {fc!r}")
-        self._alpha = 1.0 - math.exp(-2.0 * math.pi * fc * scene.dt_s) if fc > 0 else 1.0
-        self._feedback = np.zeros(6)
-        self.rcm = [c for c in self.constraints if isinstance(c, RemoteCenter)]
-        # the follower's fitted rows, for project_target: the holonomic ones with h unscaled, and all
-        # (only their G is read); None when a row is not of the fitted form
-        rows = self.arm.qp.rows
+    def __init__(self, arm: SlaveArm, registration: Registration, tissue=None, tip_B=(0.0, 0.0, 0.0)):
+        self.arm, self.reg, self.tissue = arm, registration, tissue
+        self.tip_B = np.asarray(tip_B, dtype=float)
+        rows = arm.qp.rows
         hol = [i for c, r0 in zip(rows.constraints, np.cumsum([0] + [c.rows for c in rows.constraints]))
                if c.holonomic for i in range(r0, r0 + c.rows)]
         self._rows = None if rows.direct else (rows.coefficients_of(hol), rows.coefficients)
-        normal = np.asarray(self.spec.plane_normal, dtype=float)
-        self._normal = normal / np.linalg.norm(normal)
-        self._plane_origin = np.asarray(self.spec.plane_origin_m, dtype=float)
-        self.n = 0
-        series = ("track_m", "depth_err_m", "dir_err_rad", "contact_N") + (("rcm_m",) if self.rcm else ())
-        self.log = {k: np.zeros(n_ticks) for k in series}
-        self.log["q"] = np.zeros((n_ticks, self.arm.nv))
-        self.log["tip"] = np.zeros((n_ticks, 3))
-        self.statuses: dict[str, int] = {}
+        self.state = SlaveState()
+        self._target = None
+        self._seq = 0
 
-    def reset(self, p_v, R_v) -> str:
-        p, R, _, _ = self.reg.target(p_v, R_v, np.zeros(3), np.zeros(3))
+    def reset(self, p_M, R_M) -> str:
+        """Place the arm at the mapped master pose (inverse kinematics); returns its status."""
+        p, R, _, _ = self.reg.target(p_M, R_M, np.zeros(3), np.zeros(3))
         return self.arm.reset((p, R))
 
-    def project_target(self, p, R, v, w):
-        """The target moved onto the patient-frame fixture: Newton steps on the holonomic rows
-        (minimum-norm twist corrections, retraction by exp), then the twist onto every row. The
-        virtual tool carries the device's tracking error (tens of um, mrad); the slave follows its
-        closest admissible pose instead of fighting its own fixture rows. One compiled call
-        (:func:`teleop.slave.kernels.project_onto_fixture`) when every row has the fitted form;
-        :meth:`project_target_reference` otherwise, and as the reference."""
+    def project(self, p, R, v, w):
+        """The target moved onto the patient-frame fixture (one compiled call)."""
         if self._rows is None:
-            return self.project_target_reference(p, R, v, w)
-        p, R, v, w = (np.ascontiguousarray(x, dtype=float) for x in (p, R, v, w))  # the mapping's: (3,), (3, 3)
+            return p, R, v, w
+        p, R, v, w = (np.ascontiguousarray(x, dtype=float) for x in (p, R, v, w))
         return project_onto_fixture(self._rows[0], self._rows[1], p, R, v, w, 3, 1e-12)
 
-    def project_target_reference(self, p, R, v, w):
-        """:meth:`project_target` with the constraints' own methods and numpy."""
-        import pinocchio as pin
-
-        from teleop.dynamics.constraints import stack_jacobian, stack_residual
-
-        hol = [c for c in self.constraints if c.holonomic]
-        for _ in range(3 if hol else 0):
-            h = stack_residual(hol, p, R)
-            if float(np.abs(h).max()) < 1e-12:
-                break
-            G = stack_jacobian(hol, p, R)
-            d = -np.linalg.lstsq(G, h, rcond=None)[0]
-            p, R = p + d[:3], pin.exp3(d[3:]) @ R
-        if self.constraints:
-            G = stack_jacobian(self.constraints, p, R)
-            nu = np.concatenate([v, w])
-            nu = nu - np.linalg.lstsq(G, G @ nu, rcond=None)[0]
-            v, w = nu[:3], nu[3:]
-        return p, R, v, w
-
-    def step(self, p_v, R_v, v_v, w_v) -> np.ndarray:
-        """One tick toward the mapped virtual tool (projected onto the fixture); returns the contact
-        wrench for the master (6,), world of the master, at the master tool's origin."""
-        p_t, R_t, v_t, w_t = self.project_target(*self.reg.target(p_v, R_v, v_v, w_v))
-        st = self.arm.step(p_t, R_t, v_t, w_t, self._last_contact if self.n else None)
-        self.statuses[st] = self.statuses.get(st, 0) + 1
+    def follow(self, cmd: ToolCommand | None, t_s: float) -> ContactFeedback:
+        """One tick toward the newest command (see the module docstring)."""
+        s = self.state
+        if cmd is not None and cmd.clutch:
+            self._target = self.project(*self.reg.target(cmd.p_m, cmd.R, cmd.v_m_s, cmd.w_rad_s))
+        elif cmd is not None or self._target is None:  # clutch out, or nothing yet: hold still
+            p, R = self.arm.tool_pose()
+            self._target = (p, R, np.zeros(3), np.zeros(3))
+        elif self._target[2].any() or self._target[3].any():  # a lost message: hold the last pose
+            self._target = (self._target[0], self._target[1], np.zeros(3), np.zeros(3))
+        p_t, R_t, v_t, w_t = self._target
+        s.status = self.arm.step(p_t, R_t, v_t, w_t, s.contact_P if s.ticks else None)
         p, R = self.arm.tool_pose()
         v, w = self.arm.tool_twist()
-        # the slave's tool frame sits at the blade tip (the scene's tip_m is then 0); allow an offset
-        d = R @ (self.tip_B / self.reg.scale)
-        tip, v_tip = p + d, v + cross(w, d)
-        contact = self.tissue.wrench(tip, R, v_tip, w) if self.tissue is not None else np.zeros(6)
-        self._last_contact = contact
-        i = self.n
-        depth = -float(self._normal @ (tip - self._plane_origin))
-        self.log["track_m"][i] = float(np.linalg.norm(p - p_t))
-        # error while the blade is in the tissue; a tiny floor marks "inside" for the cut length
-        self.log["depth_err_m"][i] = max(abs(depth - self.spec.depth_m), 1e-15) if depth > 0 else 0.0
-        c = float(np.clip(R[:, 0] @ R_t[:, 0], -1.0, 1.0))
-        self.log["dir_err_rad"][i] = math.acos(c)
-        self.log["contact_N"][i] = float(np.linalg.norm(contact[:3]))
-        if self.rcm:
-            self.log["rcm_m"][i] = max(float(np.linalg.norm(r.residual(p, R))) for r in self.rcm)
-        self.log["q"][i] = self.arm.q
-        self.log["tip"][i] = tip
-        self.n += 1
-        # to the master: scaled, in master axes, moved from the slave tip to the master tool origin
-        F = self.reg.wrench_to_master(contact)
-        r_M = self.reg.X_PM_R.T @ d * self.reg.scale
-        F[3:] += cross(r_M, F[:3])
-        self._feedback = self._feedback + self._alpha * (F - self._feedback)
-        return self._feedback
-
-    def result(self) -> dict:
-        k = self.n
-        out = {
-            "tip_tracking_rms_m": float(np.sqrt(np.mean(self.log["track_m"][:k] ** 2))) if k else 0.0,
-            "cut_depth_error_max_m": float(self.log["depth_err_m"][:k].max(initial=0.0)),
-            "cut_direction_error_max_rad": float(self.log["dir_err_rad"][:k].max(initial=0.0)),
-            "contact_force_max_N": float(self.log["contact_N"][:k].max(initial=0.0)),
-        }
-        tip = self.log["tip"][:k]
-        inside = self.log["depth_err_m"][:k] > 0  # tip below the surface
-        if k > 1:
-            steps = np.linalg.norm(np.diff(tip, axis=0), axis=1)
-            out["cut_length_m"] = float(steps[inside[1:] & inside[:-1]].sum())
-        if self.rcm:
-            out["rcm_error_max_m"] = float(self.log["rcm_m"][:k].max(initial=0.0))
-        return out
-
-    def trimmed_log(self) -> dict:
-        return {f"slave_{k}": v[: self.n] for k, v in self.log.items()}
+        d = R @ self.tip_B
+        tip = p + d
+        contact = self.tissue.wrench(tip, R, v + cross(w, d), w) if self.tissue is not None else np.zeros(6)
+        s.p_t, s.R_t, s.p, s.R, s.v, s.w, s.tip, s.contact_P = p_t, R_t, p, R, v, w, tip, contact
+        s.ticks += 1
+        at_origin = contact.copy()
+        at_origin[3:] += cross(d, contact[:3])  # the tip's wrench moved to the tool frame origin
+        self._seq += 1
+        return ContactFeedback(self._seq, t_s, at_origin, s.status, -1 if cmd is None else cmd.seq)

@@ -1,0 +1,84 @@
+"""THE bilateral tick: one control period of the whole teleoperator, top to bottom.
+
+Master side: the operator's hand pushes (``operator.wrench``), the master senses it (bus in, load
+cell, φ: eq. 4), the reference tool steps under it plus the force fed back (§II, eqs. 8-11), the
+master commands the device to follow the tool (FF + PID, eqs. 18-19, bus out) and sends the virtual
+tool to the slave. Slave side: the newest command is followed under the fixture rows (QP) and the
+contact wrench goes back. Master again: the feedback is mapped and filtered for the next step.
+Master and slave share nothing but the two messages of :mod:`teleop.link`, so a link that delays,
+drops or crosses a network changes nothing here.
+
+Hooks see the tick before and after (metrics, logs, views); a hook never changes the physics.
+The tick never raises on its inputs: every part reports a status, and :meth:`BilateralLoop.tick`
+returns the first that is not "ok" on the master side; the slave's status is reported apart
+(see :data:`SLAVE_STATUS_RANK`), because a slave that relaxed its fixtures has not failed the tick.
+"""
+
+from __future__ import annotations
+
+from time import perf_counter_ns
+
+import numpy as np
+
+from teleop.link.base import Link, LockstepLink
+from teleop.link.messages import MessageError, ToolCommand
+
+
+class Hook:
+    """Called around every tick with the loop (read its ``tool``, ``master``, ``slave``, ...)."""
+
+    def before_tick(self, i: int, t_s: float, loop: "BilateralLoop") -> None:
+        """Before the operator acts (the state the tick starts from)."""
+
+    def after_tick(self, i: int, t_s: float, loop: "BilateralLoop") -> None:
+        """After the feedback came back (the state the tick ends in)."""
+
+
+class BilateralLoop:
+    """``tool`` a ReferenceTool, ``master`` a master (ideal or cobot), ``operator`` with
+    ``wrench(t, p, R, v, w)`` and ``clutch_engaged``; with a ``slave`` (a SlaveSide), a ``link``
+    (lockstep by default) and a ``feedback`` path (FeedbackPath) to the master."""
+
+    def __init__(self, tool, master, operator, dt_s: float, slave=None, link: Link | None = None,
+                 feedback=None, hooks=()):
+        self.tool, self.master, self.operator, self.dt = tool, master, operator, float(dt_s)
+        self.slave, self.feedback, self.hooks = slave, feedback, tuple(hooks)
+        self.link = link if link is not None else LockstepLink()
+        self.hand_W = np.zeros(6)      # what the hand pushed with this tick (N, N*m)
+        self.feedback_W = np.zeros(6)  # the slave's force, applied at the next tool step
+        self.status = "ok"
+        self.command_errors = 0        # ticks whose command could not be made (non-finite)
+        self.tick_ns = 0               # the last tick's physics, hooks excluded (ns, CPU clock)
+
+    def tick(self, i: int) -> str:
+        """One period; returns the master side's status ("ok" or what stopped it)."""
+        t, master, tool = i * self.dt, self.master, self.tool
+        for h in self.hooks:
+            h.before_tick(i, t, self)
+        t0 = perf_counter_ns()
+        self.hand_W = self.operator.wrench(t, *master.hand_state())
+        master.set_clutch(self.operator.clutch_engaged)
+        f_v = master.sense(self.hand_W)                            # bus in, load cell, eq. 4
+        p_r, R_r = tool.pose()
+        v_r, w_r = tool.twist()
+        st = tool.step(self.dt, f_v + self.feedback_W)             # §II: eqs. 8-11
+        st_m = master.command(p_r, R_r, np.concatenate((v_r, w_r)), tool.acceleration_W)  # 18-19
+        if self.slave is not None:
+            self._send_command(i, t)                                # master side ends here
+            reply = self.slave.follow(self.link.receive_command(t), t)          # slave side
+            self.link.send_feedback(reply)
+            self.feedback_W = self.feedback.update(self.link.receive_feedback(t))  # master again
+        self.tick_ns = perf_counter_ns() - t0
+        for h in self.hooks:
+            h.after_tick(i, t, self)
+        self.status = st if st != "ok" else st_m
+        return self.status
+
+    def _send_command(self, i: int, t: float) -> None:
+        """The virtual tool (the observer's estimate) to the slave; a master whose estimate is not
+        finite sends nothing (the slave holds) and reports it."""
+        try:
+            self.link.send_command(ToolCommand(i, t, *self.master.virtual_estimate(),
+                                               self.operator.clutch_engaged))
+        except MessageError:
+            self.command_errors += 1
