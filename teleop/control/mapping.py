@@ -23,6 +23,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from teleop.dynamics import constraints as C
+from teleop.dynamics.registry import FrameMap
 from teleop.errors import ConfigError, check_table
 
 
@@ -89,6 +90,12 @@ class Registration:
         R = self.X_PM_R
         return (self.point_to_patient(p_r), R @ np.asarray(R_r, float),
                 R @ np.asarray(v_r, float) / self.scale, R @ np.asarray(w_r, float))
+
+    def master_frame(self) -> FrameMap:
+        """Where patient-frame geometry lands in the master workspace: the one map that fixture
+        types (:mod:`teleop.dynamics.registry`) use to build the master's fixture."""
+        Rt = self.X_PM_R.T
+        return FrameMap(Rt, -Rt @ self.X_PM_p, self.scale)
 
     def pose_to_master(self, p, R_P):
         """Slave tool pose in P -> reference tool pose in M (the inverse of ``target``'s pose)."""
