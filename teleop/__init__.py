@@ -6,7 +6,16 @@ rendered by an admittance controller (``control``) on a cobot reached over CAN (
 ``master``), and followed by a slave arm (``slave``).
 """
 
+from importlib.metadata import PackageNotFoundError, version
+
 from teleop.errors import TeleopError
 
-__all__ = ["TeleopError"]
-__version__ = "0.1.0"
+#: The distribution's name on the package index ("teleop" there is another project).
+DISTRIBUTION = "teleop-haptics"
+
+try:
+    __version__ = version(DISTRIBUTION)
+except PackageNotFoundError:  # a checkout imported without installing it
+    __version__ = "0+unknown"
+
+__all__ = ["TeleopError", "__version__"]

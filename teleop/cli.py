@@ -14,6 +14,7 @@ import argparse
 import json
 import sys
 
+from teleop import __version__
 from teleop.errors import TeleopError
 
 DEFAULT_SCENE = "straight_incision"
@@ -148,6 +149,7 @@ def cmd_plot(args) -> int:
 
 def build_parser() -> argparse.ArgumentParser:
     ap = argparse.ArgumentParser(prog="teleop", description="Constrained teleoperation of surgical-style robots")
+    ap.add_argument("--version", action="version", version=f"%(prog)s {__version__}")
     sub = ap.add_subparsers(dest="command", required=True)
     run = sub.add_parser("run", help="run a scene (default: the scripted surgical cut)")
     run.add_argument("scene", nargs="?", help="scene name (see 'teleop list') or path to a .toml file")

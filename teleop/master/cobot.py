@@ -18,8 +18,9 @@ import pinocchio as pin
 from teleop.dynamics.rotations import cross
 from teleop.master.kernels import gantry_zxz_pose_jacobian
 from teleop.errors import ConfigError
+from teleop.resources import robot_file
 
-DEFAULT_URDF = Path(__file__).resolve().parents[2] / "robots" / "cobot" / "cobot.urdf"
+DEFAULT_URDF = robot_file("cobot/cobot.urdf")
 GRAVITY_W = np.array([0.0, 0.0, -9.81])
 
 

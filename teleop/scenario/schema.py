@@ -12,6 +12,7 @@ from pathlib import Path
 
 from teleop.dynamics.integrators import INTEGRATORS
 from teleop.errors import SceneError
+from teleop.resources import scenario_dir
 from teleop.scenario.reader import Table
 
 #: Effects a scene may call for. The runtime assembles only the ones a scene names.
@@ -31,7 +32,7 @@ FIXTURES = ("free", "rolling_disk", "sphere", "scalpel")
 FRAMES = ("world", "tool", "task")
 MASTERS = ("ideal", "cobot")
 
-SCENARIO_DIR = Path(__file__).resolve().parents[2] / "scenarios"
+SCENARIO_DIR = scenario_dir()
 
 
 def _pos(x) -> bool:

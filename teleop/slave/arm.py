@@ -20,11 +20,11 @@ import numpy as np
 import pinocchio as pin
 
 from teleop.errors import ConfigError, check_table
+from teleop.resources import robot_file
 from teleop.slave.limits import JointLimits
 from teleop.slave.solvers import PACKAGES, installed_solvers
 
-ROBOTS_DIR = Path(__file__).resolve().parents[2] / "robots"
-SCALPEL_URDF = ROBOTS_DIR / "scalpel" / "scalpel.urdf"
+SCALPEL_URDF = robot_file("scalpel/scalpel.urdf")
 
 #: arm name -> (example-robot-data name, flange frame, default q0 rad, acceleration limits rad/s^2)
 ARMS = {
