@@ -14,6 +14,7 @@ from pathlib import Path
 
 import numpy as np
 
+from teleop.master.ideal import IdealMaster
 from teleop.scenario.build import build_tool, master_fixture_spec
 from teleop.scenario.operators import make_operator
 from teleop.scenario.metrics import make_metrics
@@ -34,47 +35,6 @@ class RunResult:
     def write_log(self, path) -> None:
         Path(path).parent.mkdir(parents=True, exist_ok=True)
         np.savez_compressed(path, **self.log, summary=json.dumps(self.summary))
-
-
-class IdealMaster:
-    """The operator's wrench goes straight to the reference tool; the virtual tool *is* the reference."""
-
-    def __init__(self, tool, dt_s: float):
-        self.tool, self.dt = tool, dt_s
-        self.engaged = True
-
-    def __enter__(self):
-        return self
-
-    def __exit__(self, *exc):
-        self.close()
-
-    def close(self) -> None:
-        pass
-
-    def set_clutch(self, engaged: bool) -> None:
-        """Clutch out: the hand lets go of the tool (its wrench no longer reaches it)."""
-        self.engaged = bool(engaged)
-
-    def step(self, hand_wrench_W, contact_wrench_W=None) -> str:
-        w = hand_wrench_W if self.engaged else np.zeros(6)
-        w = w if contact_wrench_W is None else w + contact_wrench_W
-        return self.tool.step(self.dt, w)
-
-    def virtual_pose(self):
-        return self.tool.pose()
-
-    def virtual_twist(self):
-        return self.tool.twist()
-
-    def virtual_estimate(self):
-        """The virtual tool for the slave (p, R, v, w): here the tool itself."""
-        return (*self.tool.pose(), *self.tool.twist())
-
-    hand_state = virtual_estimate  # what the operator's hand touches: the tool itself too
-
-    def stats(self) -> dict:
-        return {}
 
 
 def _pace(deadline: float) -> int:
@@ -102,7 +62,7 @@ def make_master(scene: Scene, tool, rng: np.random.Generator):
             cfg.update(force_noise_N=0.0, torque_noise_Nm=0.0, force_bias_N=(0.0, 0.0, 0.0), torque_bias_Nm=(0.0, 0.0, 0.0))
         if "servo_lag" not in scene.effects:
             cfg["servo_bandwidth_hz"] = 1e4  # a 16 us lag: nothing at a 1 kHz tick
-        return CobotMaster(tool, CobotConfig.from_dict(cfg, "cobot"), scene.dt_s, rng)
+        return CobotMaster(CobotConfig.from_dict(cfg, "cobot"), scene.dt_s, rng, *tool.pose(), tool.body.mass_kg)
     return IdealMaster(tool, scene.dt_s)
 
 
@@ -146,7 +106,12 @@ def run_scene(scene: Scene, progress=None, realtime: bool = False, operator=None
             wrench = operator.wrench(i * scene.dt_s, *master.hand_state())
             if hasattr(operator, "clutch_engaged"):  # the operator reads the clutch pedal too
                 master.set_clutch(operator.clutch_engaged)
-            st = master.step(wrench, contact)
+            f_v = master.sense(wrench)  # bus in, load cell, eq. 4
+            p_r, R_r = tool.pose()
+            v_r, w_r = tool.twist()
+            st = tool.step(scene.dt_s, f_v if contact is None else f_v + contact)
+            st_master = master.command(p_r, R_r, np.concatenate([v_r, w_r]), tool.acceleration_W)
+            st = st_master if st_master != "ok" else st
             if slave is not None:
                 contact = slave.step(*master.virtual_estimate())
                 if tremor is not None:
@@ -160,9 +125,9 @@ def run_scene(scene: Scene, progress=None, realtime: bool = False, operator=None
             log["q_r"][i] = tool.q
             log["q_v_p"][i] = p_v
             log["R_v"][i] = R_v
-            driver = getattr(master, "driver", None)
-            if driver is not None:  # the cobot: its encoders and the bus's running loss count
-                log["master_q"][i] = driver.joints_rad_m
+            joints = master.joints()
+            if joints is not None:  # the cobot: its encoders and the bus's running loss count
+                log["master_q"][i] = joints
                 log["can_frames_lost"][i] = master.stats().get("can_frames_lost", 0)
             log["p_r"][i], log["R_r"][i] = tool.pose()
             log["lam"][i] = tool.lam
