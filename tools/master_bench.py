@@ -1,5 +1,6 @@
 """Master tick benchmark: driver decode + engine step + controller + encode, per 1 kHz cycle,
 WITHOUT the device simulation (its frames are pre-recorded from a lockstep run and replayed).
+A tick is the master side of the bilateral period: ``sense``, the reference tool's step, ``command``.
 
     python tools/master_bench.py [--steps N]
 
@@ -23,6 +24,15 @@ import numpy as np
 PHASES = ("decode", "engine", "controller", "encode_send")
 
 
+def _tick(m, tool, hand) -> str:
+    """sense -> tool step -> command (the run loop's master side)."""
+    f_v = m.sense(hand)
+    p_r, R_r = tool.pose()
+    v_r, w_r = tool.twist()
+    tool.step(m.dt_s, f_v)
+    return m.command(p_r, R_r, np.concatenate([v_r, w_r]), tool.acceleration_W)
+
+
 def _disk_tool():
     from teleop.dynamics import fixtures
     from teleop.dynamics.body import RigidBody
@@ -39,11 +49,12 @@ def _record_feedback(n: int):
     """Device frames (joints, wrench) of a lockstep run, one pair per cycle."""
     from teleop.master import CobotConfig, CobotMaster
 
-    m = CobotMaster(_disk_tool(), CobotConfig.from_dict({}, "bench"), 1e-3, np.random.default_rng(0))
+    tool = _disk_tool()
+    m = CobotMaster(CobotConfig.from_dict({}, "bench"), 1e-3, np.random.default_rng(0), *tool.pose(), tool.body.mass_kg)
     frames = []
     with m:
         for i in range(n):
-            m.step(np.array([3.0 * np.cos(i * 1e-3), 0.5, 0, 0, 0, 0.02]))
+            _tick(m, tool, np.array([3.0 * np.cos(i * 1e-3), 0.5, 0, 0, 0, 0.02]))
             frames.append((m.driver.joints_rad_m.copy(), m.driver.wrench_S.copy()))
     return m, frames
 
@@ -76,15 +87,18 @@ def measure(n_steps: int = 5000) -> dict:
     """{"master_tick_us": {"median", "p99"}, "phases_us": {phase: {"median", "p99"}}}: one host
     cycle (decode 2 frames, engine step, PID, Jacobian + DLS, encode and send SYNC and the
     command) on a virtual bus with no simulator."""
-    from teleop.can import FrameDatabase
     from teleop.master import CobotConfig, CobotMaster
+    from teleop.master.cobot.database import FrameDatabase
 
     ref, frames = _record_feedback(min(n_steps, 2000))
     db = FrameDatabase()
     # the replayed frames do not follow this host's commands (open loop), so the reference tool
     # drifts away from them: the tracking fault would latch and leave only the cheap fault path
     open_loop = {"tracking_fault_m": 100.0, "tracking_fault_rad": 100.0}
-    m = CobotMaster(_disk_tool(), CobotConfig.from_dict(open_loop, "bench"), 1e-3, np.random.default_rng(0))
+    tool = _disk_tool()
+    m = CobotMaster(CobotConfig.from_dict(open_loop, "bench"), 1e-3, np.random.default_rng(0), *tool.pose(),
+                    tool.body.mass_kg)
+    m.sim.close()
     m.sim = None  # the host alone: the feedback comes from the replay bus below
     m.bias_S, m.driver.joints_rad_m = ref.bias_S, frames[0][0].copy()
     m.driver.start(m.joints0)
@@ -96,7 +110,7 @@ def measure(n_steps: int = 5000) -> dict:
     clock = PhaseClock()
     m.driver.read = clock.wrap(m.driver.read, "decode")
     m.driver._send = clock.wrap(m.driver._send, "encode_send")
-    m.tool.step = clock.wrap(m.tool.step, "engine")
+    tool.step = clock.wrap(tool.step, "engine")
     samples = np.empty(n_steps)
     phases = {p: np.empty(n_steps) for p in PHASES}
     wrench_in = np.array([1.0, 0.2, 0, 0, 0, 0.01])
@@ -112,7 +126,7 @@ def measure(n_steps: int = 5000) -> dict:
             replay.send(can.Message(arbitration_id=fid, data=data, is_fd=fd, is_extended_id=False))
         clock.take()
         t0 = time.perf_counter_ns()
-        m.step(wrench_in, None)  # SYNC + read/decode + engine + controller + command encode/send
+        _tick(m, tool, wrench_in)  # SYNC + read/decode + engine + controller + command encode/send
         total = time.perf_counter_ns() - t0
         split = clock.take()
         samples[i] = total * 1e-3

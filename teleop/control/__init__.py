@@ -1,6 +1,6 @@
 """The master-to-slave side of control: the admittance controller (§III), mapping, clutch."""
 
-from teleop.control.admittance import AdmittanceController, AdmittanceGains, Phi, compute_tracking_error
+from teleop.control.admittance import AdmittanceController, AdmittanceGains, Phi
 from teleop.control.clutch import Clutch
 
-__all__ = ["AdmittanceController", "AdmittanceGains", "Phi", "compute_tracking_error", "Clutch"]
+__all__ = ["AdmittanceController", "AdmittanceGains", "Phi", "Clutch"]

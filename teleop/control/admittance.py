@@ -14,7 +14,6 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 import numpy as np
-import pinocchio as pin
 
 from teleop.control.kernels import pid_step
 from teleop.errors import ConfigError
@@ -124,25 +123,18 @@ class AdmittanceGains:
             raise ConfigError(f"{where}.ki: the PID is unstable unless kd*kp > ki")
 
 
-def compute_tracking_error(p_r, R_r, p_v, R_v) -> np.ndarray:
-    """e = q_r - q_v, chart-free: (p_r - p_v m, log(R_r R_vᵀ) rad), world frame."""
-    return np.concatenate([p_r - p_v, pin.log3(R_r @ R_v.T)])
-
-
 class AdmittanceController:
     """Eqs. 18-19 with a velocity-commanded device: the commanded virtual twist ν_c integrates
     q̈_v = q̈_r + Kp e + Ki ∫e + Kd (ν_r - ν_c), so ν_c carries the reference velocity forward.
 
     Anti-windup: the integral is clamped and is not advanced on an axis whose acceleration or
-    velocity command saturates (conditional integration).
-
-    compiled: run the period as one numba kernel (:func:`teleop.control.kernels.pid_step`);
-    False runs the numpy reference below, which the kernel is tested against.
+    velocity command saturates (conditional integration). The period is one compiled kernel,
+    :func:`teleop.control.kernels.pid_step`; this object holds its state.
     """
 
-    def __init__(self, gains: AdmittanceGains, dt_s: float, compiled: bool = True):
+    def __init__(self, gains: AdmittanceGains, dt_s: float):
         gains.check_stable(dt_s)
-        self.gains, self.dt, self.compiled = gains, float(dt_s), compiled
+        self.gains, self.dt = gains, float(dt_s)
         self.integral = np.zeros(6)
         self.nu_cmd = np.zeros(6)
         self.accel_cmd = np.zeros(6)
@@ -156,20 +148,9 @@ class AdmittanceController:
     def step(self, p_r, R_r, nu_r, accel_r, p_v, R_v):
         """One period: reference pose/twist at the measurement time, reference acceleration over
         the period (6,), virtual pose -> (ν_c (6,) m/s rad/s, q̈_v (6,) m/s^2 rad/s^2), world."""
-        g, dt = self.gains, self.dt
-        if self.compiled:
-            self.nu_cmd, self.accel_cmd, self.error, self.integral = pid_step(
-                p_r, R_r, nu_r, accel_r, p_v, R_v, g.kp, g.ki, g.kd, g.integral_limit, g.max_accel,
-                g.max_velocity, dt, self.integral, self.nu_cmd)
-            return self.nu_cmd, self.accel_cmd
-        e = compute_tracking_error(p_r, R_r, p_v, R_v)
-        integral = np.clip(self.integral + e * dt, -g.integral_limit, g.integral_limit)
-        accel = accel_r + g.kp * e + g.ki * integral + g.kd * (nu_r - self.nu_cmd)
-        accel_sat = np.clip(accel, -g.max_accel, g.max_accel)
-        nu = self.nu_cmd + accel_sat * dt
-        nu_sat = np.clip(nu, -g.max_velocity, g.max_velocity)
-        saturated = (accel_sat != accel) | (nu_sat != nu)
-        self.integral = np.where(saturated, self.integral, integral)
-        accel_sat = accel_sat + (nu_sat - nu) / dt  # the acceleration actually commanded
-        self.error, self.nu_cmd, self.accel_cmd = e, nu_sat, accel_sat
-        return nu_sat, accel_sat
+        g = self.gains
+        self.nu_cmd, self.accel_cmd, self.error, self.integral = pid_step(
+            np.asarray(p_r, float), np.asarray(R_r, float), np.asarray(nu_r, float), np.asarray(accel_r, float),
+            np.asarray(p_v, float), np.asarray(R_v, float), g.kp, g.ki, g.kd, g.integral_limit, g.max_accel,
+            g.max_velocity, self.dt, self.integral, self.nu_cmd)
+        return self.nu_cmd, self.accel_cmd

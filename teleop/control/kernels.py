@@ -3,9 +3,9 @@
 Why compiled: one PID period is some twenty operations on 6-vectors and a rotation log; in numpy
 each costs about a microsecond of call overhead whatever its size. Here the period is one call.
 
-The readable definition stays in Python and is the reference: ``AdmittanceController.step`` with
-``compiled=False`` for :func:`pid_step`; tests/unit/test_control_kernels.py checks the kernel
-against it. The rotation log is :func:`teleop.dynamics.kernels.so3.log3`. Units as in
+This is the one definition of the PID period; tests/unit/test_admittance.py checks it against
+hand-computed steps and its closed-loop behaviour (run it uncompiled with ``NUMBA_DISABLE_JIT=1``).
+The rotation log is :func:`teleop.dynamics.kernels.so3.log3`. Units as in
 :mod:`teleop.control.admittance` (SI, world frame).
 """
 
@@ -20,7 +20,10 @@ from teleop.dynamics.kernels.so3 import log3
 @njit(cache=True)
 def pid_step(p_r, R_r, nu_r, accel_r, p_v, R_v, kp, ki, kd, integral_limit, max_accel, max_velocity,
              dt, integral, nu_cmd):
-    """One period of eqs. 18-19 (see ``AdmittanceController.step``).
+    """One period of eqs. 18-19: e = (p_r - p_v, log(R_r R_vᵀ)); the integral of e clamped to
+    ±integral_limit; q̈ = accel_r + kp e + ki ∫e + kd (nu_r - nu_cmd) clamped to ±max_accel;
+    ν = nu_cmd + q̈ dt clamped to ±max_velocity; the integral holds on a saturated axis; the
+    acceleration returned is the one actually commanded, (ν - nu_cmd) / dt. Gains (6,) each.
 
     Returns (nu_c (6,), accel commanded (6,), error e (6,), integral (6,)), all new arrays.
     """

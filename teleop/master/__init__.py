@@ -1,7 +1,7 @@
-"""The cobot master: device model and simulation, its configuration, the master chain."""
+"""The masters: the ideal one and the cobot (host, protocol, simulated device), and its configuration."""
 
-from teleop.master.cobot import CobotDevice, CobotModel, DeviceParams
-from teleop.master.cobot_master import CobotMaster
+from teleop.master.cobot import CobotMaster, CobotModel, CobotPlant, DeviceParams
 from teleop.master.config import CobotConfig
+from teleop.master.ideal import IdealMaster
 
-__all__ = ["CobotConfig", "CobotMaster", "CobotDevice", "CobotModel", "DeviceParams"]
+__all__ = ["CobotConfig", "CobotMaster", "CobotModel", "CobotPlant", "DeviceParams", "IdealMaster"]

@@ -9,7 +9,8 @@ from teleop.dynamics import fixtures
 from teleop.dynamics.body import RigidBody
 from teleop.dynamics.effects import AngularDamper, LinearDamper
 from teleop.dynamics.tool import ReferenceTool
-from teleop.master import CobotConfig, CobotMaster
+from teleop.master import CobotConfig
+from tests.cobot_tick import make_cobot, tick
 
 
 def sphere_tool():
@@ -28,11 +29,11 @@ def push(t, R):
 def run(faults, n, stale_cycles=3):
     tool = sphere_tool()
     cfg = CobotConfig.from_dict({"faults": faults, "stale_cycles": stale_cycles}, "cobot")
-    m = CobotMaster(tool, cfg, 1e-3, np.random.default_rng(11))
+    m = make_cobot(tool, cfg, 1e-3, np.random.default_rng(11))
     dev, statuses = 0.0, []
     with m:
         for i in range(n):
-            st = m.step(push(i * 1e-3, m.virtual_pose()[1]), None)
+            st = tick(m, tool, push(i * 1e-3, m.virtual_pose()[1]), None)
             statuses.append(st)
             p, _ = m.virtual_pose()
             v, w = m.virtual_twist()
@@ -67,7 +68,7 @@ def test_silent_device_trips_watchdog_within_three_cycles():
     assert statuses[-1] == "watchdog" and stats["watchdog_trips"] == 1
     silent_step = next(i for i, _ in enumerate(statuses) if m.cfg.tare_cycles * 1e-3 + i * 1e-3 >= 0.25)
     assert len(statuses) - 1 - silent_step <= 3
-    assert np.all(m.device.qd_cmd == 0.0)  # zero velocity reached the device (it keeps listening)
+    assert np.all(m.sim.plant.qd_cmd == 0.0)  # zero velocity reached the device (it keeps listening)
 
 
 def test_bus_off_is_reported():
@@ -82,20 +83,20 @@ def test_a_device_out_of_travel_latches_a_tracking_fault_and_stops():
     tool = ReferenceTool(RigidBody(0.25, [0.0025] * 3), fixtures.free(), [LinearDamper(1.0), AngularDamper(0.1)],
                          integrator="parametric")
     tool.reset([0.3, 0.0, 0.0, 0.0, 0.0, 0.0])
-    m = CobotMaster(tool, CobotConfig.from_dict({}, "cobot"), 1e-3, np.random.default_rng(3))
+    m = make_cobot(tool, CobotConfig.from_dict({}, "cobot"), 1e-3, np.random.default_rng(3))
     statuses = []
     with m:
         for _ in range(3000):
-            statuses.append(m.step(np.array([20.0, 0.0, 0.0, 0.0, 0.0, 0.0]), None))
+            statuses.append(tick(m, tool, np.array([20.0, 0.0, 0.0, 0.0, 0.0, 0.0]), None))
             if statuses[-1] != "ok":
                 break
         assert statuses[-1] == "tracking_error" and set(statuses[:-1]) == {"ok"}
         stats = m.stats()
         assert stats["link_fault"] == "tracking_error" and 0.02 < stats["tracking_error_max_m"] < 0.03
-        q_held = tool.q.copy()
-        for _ in range(5):  # latched: zero velocity reaches the device, the tool is held
-            assert m.step(np.array([20.0, 0.0, 0.0, 0.0, 0.0, 0.0]), None) == "tracking_error"
-        assert np.all(m.device.qd_cmd == 0.0) and np.array_equal(tool.q, q_held)
+        for _ in range(5):  # latched: no wrench reaches the tool, zero velocity reaches the device
+            assert np.all(m.sense(np.array([20.0, 0.0, 0.0, 0.0, 0.0, 0.0])) == 0.0)
+            assert m.command(*tool.pose(), np.zeros(6), np.zeros(6)) == "tracking_error"
+        assert np.all(m.sim.plant.qd_cmd == 0.0)
         assert np.all(np.isfinite(m.virtual_pose()[0]))
 
 
@@ -106,8 +107,8 @@ def test_a_start_pose_beyond_the_wrist_travel_is_warned_about(caplog):
         tool = ReferenceTool(RigidBody(0.25, [0.0025] * 3), fixtures.free(), [], integrator="parametric")
         tool.reset([0.0, 0.0, 0.0, 0.0, 0.0, np.pi])  # ZYX: roll pi, the body z axis down
         caplog.clear()
-        with caplog.at_level("WARNING", logger="teleop.master.cobot_master"):
-            with CobotMaster(tool, CobotConfig.from_dict({"offset_rotvec_rad": rotvec}, "cobot"), 1e-3,
+        with caplog.at_level("WARNING", logger="teleop.master.cobot.host"):
+            with make_cobot(tool, CobotConfig.from_dict({"offset_rotvec_rad": rotvec}, "cobot"), 1e-3,
                              np.random.default_rng(0)):
                 pass
         said = [r.getMessage() for r in caplog.records if "end stop" in r.getMessage()]
@@ -123,8 +124,8 @@ def test_a_tool_lighter_than_the_handle_is_warned_about(caplog):
         tool = ReferenceTool(RigidBody(mass, [0.0025] * 3), fixtures.free(), [], integrator="parametric")
         tool.reset([0.0, 0.0, 0.0, 0.0, 0.0, 0.0])
         caplog.clear()
-        with caplog.at_level("WARNING", logger="teleop.master.cobot_master"):
-            with CobotMaster(tool, CobotConfig.from_dict({"scale": scale}, "cobot"), 1e-3, np.random.default_rng(0)):
+        with caplog.at_level("WARNING", logger="teleop.master.cobot.host"):
+            with make_cobot(tool, CobotConfig.from_dict({"scale": scale}, "cobot"), 1e-3, np.random.default_rng(0)):
                 pass
         said = [r.getMessage() for r in caplog.records if "behind the load cell" in r.getMessage()]
         assert bool(said) == warned, (mass, scale)

@@ -8,6 +8,7 @@ from teleop.dynamics.body import RigidBody
 from teleop.dynamics.effects import Spring
 from teleop.dynamics.tool import ReferenceTool
 from teleop.errors import ConfigError
+from tests.cobot_tick import make_cobot, tick
 
 H = 2e-3  # the largest period of the study
 MASS = 0.25
@@ -40,12 +41,12 @@ def test_stiff_spring_beyond_the_limit_is_caught_early(integrator):
 
 
 def _cobot(gains: dict, dt: float):
-    from teleop.master import CobotConfig, CobotMaster
+    from teleop.master import CobotConfig
     from teleop.scenario.build import build_tool
     from teleop.scenario.schema import load_scene
 
     tool = build_tool(load_scene("paper_rolling_disk").with_overrides(dt_s=dt))
-    return tool, CobotMaster(tool, CobotConfig.from_dict(gains, "cobot"), dt, np.random.default_rng(0))
+    return tool, make_cobot(tool, CobotConfig.from_dict(gains, "cobot"), dt, np.random.default_rng(0))
 
 
 def test_large_pid_gains_at_the_largest_period():
@@ -53,7 +54,7 @@ def test_large_pid_gains_at_the_largest_period():
     tool, master = _cobot({"kp": 1.5e5, "ki": 1.5e6, "kd": 450.0}, H)
     with master:
         for _ in range(1000):
-            assert master.step(np.array([2.0, 0.3, 0, 0, 0, 0.02])) == "ok"
+            assert tick(master, tool, np.array([2.0, 0.3, 0, 0, 0, 0.02])) == "ok"
             assert abs(master.virtual_pose()[0][2] - 0.03) <= 50e-6
     assert np.all(np.isfinite(tool.q))
 
@@ -72,7 +73,7 @@ def test_non_finite_sensor_values_never_reach_the_math():
         statuses = []
         for i in range(300):
             w = np.full(6, np.nan) if 50 <= i < 60 else np.array([np.inf, 0, 0, 0, 0, 0]) if 100 <= i < 103 else np.array([1.0, 0, 0, 0, 0, 0])
-            statuses.append(master.step(w))
+            statuses.append(tick(master, tool, w))
             assert np.all(np.isfinite(tool.q)) and np.all(np.isfinite(master.virtual_pose()[0]))
         assert all(isinstance(s, str) for s in statuses) and statuses[-1] == "ok"
         assert master.virtual_pose()[0][0] > 0.001  # it moved on the finite pushes

@@ -8,12 +8,13 @@ import sys
 import numpy as np
 import pytest
 
-from teleop.can.database import DEFAULT_DBC
+from teleop.master.cobot.database import DEFAULT_DBC
 from teleop.dynamics import fixtures
 from teleop.dynamics.body import RigidBody
 from teleop.dynamics.effects import AngularDamper, LinearDamper
 from teleop.dynamics.tool import ReferenceTool
-from teleop.master import CobotConfig, CobotMaster
+from teleop.master import CobotConfig
+from tests.cobot_tick import make_cobot, tick
 
 
 def paper_tool(fixture, q0):
@@ -55,12 +56,12 @@ def sphere_push(t, R):
 
 def run(tool, operator, n, cfg=None, seed=0, metric=None):
     """n steps; returns (statuses, metric maxima, master stats, the master)."""
-    m = CobotMaster(tool, CobotConfig.from_dict(cfg or {}, "cobot"), 1e-3, np.random.default_rng(seed))
+    m = make_cobot(tool, CobotConfig.from_dict(cfg or {}, "cobot"), 1e-3, np.random.default_rng(seed))
     worst, statuses = np.zeros(2), []
     with m:
         for i in range(n):
             p, R = m.virtual_pose()
-            st = m.step(operator(i * 1e-3, R), None)
+            st = tick(m, tool, operator(i * 1e-3, R), None)
             statuses.append(st)
             p, R = m.virtual_pose()
             v, w = m.virtual_twist()
@@ -131,25 +132,33 @@ def test_capture_reads_back_with_cantools(tmp_path):
 
 
 def test_clutch_reengages_without_jump():
+    """Clutched out, the hand drags the handle while the tool gets no hand wrench (it only coasts);
+    at re-engagement φ is re-indexed on the tool's pose exactly, and the device then tracks it."""
     tool = paper_tool(fixtures.rolling_disk(0.03), [0, 0, 0.03, 0, np.pi / 2, 0])
-    m = CobotMaster(tool, CobotConfig.from_dict({}, "cobot"), 1e-3, np.random.default_rng(0))
+    m = make_cobot(tool, CobotConfig.from_dict({}, "cobot"), 1e-3, np.random.default_rng(0))
     with m:
         for i in range(100):
-            m.step(parallel_parking(i * 1e-3, m.virtual_pose()[1]))
+            tick(m, tool, parallel_parking(i * 1e-3, m.virtual_pose()[1]))
         m.set_clutch(False)
-        q_hold = tool.q.copy()
-        for _ in range(200):  # the hand drags the handle sideways and up; the tool holds
-            m.step(np.array([0.0, 2.0, 1.0, 0, 0, 0]))
-        assert np.array_equal(tool.q, q_hold)
-        p_dev, _ = m.model.compute_handle_pose(m.driver.joints_rad_m)
+        p_hold = tool.pose()[0].copy()
+        speed = np.linalg.norm(tool.twist()[0])
+        for _ in range(200):  # the hand drags the handle sideways and up; the tool only coasts
+            assert np.all(m.sense(np.array([0.0, 2.0, 1.0, 0, 0, 0])) == 0.0)
+            p_r, R_r = tool.pose()
+            v, w = tool.twist()
+            tool.step(1e-3, np.zeros(6))
+            assert m.command(p_r, R_r, np.concatenate([v, w]), tool.acceleration_W) == "ok"
+        assert np.linalg.norm(tool.pose()[0] - p_hold) <= speed * 0.2 + 1e-9  # no faster than it coasted
+        p_dev, _ = m.model.compute_handle_pose(m.joints())
         assert p_dev[2] > 0.03 + 0.005  # the handle really moved
         m.set_clutch(True)
-        p_after, R_after = m.virtual_pose()
         p_tool, R_tool = tool.pose()
+        tick(m, tool, np.zeros(6))  # φ is re-indexed on the tool's pose at the start of this period
+        p_after, R_after = m.virtual_pose()  # this period's encoders through the new φ
         assert np.linalg.norm(p_after - p_tool) < 1e-9 and np.allclose(R_after, R_tool, atol=1e-9)
         worst = np.zeros(2)
         for i in range(300):
-            m.step(np.zeros(6))
+            tick(m, tool, np.zeros(6))
             p_v, _ = m.virtual_pose()
             worst = np.maximum(worst, [abs(p_v[2] - 0.03), np.linalg.norm(p_v - tool.pose()[0])])
         assert worst[0] <= 50e-6 and worst[1] <= 100e-6
@@ -173,12 +182,12 @@ def test_realtime_pacing_holds_the_wall_clock_to_simulated_time():
     out = {}
     for realtime in (False, True):
         tool = paper_tool(fixtures.rolling_disk(0.03), q0)
-        m = CobotMaster(tool, CobotConfig.from_dict({"realtime": realtime}, "cobot"), 1e-3,
+        m = make_cobot(tool, CobotConfig.from_dict({"realtime": realtime}, "cobot"), 1e-3,
                         np.random.default_rng(1))
         with m:
             t0 = time.perf_counter()
             for i in range(200):
-                m.step(parallel_parking(i * 1e-3, tool.pose()[1]))
+                tick(m, tool, parallel_parking(i * 1e-3, tool.pose()[1]))
             out[realtime] = (time.perf_counter() - t0, tool.q.copy())
     wall, q = out[True]
     assert 0.2 <= wall < 2.0

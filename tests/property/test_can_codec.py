@@ -8,8 +8,8 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from teleop.can.codec import MessageCodec, compile_struct
-from teleop.can.database import FrameDatabase
+from teleop.master.cobot.codec import MessageCodec, compile_struct
+from teleop.master.cobot.database import FrameDatabase
 from teleop.errors import CanError
 
 DB = FrameDatabase()

@@ -6,7 +6,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from teleop.can.database import Decoded, FrameDatabase
+from teleop.master.cobot.database import Decoded, FrameDatabase
 
 DB = FrameDatabase()
 MESSAGES = [m for m in DB.db.messages]

@@ -4,7 +4,7 @@ import numpy as np
 import pinocchio as pin
 import pytest
 
-from teleop.control import AdmittanceController, AdmittanceGains, Clutch, Phi, compute_tracking_error
+from teleop.control import AdmittanceController, AdmittanceGains, Clutch, Phi
 from teleop.errors import ConfigError
 
 RNG = np.random.default_rng(7)
@@ -43,8 +43,40 @@ def test_phi_validation():
 def test_error_is_chart_free_world_rotation_vector():
     R_v = pin.exp3(np.array([0.3, -0.2, 1.0]))
     dr = np.array([1e-3, -2e-3, 5e-4])
-    e = compute_tracking_error(np.ones(3), pin.exp3(dr) @ R_v, np.zeros(3), R_v)
-    assert np.allclose(e, np.concatenate([np.ones(3), dr]))
+    ctrl = AdmittanceController(AdmittanceGains(), 1e-3)
+    ctrl.step(np.ones(3), pin.exp3(dr) @ R_v, np.zeros(6), np.zeros(6), np.zeros(3), R_v)
+    assert np.allclose(ctrl.error, np.concatenate([np.ones(3), dr]), atol=1e-15)
+
+
+def test_pid_steps_computed_by_hand():
+    """Two periods with every term worked out by hand (gains kp 100, ki 500, kd 10, dt 0.01),
+    then saturating ones: the integral holds, the acceleration is the one actually commanded."""
+    g = AdmittanceGains(kp=100.0, ki=500.0, kd=10.0, integral_limit=1.0, max_accel=50.0, max_velocity=1.0)
+    ctrl = AdmittanceController(g, 0.01)
+    R = np.eye(3)
+    th = 0.02  # rotation error about z: log(Rz(th)) = (0, 0, th)
+    Rz = np.array([[np.cos(th), -np.sin(th), 0.0], [np.sin(th), np.cos(th), 0.0], [0.0, 0.0, 1.0]])
+    nu_r, a_r = np.array([0.1, 0, 0, 0, 0, 0]), np.array([0.5, 0, 0, 0, 0, 0])
+    # period 1, axis x: e = 0.01; integral 1e-4; a = 0.5 + 1 + 0.05 + 10 * 0.1 = 2.55; nu = 0.0255
+    # axis rz: e = 0.02; integral 2e-4; a = 2 + 0.1 = 2.1; nu = 0.021
+    nu, a = ctrl.step(np.array([0.01, 0, 0]), Rz, nu_r, a_r, np.zeros(3), R)
+    np.testing.assert_allclose(a, [2.55, 0, 0, 0, 0, 2.1], atol=1e-12)
+    np.testing.assert_allclose(nu, [0.0255, 0, 0, 0, 0, 0.021], atol=1e-14)
+    np.testing.assert_allclose(ctrl.integral, [1e-4, 0, 0, 0, 0, 2e-4], atol=1e-16)
+    # period 2, axis x: integral 2e-4; a = 0.5 + 1 + 0.1 + 10 * (0.1 - 0.0255) = 2.345;
+    # nu = 0.0255 + 0.02345 = 0.04895
+    nu, a = ctrl.step(np.array([0.01, 0, 0]), Rz, nu_r, a_r, np.zeros(3), R)
+    assert a[0] == pytest.approx(2.345, abs=1e-12) and nu[0] == pytest.approx(0.04895, abs=1e-14)
+    assert ctrl.integral[0] == pytest.approx(2e-4, abs=1e-16)
+    # period 3, a 1 m error: a = 0.5 + 100 + 500 * 0.0102 + 10 * (0.1 - 0.04895) = 106.1105
+    # saturates at 50; nu = 0.04895 + 0.5 = 0.54895; the integral stays at 2e-4
+    nu, a = ctrl.step(np.array([1.0, 0, 0]), R, nu_r, a_r, np.zeros(3), R)
+    assert a[0] == pytest.approx(50.0, abs=1e-12) and nu[0] == pytest.approx(0.54895, abs=1e-14)
+    assert ctrl.integral[0] == pytest.approx(2e-4, abs=1e-16)
+    # period 4: nu would be 1.04895, clamped to 1: the commanded acceleration is (1 - 0.54895) / dt
+    nu, a = ctrl.step(np.array([1.0, 0, 0]), R, nu_r, a_r, np.zeros(3), R)
+    assert nu[0] == pytest.approx(1.0) and a[0] == pytest.approx(45.105, abs=1e-9)
+    assert ctrl.integral[0] == pytest.approx(2e-4, abs=1e-16)
 
 
 def test_pid_tracks_a_step_and_feeds_forward():

@@ -2,7 +2,7 @@
 
 import pytest
 
-from teleop.can.database import Decoded, FrameDatabase, Rejected, compute_crc8
+from teleop.master.cobot.database import Decoded, FrameDatabase, Rejected, compute_crc8
 from teleop.errors import CanError
 
 

@@ -6,9 +6,12 @@ import can
 import numpy as np
 import pytest
 
-from teleop.can import CobotDriver, CobotSimulator, FrameDatabase
-from teleop.can.driver import CAN_ERR_BUSOFF
-from teleop.master.cobot import CobotDevice, CobotModel, DeviceParams
+from teleop.master.cobot.database import FrameDatabase
+from teleop.master.cobot.driver import CobotDriver
+from teleop.master.cobot.simulator import CobotSimulator
+from teleop.master.cobot.driver import CAN_ERR_BUSOFF
+from teleop.master.cobot.model import CobotModel
+from teleop.master.cobot.plant import CobotPlant, DeviceParams
 
 
 class Link:
@@ -21,7 +24,7 @@ class Link:
         self.dev_bus = can.Bus(interface="virtual", channel=ch, fd=True, preserve_timestamps=True)
         self.model = CobotModel()
         self.joints0 = np.array([0.01, -0.02, 0.03, 0.2, 1.4, -3.1])
-        self.device = CobotDevice(self.model, DeviceParams(force_noise_N=0, torque_noise_Nm=0, force_bias_N=(0, 0, 0),
+        self.device = CobotPlant(self.model, DeviceParams(force_noise_N=0, torque_noise_Nm=0, force_bias_N=(0, 0, 0),
                                                            torque_bias_Nm=(0, 0, 0)), self.joints0,
                                   np.random.default_rng(0))
         self.sim = CobotSimulator(self.dev_bus, self.device, np.random.default_rng(1))

@@ -4,13 +4,13 @@ import can
 import numpy as np
 import pytest
 
-from teleop.can.database import Decoded, FrameDatabase
-from teleop.can.plugin import CobotBus
+from teleop.master.cobot.database import Decoded, FrameDatabase
+from teleop.master.cobot.plugin import CobotBus
 
 
 def test_entry_point_registered():
     assert "teleop_cobot" in can.interfaces.VALID_INTERFACES
-    assert can.interfaces.BACKENDS["teleop_cobot"] == ("teleop.can.plugin", "CobotBus")
+    assert can.interfaces.BACKENDS["teleop_cobot"] == ("teleop.master.cobot.plugin", "CobotBus")
 
 
 def test_device_answers_sync_through_can_bus():

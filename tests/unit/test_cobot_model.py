@@ -4,7 +4,8 @@ import numpy as np
 import pinocchio as pin
 import pytest
 
-from teleop.master.cobot import CobotDevice, CobotModel, DeviceParams, zxz_angles
+from teleop.master.cobot.model import CobotModel, zxz_angles
+from teleop.master.cobot.plant import CobotPlant, DeviceParams
 
 
 @pytest.fixture(scope="module")
@@ -55,7 +56,7 @@ def test_distal_wrench_static_is_the_handle_weight(model):
 
 def test_servo_lag_limits_and_encoder_quantum(model):
     p = DeviceParams(servo_bandwidth_hz=100.0, force_noise_N=0, torque_noise_Nm=0)
-    dev = CobotDevice(model, p, np.array([0, 0, 0, 0, 1.5, 0]), np.random.default_rng(0))
+    dev = CobotPlant(model, p, np.array([0, 0, 0, 0, 1.5, 0]), np.random.default_rng(0))
     dev.set_command([0.01, 0, 0, 0, 0, 0], 0.0)  # a step small enough to stay under 20 m/s^2
     tau = 1 / (2 * np.pi * 100.0)
     dev.advance_to(tau)
@@ -74,7 +75,7 @@ def test_servo_lag_limits_and_encoder_quantum(model):
 
 def test_load_cell_bias_noise_seeded(model):
     def reading(seed):
-        dev = CobotDevice(model, DeviceParams(), np.array([0, 0, 0, 0, 1.5, 0]), np.random.default_rng(seed))
+        dev = CobotPlant(model, DeviceParams(), np.array([0, 0, 0, 0, 1.5, 0]), np.random.default_rng(seed))
         return dev.sample_load_cell()
     assert np.array_equal(reading(4), reading(4)) and not np.array_equal(reading(4), reading(5))
 
@@ -82,7 +83,7 @@ def test_load_cell_bias_noise_seeded(model):
 def test_closed_form_kinematics_match_pinocchio_and_other_urdfs_fall_back(tmp_path):
     """The compiled gantry + Z-X-Z kinematics serve the shipped URDF; a URDF with another
     geometry (a handle offset from the wrist centre) is detected and runs on Pinocchio."""
-    from teleop.master.cobot import DEFAULT_URDF, CobotModel
+    from teleop.master.cobot.model import DEFAULT_URDF, CobotModel
 
     model = CobotModel()
     assert model.closed_form

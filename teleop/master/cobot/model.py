@@ -1,4 +1,5 @@
-"""The cobot device: its model (URDF with Pinocchio) and its physics (servos, encoders, load cell).
+"""The cobot's model: kinematics and inertia from its URDF (Pinocchio), shared by the host and the
+simulated plant (:mod:`.plant`).
 
 Joints x = (gantry x, y, z in m; wrist a, b, c in rad, Z-X-Z axes meeting at the handle origin H).
 Frames: M (master base, = W here), H (handle = load-cell frame S). The handle mass is distal to the
@@ -9,15 +10,13 @@ from __future__ import annotations
 
 import math
 import xml.etree.ElementTree as ET
-from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 import pinocchio as pin
 
-from teleop.dynamics.rotations import cross
-from teleop.master.kernels import gantry_zxz_pose_jacobian
 from teleop.errors import ConfigError
+from teleop.master.cobot.kernels import distal_wrench_H, gantry_zxz_pose_jacobian
 from teleop.resources import robot_file
 
 DEFAULT_URDF = robot_file("cobot/cobot.urdf")
@@ -127,97 +126,15 @@ class CobotModel:
     def compute_distal_wrench_W(self, R, w, a_o, alpha) -> np.ndarray:
         """Wrench (6,: N, N*m, world, at H) the handle's weight and inertia put on the load cell,
         for handle rotation R, angular velocity w (rad/s), origin acceleration a_o (m/s^2) and
-        angular acceleration alpha (rad/s^2), all in the world frame."""
-        m = self.handle_mass_kg
-        c = R @ self.handle_com_H
-        a_c = a_o + cross(alpha, c) + cross(w, cross(w, c))
-        f = m * (GRAVITY_W - a_c)
-        J_W = R @ self.handle_J_H @ R.T
-        tau = cross(c, f) - J_W @ alpha - cross(w, J_W @ w)
-        return np.concatenate([f, tau])
+        angular acceleration alpha (rad/s^2), all in the world frame (:func:`.kernels.distal_wrench_H`
+        turned into the world)."""
+        R = np.asarray(R, dtype=float)
+        F_H = distal_wrench_H(R, np.asarray(w, dtype=float), np.asarray(a_o, dtype=float),
+                              np.asarray(alpha, dtype=float), self.handle_mass_kg, self.handle_com_H,
+                              self.handle_J_H, GRAVITY_W)
+        return np.concatenate([R @ F_H[:3], R @ F_H[3:]])
 
 
-@dataclass(frozen=True)
-class DeviceParams:
-    """Servo, encoder and load-cell settings (SI)."""
-
-    servo_bandwidth_hz: float = 200.0  #: first-order velocity-loop bandwidth, Hz
-    max_velocity: tuple = (0.5, 0.5, 0.5, 10.0, 10.0, 10.0)  #: m/s x3, rad/s x3
-    max_acceleration: tuple = (20.0, 20.0, 20.0, 400.0, 400.0, 400.0)  #: m/s^2 x3, rad/s^2 x3
-    encoder_m: float = 25e-6  #: gantry encoder resolution, m
-    encoder_rad: float = 5e-4  #: wrist resolution, rad (25 um of arc at 50 mm)
-    force_noise_N: float = 0.02  #: load-cell noise, std, N
-    torque_noise_Nm: float = 0.0005  #: std, N*m
-    force_bias_N: tuple = (0.05, -0.03, 0.08)  #: load-cell bias, N, load-cell frame
-    torque_bias_Nm: tuple = (0.001, -0.0005, 0.0)  #: N*m
-
-
-class CobotDevice:
-    """The physical device in simulated time: velocity servos with a first-order lag and velocity,
-    acceleration and travel limits; quantized encoders; a noisy, biased load cell."""
-
-    def __init__(self, model: CobotModel, params: DeviceParams, joints0, rng: np.random.Generator):
-        self.model, self.params, self.rng = model, params, rng
-        self.tau_s = 1.0 / (2.0 * math.pi * params.servo_bandwidth_hz)
-        self.vmax = np.array(params.max_velocity, dtype=float)
-        self.amax = np.array(params.max_acceleration, dtype=float)
-        self.res = np.array([params.encoder_m] * 3 + [params.encoder_rad] * 3)
-        self.bias = np.array(list(params.force_bias_N) + list(params.torque_bias_Nm), dtype=float)
-        self.noise = np.array([params.force_noise_N] * 3 + [params.torque_noise_Nm] * 3)
-        self.joints = np.array(joints0, dtype=float)
-        self.qd = np.zeros(6)
-        self.qd_cmd = np.zeros(6)
-        self.t = 0.0
-        self.hand_wrench_W = np.zeros(6)  # the operator's hand on the handle (N, N*m at H, world)
-
-    def set_command(self, qd_cmd, t: float) -> None:
-        """Velocity command (6,) taking effect at time t (s); clipped to the velocity limits."""
-        self.advance_to(t)
-        self.qd_cmd = np.clip(np.nan_to_num(np.asarray(qd_cmd, float)), -self.vmax, self.vmax)
-
-    def advance_to(self, t: float) -> None:
-        """Integrate the servos exactly (first-order lag) up to time t (s)."""
-        h = t - self.t
-        if h <= 0:
-            return
-        e = math.exp(-h / self.tau_s)
-        qd_new = self.qd_cmd + (self.qd - self.qd_cmd) * e
-        if np.any(np.abs(qd_new - self.qd) > self.amax * h):  # acceleration-limited: ramp
-            qd_new = self.qd + np.clip(qd_new - self.qd, -self.amax * h, self.amax * h)
-            self.joints = self.joints + 0.5 * (self.qd + qd_new) * h
-        else:
-            self.joints = self.joints + self.qd_cmd * h + (self.qd - self.qd_cmd) * self.tau_s * (1.0 - e)
-        self.qd = qd_new
-        hit = (self.joints < self.model.lower) | (self.joints > self.model.upper)
-        if np.any(hit):  # hard stops
-            self.joints = np.clip(self.joints, self.model.lower, self.model.upper)
-            self.qd[hit] = 0.0
-        self.t = t
-
-    def joint_acceleration(self) -> np.ndarray:
-        return np.clip((self.qd_cmd - self.qd) / self.tau_s, -self.amax, self.amax)
-
-    def sample_encoders(self) -> np.ndarray:
-        """Joint readings (6,): quantized, the wrist angles wrapped to [-pi, pi)."""
-        counts = np.round(self.joints / self.res) * self.res
-        counts[3:] = np.round(((counts[3:] + np.pi) % (2 * np.pi) - np.pi) / self.res[3:]) * self.res[3:]
-        return counts
-
-    def sample_load_cell(self) -> np.ndarray:
-        """Load-cell wrench (6,: N, N*m) in the load-cell frame S = H: hand + distal handle mass."""
-        m = self.model
-        p, R = m.compute_handle_pose(self.joints)
-        J = m.compute_jacobian(self.joints)
-        qdd = self.joint_acceleration()
-        tw = J @ self.qd
-        # handle acceleration (origin and angular) from the servo state, via Pinocchio
-        a = pin.getFrameClassicalAcceleration(*self._accel(qdd), m.fid, pin.LOCAL_WORLD_ALIGNED)
-        F_W = self.hand_wrench_W + m.compute_distal_wrench_W(R, tw[3:], a.linear, a.angular)
-        meas = np.concatenate([R.T @ F_W[:3], R.T @ F_W[3:]])
-        return meas + self.bias + self.noise * self.rng.standard_normal(6)
-
-    def _accel(self, qdd):
-        m = self.model
-        pin.forwardKinematics(m.model, m.data, m.pin_q(self.joints), self.qd, qdd)
-        pin.updateFramePlacements(m.model, m.data)
-        return m.model, m.data
+def compute_servo_lag_s(bandwidth_hz: float) -> float:
+    """Time constant (s) of a first-order velocity servo of bandwidth ``bandwidth_hz`` (Hz)."""
+    return 1.0 / (2.0 * math.pi * bandwidth_hz)

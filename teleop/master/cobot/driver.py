@@ -17,7 +17,7 @@ from collections import Counter
 import can
 import numpy as np
 
-from teleop.can.database import Decoded, FrameDatabase
+from teleop.master.cobot.database import Decoded, FrameDatabase
 from teleop.errors import CanError
 
 #: SocketCAN error-class bit for bus-off in an error frame's id.

@@ -2,8 +2,8 @@
 
 Registered under python-can's ``can.interface`` entry-point group (pyproject.toml), so any
 python-can program, ``python -m can.viewer`` included, can talk to the virtual device as it would
-to an adapter with the real one behind it. The device (teleop.master.cobot) and its link
-(:class:`~teleop.can.simulator.CobotSimulator`: bus timing, faults, heartbeats, timeouts) run in
+to an adapter with the real one behind it. The plant (:mod:`teleop.master.cobot.plant`) and its link
+(:class:`~teleop.master.cobot.simulator.CobotSimulator`: bus timing, faults, heartbeats, timeouts) run in
 simulated time, which advances only while the caller waits: each ``recv`` that finds no frame
 advances the device by ``step_s`` (s) and looks again, so a lockstep host stays deterministic.
 Frame timestamps are simulated seconds.
@@ -16,7 +16,10 @@ import uuid
 import can
 import numpy as np
 
-from teleop.can.simulator import CobotSimulator
+from teleop.can.faults import Faults
+from teleop.master.cobot.model import CobotModel
+from teleop.master.cobot.plant import CobotPlant, DeviceParams
+from teleop.master.cobot.simulator import CobotSimulator
 
 
 class CobotBus(can.BusABC):
@@ -26,18 +29,15 @@ class CobotBus(can.BusABC):
 
     def __init__(self, channel=None, seed: int = 0, step_s: float = 1e-4, joints0=None, faults=None,
                  **kwargs):
-        from teleop.can.faults import Faults
-        from teleop.master.cobot import CobotDevice, CobotModel, DeviceParams
-
         self.step_s = float(step_s)
         private = f"teleop-cobot-plugin-{uuid.uuid4().hex}"
         self._host = can.Bus(interface="virtual", channel=private, fd=True, preserve_timestamps=True)
         self._device_bus = can.Bus(interface="virtual", channel=private, fd=True, preserve_timestamps=True)
         rng = np.random.default_rng(seed)
         joints0 = np.array([0.0, 0.0, 0.0, 0.0, np.pi / 2, 0.0] if joints0 is None else joints0, dtype=float)
-        self.device = CobotDevice(CobotModel(), DeviceParams(), joints0, rng)
+        self.plant = CobotPlant(CobotModel(), DeviceParams(), joints0, rng)
         faults = Faults.from_dict(faults) if isinstance(faults, dict) else faults
-        self.sim = CobotSimulator(self._device_bus, self.device, rng, faults=faults)
+        self.sim = CobotSimulator(self._device_bus, self.plant, rng, faults=faults)
         self.t = 0.0
         self.channel_info = f"teleop simulated cobot {channel or private}"
         super().__init__(channel=channel, **kwargs)

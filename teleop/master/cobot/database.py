@@ -14,7 +14,7 @@ from typing import NamedTuple
 
 import cantools
 
-from teleop.can.codec import MessageCodec
+from teleop.master.cobot.codec import MessageCodec
 from teleop.errors import CanError
 
 #: The protocol shipped with the package.
@@ -70,7 +70,7 @@ def _slack(signal) -> float:
 class FrameDatabase:
     """The DBC plus the encode/decode rules of the protocol (checksums, ranges).
 
-    Each message is encoded and decoded by a :class:`~teleop.can.codec.MessageCodec` compiled from
+    Each message is encoded and decoded by a :class:`~teleop.master.cobot.codec.MessageCodec` compiled from
     its DBC layout (cantools' values, without cantools' per-call overhead).
     """
 

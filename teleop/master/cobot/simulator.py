@@ -1,4 +1,5 @@
-"""The cobot as a node on a python-can bus, in simulated time.
+"""The simulated cobot as a node on a python-can bus, in simulated time: the device's side of the
+bus. It alone drives the plant (:class:`.plant.CobotPlant`); the host reaches it only through frames.
 
 python-can's virtual bus delivers instantly, so the simulator keeps the wire's time itself: every
 frame, the host's and the device's, goes through a :class:`BusModel` (frame time at the bit rate,
@@ -21,21 +22,23 @@ import numpy as np
 
 from teleop.can.busmodel import BusModel, BusTiming
 from teleop.can.capture import Capture
-from teleop.can.database import Decoded, FrameDatabase
-from teleop.can.driver import CAN_ERR_BUSOFF, CMD_SIGNALS, JOINT_SIGNALS, WRENCH_SIGNALS
 from teleop.can.faults import Faults
+from teleop.master.cobot.database import Decoded, FrameDatabase
+from teleop.master.cobot.driver import CAN_ERR_BUSOFF, CMD_SIGNALS, JOINT_SIGNALS, WRENCH_SIGNALS
 
 STATE_READY, STATE_RUNNING, STATE_FAULT = 1, 2, 3
 WRENCH_LIMITS = np.array([159.9] * 3 + [6.49] * 3)
 
 
 class CobotSimulator:
-    """Plays ``device`` (a :class:`teleop.master.cobot.CobotDevice`) on ``bus``."""
+    """Plays ``plant`` (a :class:`~teleop.master.cobot.plant.CobotPlant`) on ``bus``. own_bus:
+    :meth:`close` shuts the bus down."""
 
-    def __init__(self, bus: can.BusABC, device, rng: np.random.Generator, db: FrameDatabase | None = None,
+    def __init__(self, bus: can.BusABC, plant, rng: np.random.Generator, db: FrameDatabase | None = None,
                  timing: BusTiming | None = None, faults: Faults | None = None, capture: Capture | None = None,
-                 heartbeat_period_s: float = 0.01, host_timeout_s: float = 0.05, cmd_timeout_s: float = 0.02):
-        self.bus, self.device, self.rng = bus, device, rng
+                 heartbeat_period_s: float = 0.01, host_timeout_s: float = 0.05, cmd_timeout_s: float = 0.02,
+                 own_bus: bool = False):
+        self.bus, self.plant, self.rng, self.own_bus = bus, plant, rng, own_bus
         self.db = db or FrameDatabase()
         self.wire = BusModel(timing or BusTiming())
         self.faults = faults or Faults()
@@ -88,7 +91,7 @@ class CobotSimulator:
         if not isinstance(d, Decoded):
             self.device_rejected += 1
             return
-        s, dev = d.signals, self.device
+        s, dev = d.signals, self.plant
         if d.name == "SYNC":
             dev.advance_to(t)
             c = int(s["SyncCounter"])
@@ -151,18 +154,33 @@ class CobotSimulator:
             self.bus.send(msg)
             self.delivered += 1
         self._check_timeouts(t_end)
-        self.device.advance_to(t_end)
+        self.plant.advance_to(t_end)
         self.t = t_end
 
     def _check_timeouts(self, t: float) -> None:
         if self.state == STATE_RUNNING and t - self.last_host_hb > self.host_timeout:
-            self.device.set_command(np.zeros(6), t)
+            self.plant.set_command(np.zeros(6), t)
             self.state = STATE_FAULT
             self._emergency(1, t)
         elif self.state == STATE_RUNNING and t - self.last_cmd > self.cmd_timeout:
-            self.device.set_command(np.zeros(6), t)
+            self.plant.set_command(np.zeros(6), t)
             self.state = STATE_READY
             self._emergency(2, t)
+
+    # -- the physical world around the device -----------------------------------------------------
+    def apply_hand_wrench(self, F_W) -> None:
+        """The operator's hand pushes the handle with F_W (6,: N, N*m at H, world)."""
+        self.plant.hand_wrench_W = np.asarray(F_W, dtype=float)
+
+    def handle_state(self):
+        """(joints (6,), joint rates (6,)) of the plant: the true handle a simulated hand holds."""
+        return self.plant.joints, self.plant.qd
+
+    def close(self) -> None:
+        """Shut the device's bus down (if owned); safe to call twice."""
+        if self.own_bus:
+            self.own_bus = False
+            self.bus.shutdown()
 
     def stats(self) -> dict:
         return {

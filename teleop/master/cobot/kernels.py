@@ -1,0 +1,227 @@
+"""Compiled kernels (numba) of the cobot: the handle's distal wrench, the servo model, kinematics,
+damped least squares, the pose prediction, and the host's period as two fused calls
+(:func:`host_feedback` in ``sense``, :func:`host_command` in ``command``).
+
+Each formula lives here once; the plant (:mod:`.plant`) and the host (:mod:`.host`) call the same
+kernels. They are tested against independent references (Pinocchio's kinematics, Jacobian and
+spatial inertia, finite differences, an ODE solver, the textbook DLS formula). Set
+``NUMBA_DISABLE_JIT=1`` to run and debug them as plain Python. SI units: m, rad, N, N*m, s.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from numba import njit
+
+from teleop.control.kernels import pid_step
+from teleop.dynamics.kernels.so3 import exp3
+
+
+@njit(cache=True)
+def _cross(a, b):
+    return np.array([a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0]])
+
+
+@njit(cache=True)
+def distal_wrench_H(R, w_W, a_o_W, alpha_W, mass_kg, com_H, inertia_H, gravity_W):
+    """The wrench (6,: N, N*m, at H, in the handle frame H) that the handle's weight and inertia put
+    on the load cell, for handle rotation R (3, 3), angular velocity w_W (rad/s), origin
+    acceleration a_o_W (m/s^2) and angular acceleration alpha_W (rad/s^2), all in the world frame;
+    com_H (3,) m and inertia_H (3, 3) kg*m^2 about the COM are the handle's, in H."""
+    Rt = R.T
+    w, a_o, alpha = Rt @ w_W, Rt @ a_o_W, Rt @ alpha_W
+    c = com_H
+    a_c = a_o + _cross(alpha, c) + _cross(w, _cross(w, c))
+    f = mass_kg * (Rt @ gravity_W - a_c)
+    out = np.empty(6)
+    out[:3] = f
+    out[3:] = _cross(c, f) - inertia_H @ alpha - _cross(w, inertia_H @ w)
+    return out
+
+
+@njit(cache=True)
+def hand_wrench_W(wrench_S, bias_S, R, accel_W, w_W, mass_kg, com_H, inertia_H, gravity_W,
+                  max_force_N, max_torque_Nm):
+    """The hand's wrench (6,) at H, world: the load cell ``wrench_S`` (S = H frame) minus its tare
+    ``bias_S``, minus :func:`distal_wrench_H` at the handle's commanded motion (w_W (3,), accel_W
+    (6,: origin, angular)), force and torque each saturated to its norm limit."""
+    F_H = wrench_S - bias_S - distal_wrench_H(R, w_W, accel_W[:3], accel_W[3:], mass_kg, com_H, inertia_H,
+                                              gravity_W)
+    for lo, lim in ((0, max_force_N), (3, max_torque_Nm)):
+        n = math.sqrt(F_H[lo] ** 2 + F_H[lo + 1] ** 2 + F_H[lo + 2] ** 2)
+        if n > lim:
+            F_H[lo:lo + 3] *= lim / n
+    out = np.empty(6)
+    out[:3] = R @ F_H[:3]
+    out[3:] = R @ F_H[3:]
+    return out
+
+
+@njit(cache=True)
+def servo_advance(x, qd, u, h, tau, amax):
+    """First-order velocity servos (lag tau s) under the command u (6,) for h s from joints x and
+    rates qd (6,), exactly; when any joint's rate change would exceed amax h (amax (6,)), every
+    joint ramps at its limit instead (trapezoidal position). Returns new (x, qd)."""
+    n = x.shape[0]
+    x, qd = x.copy(), qd.copy()
+    if h <= 0.0:
+        return x, qd
+    e = math.exp(-h / tau)
+    qd_new = np.empty(n)
+    ramp = False
+    for i in range(n):
+        qd_new[i] = u[i] + (qd[i] - u[i]) * e
+        ramp = ramp or abs(qd_new[i] - qd[i]) > amax[i] * h
+    for i in range(n):
+        if ramp:
+            dv = amax[i] * h
+            q1 = qd[i] + min(max(qd_new[i] - qd[i], -dv), dv)
+            x[i] += 0.5 * (qd[i] + q1) * h
+            qd[i] = q1
+        else:
+            x[i] += u[i] * h + (qd[i] - u[i]) * (tau * (1.0 - e))
+            qd[i] = qd_new[i]
+    return x, qd
+
+
+@njit(cache=True)
+def predict_kernel(x, qd, u_old, u_cmd, bias, vmax, amax, dt, window, tau):
+    """The joint observer's prediction over one period (:meth:`.observer.JointObserver.predict`):
+    the servo model (:func:`servo_advance`) under the old command u_old for ``window`` s, then
+    under u_cmd clipped to vmax for dt - window s, plus the rate bias over dt. Returns new
+    (x, qd_model, u_new)."""
+    n = x.shape[0]
+    u_new = np.empty(n)
+    for i in range(n):
+        u_new[i] = min(max(u_cmd[i], -vmax[i]), vmax[i])
+    x, qd = servo_advance(x, qd, u_old, window, tau, amax)
+    x, qd = servo_advance(x, qd, u_new, dt - window, tau, amax)
+    for i in range(n):
+        x[i] += bias[i] * dt
+    return x, qd, u_new
+
+
+@njit(cache=True)
+def correct_kernel(history, x, bias, y, j, k, alpha, beta, dt):
+    """The joint observer's correction (:meth:`.observer.JointObserver.correct`) by a reading y
+    (n,) of SYNC j fused at SYNC k: history (H, n) in place; returns new (x, bias)."""
+    H, n = history.shape
+    lag = (k - j) % H
+    jj = j % H
+    x, bias = x.copy(), bias.copy()
+    for i in range(n):
+        r = y[i] - history[jj, i]
+        dx, db = alpha * r, (beta / dt) * r
+        for m in range(1, lag + 1):
+            history[(j + m) % H, i] += dx + m * dt * db
+        x[i] += dx + db * (lag * dt)
+        bias[i] += db
+    return x, bias
+
+
+@njit(cache=True)
+def dls_command(J, twist, joints, ws_hi, ws_lo, sigma0, lam0):
+    """Joint rates (6,) for a handle twist (6,) by damped least squares (no damping while the
+    smallest singular value of J exceeds sigma0, then lam^2 = lam0^2 (1 - (s_min/sigma0)^2)), then
+    the workspace limit: a rate that drives a joint past ws_hi or ws_lo (6,) is zeroed."""
+    U, S, Vt = np.linalg.svd(J)
+    smin = S[-1]
+    lam2 = 0.0 if smin >= sigma0 else lam0 * lam0 * (1.0 - (smin / sigma0) ** 2)
+    y = U.T @ twist
+    for i in range(6):
+        y[i] *= S[i] / (S[i] * S[i] + lam2)
+    qd = Vt.T @ y
+    for i in range(6):
+        if (joints[i] > ws_hi[i] and qd[i] > 0.0) or (joints[i] < ws_lo[i] and qd[i] < 0.0):
+            qd[i] = 0.0
+    return qd
+
+
+@njit(cache=True)
+def handle_command(J, to_handle, nu_V, a_V, tau, joints, ws_hi, ws_lo, sigma0, lam0):
+    """The virtual command (twist nu_V (6,), acceleration a_V (6,)) mapped to the handle by φ's
+    6x6 ``to_handle``, and the joint rates for nu_H + tau a_H (tau: servo lag, s) by
+    :func:`dls_command`. Returns nu_H, a_H, qd (6,) each."""
+    nu_H = to_handle @ nu_V
+    a_H = to_handle @ a_V
+    return nu_H, a_H, dls_command(J, nu_H + tau * a_H, joints, ws_hi, ws_lo, sigma0, lam0)
+
+
+@njit(cache=True)
+def gantry_zxz_pose_jacobian(joints):
+    """Closed-form kinematics of a 3-axis gantry (x, y, z in m) carrying a Z-X-Z wrist (a, b, c in
+    rad) whose axes meet at the handle origin: p (3,), R = Rz(a) Rx(b) Rz(c) (3, 3) and the
+    Jacobian (6, 6) from joint rates to the handle twist (v, w), world axes at the handle."""
+    a, b, c = joints[3], joints[4], joints[5]
+    ca, sa, cb, sb, cc, sc = math.cos(a), math.sin(a), math.cos(b), math.sin(b), math.cos(c), math.sin(c)
+    p = joints[:3].copy()
+    R = np.empty((3, 3))
+    R[0, 0], R[0, 1], R[0, 2] = ca * cc - sa * cb * sc, -ca * sc - sa * cb * cc, sa * sb
+    R[1, 0], R[1, 1], R[1, 2] = sa * cc + ca * cb * sc, -sa * sc + ca * cb * cc, -ca * sb
+    R[2, 0], R[2, 1], R[2, 2] = sb * sc, sb * cc, cb
+    J = np.zeros((6, 6))
+    J[0, 0] = J[1, 1] = J[2, 2] = 1.0
+    J[5, 3] = 1.0  # wrist a about world z
+    J[3, 4], J[4, 4] = ca, sa  # wrist b about Rz(a) x
+    J[3, 5], J[4, 5], J[5, 5] = sa * sb, -ca * sb, cb  # wrist c about Rz(a) Rx(b) z
+    return p, R, J
+
+
+@njit(cache=True)
+def advance_prediction(pred_p, pred_R, k, nu, dt):
+    """In place: the handle pose the commands predict at SYNC k+1 (mod len) from the one at SYNC
+    k and the commanded handle twist nu (6,) held for dt s: p += v dt, R <- exp(w dt) R."""
+    n = (k + 1) % pred_p.shape[0]
+    E = exp3(nu[3:] * dt)
+    for i in range(3):
+        pred_p[n, i] = pred_p[k, i] + nu[i] * dt
+        for j in range(3):
+            pred_R[n, i, j] = E[i, 0] * pred_R[k, 0, j] + E[i, 1] * pred_R[k, 1, j] + E[i, 2] * pred_R[k, 2, j]
+
+
+# -- the host's period: two calls --------------------------------------------------------------------
+
+@njit(cache=True)
+def host_feedback(p_m, R_m, k, j, pred_p, pred_R, wrench_S, bias_S, accel_H_cmd, nu_H_cmd, mass_kg, com_H,
+                  inertia_H, gravity_W, max_force_N, max_torque_Nm, wrench_map, off_p, scale, off_R):
+    """The feedback half of a period: the measured handle pose (p_m (3,) m, R_m) of SYNC j carried
+    forward to SYNC k by the predicted poses (pred_p (N, 3), pred_R (N, 3, 3)), the hand's wrench
+    (:func:`hand_wrench_W` at the measured rotation) and its image by φ's ``wrench_map`` (6, 6)
+    (eq. 4), and φ of the estimated pose (offset off_p (3,) m, off_R, scale).
+
+    Returns p_H_est (3,), R_H_est (3, 3), F_hand_W (6,), f_v (6,), p_v (3,), R_v (3, 3)."""
+    if j == k:
+        p_est, R_est = p_m, R_m
+    else:
+        p_est = p_m + pred_p[k] - pred_p[j]
+        R_est = pred_R[k] @ pred_R[j].T @ R_m
+    F = hand_wrench_W(wrench_S, bias_S, R_m, accel_H_cmd, nu_H_cmd[3:], mass_kg, com_H, inertia_H, gravity_W,
+                      max_force_N, max_torque_Nm)
+    return p_est, R_est, F, wrench_map @ F, off_p + scale * (off_R @ p_est), off_R @ R_est
+
+
+@njit(cache=True)
+def host_command(p_r, R_r, nu_r, accel_r, p_v, R_v, gains, dt_ctrl, integral, nu_cmd, to_handle, tau, J,
+                 joints, ws, sigma0, lam0, k, pred_p, pred_R, dt, obs_x, obs_qd, obs_u, obs_bias, obs_lim,
+                 obs_dt, obs_window, obs_tau, history):
+    """The command half of a period: the PID (:func:`teleop.control.kernels.pid_step`, gains (6, 6):
+    kp, ki, kd, integral_limit, max_accel, max_velocity by row), :func:`handle_command` (ws (2, 6):
+    workspace upper, lower), the observer's prediction for SYNC k+1 (obs_lim (2, 6): velocity,
+    acceleration limits; ``history`` row k+1 in place) and :func:`advance_prediction` (pred_p,
+    pred_R in place; the handle twist held for dt s). dt_ctrl, obs_dt: the controller's and the
+    observer's periods (s).
+
+    Returns (nu_V, a_V, e, integral, nu_H, a_H, qd, obs_x, obs_qd, obs_u) (6,) each, and the
+    position and rotation error norms |e[:3]| m, |e[3:]| rad."""
+    nu_V, a_V, e, integ = pid_step(p_r, R_r, nu_r, accel_r, p_v, R_v, gains[0], gains[1], gains[2], gains[3],
+                                   gains[4], gains[5], dt_ctrl, integral, nu_cmd)
+    e_p = math.sqrt(e[0] * e[0] + e[1] * e[1] + e[2] * e[2])
+    e_r = math.sqrt(e[3] * e[3] + e[4] * e[4] + e[5] * e[5])
+    nu_H, a_H, qd = handle_command(J, to_handle, nu_V, a_V, tau, joints, ws[0], ws[1], sigma0, lam0)
+    x, qdm, u = predict_kernel(obs_x, obs_qd, obs_u, qd, obs_bias, obs_lim[0], obs_lim[1], obs_dt, obs_window,
+                               obs_tau)
+    history[(k + 1) % history.shape[0]] = x
+    advance_prediction(pred_p, pred_R, k, nu_H, dt)
+    return nu_V, a_V, e, integ, nu_H, a_H, qd, x, qdm, u, e_p, e_r
