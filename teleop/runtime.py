@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import json
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
@@ -92,17 +92,17 @@ def _pace(deadline: float) -> int:
 
 def make_master(scene: Scene, tool, rng: np.random.Generator):
     if scene.master == "cobot":
-        from teleop.master import CobotConfig, CobotMaster
+        from teleop.master import CobotMaster
 
-        cfg = dict(scene.master_config)
+        cfg = scene.cobot
         # the device's effects follow the scene: what it does not name is not simulated
         if "can_faults" not in scene.effects:
-            cfg.pop("faults", None)
+            cfg = replace(cfg, faults=type(cfg.faults)())
         if "sensor_noise" not in scene.effects:
-            cfg.update(force_noise_N=0.0, torque_noise_Nm=0.0, force_bias_N=(0.0, 0.0, 0.0), torque_bias_Nm=(0.0, 0.0, 0.0))
+            cfg = replace(cfg, force_noise_N=0.0, torque_noise_Nm=0.0, force_bias_N=(0.0, 0.0, 0.0), torque_bias_Nm=(0.0, 0.0, 0.0))
         if "servo_lag" not in scene.effects:
-            cfg["servo_bandwidth_hz"] = 1e4  # a 16 us lag: nothing at a 1 kHz tick
-        return CobotMaster(tool, CobotConfig.from_dict(cfg, "cobot"), scene.dt_s, rng)
+            cfg = replace(cfg, servo_bandwidth_hz=1e4)  # a 16 us lag: nothing at a 1 kHz tick
+        return CobotMaster(tool, cfg, scene.dt_s, rng)
     return IdealMaster(tool, scene.dt_s)
 
 
@@ -124,7 +124,7 @@ def run_scene(scene: Scene, progress=None, realtime: bool = False, operator=None
         "constraint_W": np.zeros((n, 6)), "tick_us": np.zeros(n),
     }
     slave = None
-    if "slave" in scene.extra:
+    if scene.slave is not None:
         from teleop.slave.side import SlaveSide
 
         slave = SlaveSide(scene, n)

@@ -216,8 +216,9 @@ def _sequence(value, hint, meta, key):
         raise FieldError(key, f"expected {len(args)} items, got {len(value)}")
     lens = meta.get("lens") or ((n,) if n is not None else None)
     if lens is not None and len(value) not in lens:
-        what = "a number or " if meta.get("broadcast") else ""
-        raise FieldError(key, f"expected {what}{' or '.join(map(str, lens))} finite numbers, got {len(value)}")
+        n_text = " or ".join(map(str, lens))
+        what = f"a number or {n_text} finite numbers" if meta.get("broadcast") else f"{n_text} numbers"
+        raise FieldError(key, f"expected {what}, got {len(value)}")
     items = args if len(args) > 1 and args[1] is not Ellipsis else (item,) * len(value)
     inner = {"finite": meta.get("finite", True)}
     out = tuple(convert(x, h, inner, f"{key}[{i}]") for i, (x, h) in enumerate(zip(value, items)))
@@ -329,3 +330,37 @@ def _described(out: dict, meta) -> dict:
     if meta.get("doc"):
         out["description"] = meta["doc"]
     return out
+
+
+def as_table(obj):
+    """A settings object back as a plain table (the inverse of :func:`validate`): fields equal to
+    their default and None are left out, tuples and arrays become lists."""
+    if dataclasses.is_dataclass(obj) and not isinstance(obj, type):
+        out = {}
+        for f in dataclasses.fields(obj):
+            if not f.init or f.metadata.get("internal"):
+                continue
+            v = getattr(obj, f.name)
+            if v is None or _is_default(f, v):
+                continue
+            out[f.name] = as_table(v)
+        return out
+    if isinstance(obj, (tuple, list)):
+        return [as_table(x) for x in obj]
+    if isinstance(obj, np.ndarray):
+        return obj.tolist()
+    return obj
+
+
+def _is_default(f, v) -> bool:
+    if f.default is not MISSING:
+        d = f.default
+    elif f.default_factory is not MISSING:
+        d = f.default_factory()
+    else:
+        return False
+    try:
+        return bool(np.array_equal(np.asarray(d, dtype=object), np.asarray(v, dtype=object))) if not (
+            dataclasses.is_dataclass(d)) else as_table(d) == as_table(v)
+    except (ValueError, TypeError):
+        return False

@@ -31,16 +31,16 @@ class SlaveSide:
         from teleop.contact import TissueBlock
         from teleop.contact.cutting import CuttingModel
         from teleop.scenario.build import build_fixture, build_registration
-        from teleop.slave import SlaveArm, SlaveConfig
+        from teleop.slave import SlaveArm
 
         self.reg = build_registration(scene)
         self.spec = scene.fixture
         self.constraints = build_fixture(scene.fixture).constraints
         try:
-            self.arm = SlaveArm(SlaveConfig.from_dict(scene.extra["slave"], "slave"), self.constraints, scene.dt_s)
+            self.arm = SlaveArm(scene.slave, self.constraints, scene.dt_s)
             self.tissue = None
             if "tissue" in scene.effects:
-                tissue = TissueBlock.from_dict(scene.extra.get("tissue", {}), "tissue")
+                tissue = scene.tissue or TissueBlock()
                 if "cutting" not in scene.effects:  # normal contact only: no cutting resistance
                     tissue = replace(tissue, cutting=CuttingModel(0.0, 0.0, 0.0, 0.0))
                 self.tissue = tissue
@@ -52,9 +52,7 @@ class SlaveSide:
         # (~2000 N*s/m below 1 mm/s); fed raw to a light reference tool integrated explicitly with
         # a one-tick delay it makes a limit cycle (the tool and the arm chatter). 20 Hz keeps the
         # cut's feel and removes it; 0 turns the filter off.
-        fc = scene.extra.get("mapping", {}).get("feedback_cutoff_hz", 20.0)
-        if not isinstance(fc, (int, float)) or isinstance(fc, bool) or not math.isfinite(fc) or fc < 0:
-            raise SceneError(scene.path, "mapping.feedback_cutoff_hz", f"expected a number >= 0, got {fc!r}")
+        fc = scene.mapping.feedback_cutoff_hz
         self._alpha = 1.0 - math.exp(-2.0 * math.pi * fc * scene.dt_s) if fc > 0 else 1.0
         self._feedback = np.zeros(6)
         self.rcm = [c for c in self.constraints if isinstance(c, RemoteCenter)]
