@@ -228,22 +228,21 @@ def _sequence(value, hint, meta, key):
 def _rules(out, meta, key, raw):
     numbers = [out] if isinstance(out, float) or isinstance(out, int) and not isinstance(out, bool) else (
         [x for x in out if _is_number(x)] if isinstance(out, (tuple, np.ndarray)) else [])
-    bounds = [(b, op) for b, op in (("ge", ">="), ("gt", ">"), ("le", "<="), ("lt", "<")) if b in meta]
-    for b, op in bounds:
+    for b in (b for b in ("ge", "gt", "le", "lt") if b in meta):
         lim = meta[b]
         ok = {"ge": lambda x: x >= lim, "gt": lambda x: x > lim, "le": lambda x: x <= lim, "lt": lambda x: x < lim}[b]
         if not all(ok(x) for x in numbers):
             raise FieldError(key, f"{meta.get('why') or _range_text(meta)} (got {raw!r})")
-    choices = meta.get("choices")
-    if choices is not None:
-        for v in (out if isinstance(out, tuple) else (out,)):
-            if v not in choices:
-                raise FieldError(key, f"{meta.get('why', 'choose one of')} {tuple(choices)} (got {v!r})")
     check = meta.get("check")
     if check is not None:
         reason = check(out)
         if reason:
             raise FieldError(key, reason)
+    choices = meta.get("choices")
+    if choices is not None:
+        for v in (out if isinstance(out, tuple) else (out,)):
+            if v not in choices:
+                raise FieldError(key, f"{meta.get('why', 'choose one of')} {tuple(choices)} (got {v!r})")
 
 
 def _range_text(meta) -> str:

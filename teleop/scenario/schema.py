@@ -61,10 +61,6 @@ def _effects(effects) -> str | None:
     return "an effect is listed twice" if len(set(effects)) != len(effects) else None
 
 
-def _integrator(name: str) -> str | None:
-    return None if name in INTEGRATORS else f"unknown integrator; choose one of {sorted(INTEGRATORS)} (got {name!r})"
-
-
 @dataclass(frozen=True, kw_only=True)
 class Scene(Checked):
     """A whole scene. ``path`` is the file it came from; the ``damping_*`` and ``gravity_m_s2``
@@ -76,8 +72,9 @@ class Scene(Checked):
     duration_s: float = setting(gt=0.0, why="must be positive", doc="simulated time, s")
     dt_s: float = setting(0.001, gt=0.0, le=0.1, why="must be in (0, 0.1] s", doc="control period, s")
     seed: int = setting(0, ge=0, why="must be non-negative", doc="seed of the run's random generator")
-    integrator: str = setting("parametric", check=_integrator, doc=f"one of {sorted(INTEGRATORS)}")
-    effects: tuple[str, ...] = setting((), check=_effects, doc=f"effects to build, from {list(EFFECTS)}")
+    integrator: str = setting("parametric", choices=tuple(sorted(INTEGRATORS)),
+                              why="unknown integrator; choose one of", doc="the reference tool's integrator")
+    effects: tuple[str, ...] = setting((), check=_effects, choices=EFFECTS, doc="effects to build")
     tool: ToolSpec = setting(doc="the reference tool")
     fixture: FixtureSpec = setting(doc="the virtual fixture (patient frame when the scene has a slave)")
     operator: OperatorSpec = setting(factory=OperatorSpec, doc="scripted wrenches and/or a virtual hand")
