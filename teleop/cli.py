@@ -2,8 +2,9 @@
 
     teleop run [NAME_OR_PATH] [--master ideal|cobot] [--viewer|--headless] [--realtime]
                [--operator script|keyboard] [--duration S] [--seed N] [--integrator NAME] [--dt S]
-               [--json PATH] [--out DIR]
+               [--set KEY=VALUE ...] [--json PATH] [--out DIR]
     teleop list
+    teleop schema [--out FILE]
     teleop replay LOG [--viewer]
     teleop plot LOG [--out DIR]
 """
@@ -46,7 +47,8 @@ def cmd_run(args) -> int:
     from teleop.scenario.schema import load_scene
 
     scene = load_scene(args.scene or DEFAULT_SCENE).with_overrides(
-        duration_s=args.duration, seed=args.seed, master=args.master, integrator=args.integrator, dt_s=args.dt
+        args.set, duration_s=args.duration, seed=args.seed, master=args.master, integrator=args.integrator,
+        dt_s=args.dt,
     )
     show = sys.stderr.isatty() and scene.duration_s / scene.dt_s > 5000 and args.operator != "keyboard"
     view = None
@@ -147,6 +149,20 @@ def cmd_plot(args) -> int:
     return 0
 
 
+def cmd_schema(args) -> int:
+    """Print (or write to --out) the JSON Schema of scene files."""
+    from teleop.scenario.schema import scene_schema
+
+    text = json.dumps(scene_schema(), indent=2) + "\n"
+    if args.out:
+        with open(args.out, "w", encoding="utf-8") as f:
+            f.write(text)
+        print(args.out)
+    else:
+        sys.stdout.write(text)
+    return 0
+
+
 def build_parser() -> argparse.ArgumentParser:
     ap = argparse.ArgumentParser(prog="teleop", description="Constrained teleoperation of surgical-style robots")
     ap.add_argument("--version", action="version", version=f"%(prog)s {__version__}")
@@ -164,6 +180,8 @@ def build_parser() -> argparse.ArgumentParser:
     run.add_argument("--seed", type=int, help="random seed (overrides the scene)")
     run.add_argument("--integrator", help="integrator name (overrides the scene)")
     run.add_argument("--dt", type=float, help="control period in s (overrides the scene)")
+    run.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
+                     help="set any scene key, VALUE as TOML (e.g. --set slave.solver=daqp --set tool.mass_kg=0.3)")
     run.add_argument("--json", help="write the run summary as JSON here")
     run.add_argument("--out", help="write metrics.json, log.npz and PNG plots into this folder")
     run.set_defaults(func=cmd_run)
@@ -177,6 +195,9 @@ def build_parser() -> argparse.ArgumentParser:
     pl.add_argument("log", help="a log.npz or the --out folder of a run")
     pl.add_argument("--out", help="folder for the PNGs (default: next to the log)")
     pl.set_defaults(func=cmd_plot)
+    sc = sub.add_parser("schema", help="the JSON Schema of the scene format (for editors)")
+    sc.add_argument("--out", help="write it to this file instead of printing it")
+    sc.set_defaults(func=cmd_schema)
     return ap
 
 

@@ -14,7 +14,16 @@ class SceneError(ConfigError):
 
     def __init__(self, path: str, key: str, reason: str):
         self.path, self.key, self.reason = str(path), key, reason
-        super().__init__(f"{path}: {key}: {reason}")
+        super().__init__(f"{path}: {key}: {reason}" if path else f"{key}: {reason}")
+
+
+class FieldError(ConfigError):
+    """A setting is invalid: ``key`` (dotted, relative to the table being built) and ``reason``.
+    The validator (teleop.typed) prefixes the table's key and turns it into a SceneError."""
+
+    def __init__(self, key: str, reason: str):
+        self.key, self.reason = key, reason
+        super().__init__(f"{key}: {reason}")
 
 
 class DynamicsError(TeleopError):

@@ -23,7 +23,7 @@ from teleop.scenario.metrics import MasterMetrics, SlaveMetrics, TremorProbe, ma
 from teleop.scenario.operators import make_operator
 from teleop.scenario.schema import Scene
 from teleop.session import RunResult, Session
-from teleop.slave import SlaveArm, SlaveConfig
+from teleop.slave import SlaveArm
 from teleop.slave.side import SlaveSide
 
 __all__ = ["run_scene", "make_master", "RunResult"]
@@ -33,42 +33,36 @@ def make_master(scene: Scene, tool, rng: np.random.Generator):
     """The scene's master: the ideal one, or the cobot with only the device effects it names."""
     if scene.master != "cobot":
         return IdealMaster(tool, scene.dt_s)
-    from teleop.master import CobotConfig, CobotMaster  # the CAN stack: loaded only for the cobot
+    from teleop.master import CobotMaster  # the CAN stack: loaded only for the cobot
 
-    cfg = dict(scene.master_config)
+    cfg = scene.cobot
     if "can_faults" not in scene.effects:
-        cfg.pop("faults", None)
+        cfg = replace(cfg, faults=type(cfg.faults)())
     if "sensor_noise" not in scene.effects:
-        cfg.update(force_noise_N=0.0, torque_noise_Nm=0.0, force_bias_N=(0.0, 0.0, 0.0), torque_bias_Nm=(0.0, 0.0, 0.0))
+        cfg = replace(cfg, force_noise_N=0.0, torque_noise_Nm=0.0, force_bias_N=(0.0, 0.0, 0.0),
+                      torque_bias_Nm=(0.0, 0.0, 0.0))
     if "servo_lag" not in scene.effects:
-        cfg["servo_bandwidth_hz"] = 1e4  # a 16 us lag: nothing at a 1 kHz tick
+        cfg = replace(cfg, servo_bandwidth_hz=1e4)  # a 16 us lag: nothing at a 1 kHz tick
     p0, R0 = tool.pose()
-    return CobotMaster(CobotConfig.from_dict(cfg, "cobot"), scene.dt_s, rng, p0, R0, tool.body.mass_kg)
+    return CobotMaster(cfg, scene.dt_s, rng, p0, R0, tool.body.mass_kg)
 
 
 def make_slave(scene: Scene, registration, constraints_P):
     """The slave side of a scene with a [slave] table (None without one): the arm under the
     patient-frame fixture ``constraints_P``, the tissue if the scene calls for it."""
-    if "slave" not in scene.extra:
+    if scene.slave is None:
         return None
     try:
-        arm = SlaveArm(SlaveConfig.from_dict(scene.extra["slave"], "slave"), constraints_P, scene.dt_s)
+        arm = SlaveArm(scene.slave, constraints_P, scene.dt_s)
         tissue = None
         if "tissue" in scene.effects:
-            tissue = TissueBlock.from_dict(scene.extra.get("tissue", {}), "tissue")
+            tissue = scene.tissue or TissueBlock()
             if "cutting" not in scene.effects:  # normal contact only: no cutting resistance
                 tissue = replace(tissue, cutting=CuttingModel(0.0, 0.0, 0.0, 0.0))
     except ConfigError as e:
         key, _, reason = str(e).partition(": ")
         raise SceneError(scene.path, key, reason) from None
     return SlaveSide(arm, registration, tissue, scene.fixture.tip_m)
-
-
-def _feedback_cutoff_hz(scene: Scene) -> float:
-    fc = scene.extra.get("mapping", {}).get("feedback_cutoff_hz", 20.0)
-    if not isinstance(fc, (int, float)) or isinstance(fc, bool) or not np.isfinite(fc) or fc < 0:
-        raise SceneError(scene.path, "mapping.feedback_cutoff_hz", f"expected a number >= 0, got {fc!r}")
-    return float(fc)
 
 
 class _ViewHook(Hook):
@@ -98,7 +92,7 @@ def run_scene(scene: Scene, progress=None, realtime: bool = False, operator=None
     feedback = tremor = slave_metrics = None
     if slave is not None:
         slave.reset(*tool.pose())
-        feedback = FeedbackPath(reg, _feedback_cutoff_hz(scene), scene.dt_s)
+        feedback = FeedbackPath(reg, scene.mapping.feedback_cutoff_hz, scene.dt_s)
         rcm = [c for c in constraints_P if isinstance(c, RemoteCenter)]
         slave_metrics = SlaveMetrics(scene.fixture, n, slave.arm.nv, rcm)
         hooks.append(slave_metrics)

@@ -13,15 +13,14 @@ from teleop.scenario.build import master_fixture_spec
 def slave_robot_for(scene):
     """The slave arm's visual model, reduced exactly like the follower's model (fingers locked),
     so the view's joint vector is the arm's ``q``. None when the scene has no slave or a URDF arm."""
-    arm = scene.extra.get("slave", {}).get("arm", "panda")
-    if "slave" not in scene.extra or not isinstance(arm, str):
+    if scene.slave is None or not isinstance(scene.slave.arm, str):
         return None
     import example_robot_data as erd
     import pinocchio as pin
 
     from teleop.slave.arm import ARMS
 
-    robot = erd.load(ARMS[arm][0])
+    robot = erd.load(ARMS[scene.slave.arm][0])
     full = robot.model
     lock = [j for j in range(1, full.njoints) if "finger" in full.names[j]]
     if not lock:
@@ -46,13 +45,13 @@ def viz_scene_for(scene):
     params = {k: v for k, v in asdict(spec).items() if k not in ("type", "euler_sequence", "knife_edge", "trocar_m")}
     shape = {"rolling_disk": "disk", "sphere": "disk", "scalpel": "scalpel"}.get(spec.type, "box")
     tissue = None
-    if "tissue" in scene.extra or "slave" in scene.extra:
-        t = scene.extra.get("tissue", {})
+    if scene.tissue is not None or scene.slave is not None:
+        t = scene.tissue
         tissue = {
-            "origin_m": list(t.get("origin_m", scene.fixture.plane_origin_m)),
-            "normal": list(t.get("normal", scene.fixture.plane_normal)),
-            "size_m": [0.12, 0.08],
-            "thickness_m": float(t.get("thickness_m", 0.03)),
+            "origin_m": list(t.origin_m if t is not None else scene.fixture.plane_origin_m),
+            "normal": list(t.normal if t is not None else scene.fixture.plane_normal),
+            "size_m": list(scene.viewer.tissue_size_m),
+            "thickness_m": float(t.thickness_m if t is not None else 0.03),
         }
     return VizScene(
         fixture_type=spec.type, fixture_params=params, tool_shape=shape,

@@ -18,26 +18,18 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from teleop.errors import ConfigError
+from teleop.typed import Checked, setting
 
 
 @dataclass(frozen=True)
-class CuttingModel:
+class CuttingModel(Checked):
     """Resistance coefficients (SI): see the module docstring."""
 
-    f_N_per_m: float = 400.0
-    b_Ns_per_m2: float = 4000.0
-    lateral_Ns_per_m2: float = 20000.0
-    twist_Nms_per_m: float = 2.0
-    v_smooth_mps: float = 1e-3
-
-    def __post_init__(self):
-        for key in ("f_N_per_m", "b_Ns_per_m2", "lateral_Ns_per_m2", "twist_Nms_per_m"):
-            x = getattr(self, key)
-            if not np.isfinite(x) or x < 0:
-                raise ConfigError(f"cutting.{key}: expected a finite value >= 0, got {x}")
-        if not np.isfinite(self.v_smooth_mps) or self.v_smooth_mps <= 0:
-            raise ConfigError(f"cutting.v_smooth_mps: expected > 0, got {self.v_smooth_mps}")
+    f_N_per_m: float = setting(400.0, ge=0.0, doc="fracture resistance per metre of depth, N/m")
+    b_Ns_per_m2: float = setting(4000.0, ge=0.0, doc="viscous cutting resistance, N*s/m^2")
+    lateral_Ns_per_m2: float = setting(20000.0, ge=0.0, doc="sideways resistance, N*s/m^2")
+    twist_Nms_per_m: float = setting(2.0, ge=0.0, doc="twist resistance, N*m*s/m")
+    v_smooth_mps: float = setting(1e-3, gt=0.0, doc="tanh smoothing speed of the stick, m/s")
 
     def compute_forces(self, depth, n, R, v_tip, w):
         """(F_cut (3,) N, F_lat (3,) N, tau (3,) N*m, v_c m/s) for the tip ``depth`` m under a

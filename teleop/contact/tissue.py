@@ -14,12 +14,17 @@ wrench acts at the tip: (force N, torque N*m), Pinocchio's LOCAL_WORLD_ALIGNED o
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field, fields
+from dataclasses import dataclass
+from typing import Literal
 
 import numpy as np
 
 from teleop.contact.cutting import CuttingModel
-from teleop.errors import ConfigError, check_table
+from teleop.typed import Checked, setting, validate
+
+
+def _nonzero(v) -> str | None:
+    return None if float(np.linalg.norm(v)) > 1e-12 else "expected a non-zero 3-vector"
 
 
 @dataclass(frozen=True, eq=False)
@@ -36,68 +41,32 @@ class ContactReport:
 
 
 @dataclass(frozen=True, eq=False)
-class TissueBlock:
+class TissueBlock(Checked):
     """Tissue slab: geometry (m), normal model ("hunt_crossley" | "kelvin_voigt"), cutting model.
 
     stiffness: N/m^exponent (Hunt-Crossley) or N/m (Kelvin-Voigt); alpha_s_per_m: Hunt-Crossley
     damping (s/m); damping_Ns_per_m: Kelvin-Voigt damping.
     """
 
-    origin_m: np.ndarray = field(default_factory=lambda: np.array([0.5, 0.0, 0.2]))
-    normal: np.ndarray = field(default_factory=lambda: np.array([0.0, 0.0, 1.0]))
-    thickness_m: float = 0.03
-    model: str = "hunt_crossley"
-    stiffness: float = 1.0e4
-    exponent: float = 1.5
-    alpha_s_per_m: float = 2.0
-    damping_Ns_per_m: float = 20.0
-    cutting: CuttingModel = field(default_factory=CuttingModel)
+    origin_m: np.ndarray = setting(factory=lambda: np.array([0.5, 0.0, 0.2]), n=3, doc="a point of the surface, m")
+    normal: np.ndarray = setting(factory=lambda: np.array([0.0, 0.0, 1.0]), n=3, check=_nonzero,
+                                 doc="outward normal of the surface (normalized)")
+    thickness_m: float = setting(0.03, gt=0.0, doc="thickness of the block, m")
+    model: Literal["hunt_crossley", "kelvin_voigt"] = setting("hunt_crossley", doc="normal contact model")
+    stiffness: float = setting(1.0e4, gt=0.0, doc="N/m^exponent (Hunt-Crossley) or N/m (Kelvin-Voigt)")
+    exponent: float = setting(1.5, gt=0.0, doc="Hunt-Crossley exponent")
+    alpha_s_per_m: float = setting(2.0, ge=0.0, doc="Hunt-Crossley damping, s/m")
+    damping_Ns_per_m: float = setting(20.0, ge=0.0, doc="Kelvin-Voigt damping, N*s/m")
+    cutting: CuttingModel = setting(factory=CuttingModel, doc="cutting resistance")
 
     def __post_init__(self):
-        o = np.asarray(self.origin_m, dtype=float).reshape(-1)
-        if o.shape != (3,) or not np.all(np.isfinite(o)):
-            raise ConfigError(f"tissue.origin_m: expected a finite 3-vector, got {self.origin_m!r}")
-        n = np.asarray(self.normal, dtype=float).reshape(-1)
-        nn = float(np.linalg.norm(n)) if n.shape == (3,) else 0.0
-        if not np.isfinite(nn) or nn < 1e-12:
-            raise ConfigError(f"tissue.normal: expected a non-zero 3-vector, got {self.normal!r}")
-        object.__setattr__(self, "origin_m", o)
-        object.__setattr__(self, "normal", n / nn)
-        if self.model not in ("hunt_crossley", "kelvin_voigt"):
-            raise ConfigError(f"tissue.model: expected 'hunt_crossley' or 'kelvin_voigt', got {self.model!r}")
-        for key in ("thickness_m", "stiffness", "exponent"):
-            x = getattr(self, key)
-            if not isinstance(x, (int, float)) or not np.isfinite(x) or x <= 0:
-                raise ConfigError(f"tissue.{key}: expected a finite positive number, got {x!r}")
-        for key in ("alpha_s_per_m", "damping_Ns_per_m"):
-            x = getattr(self, key)
-            if not isinstance(x, (int, float)) or not np.isfinite(x) or x < 0:
-                raise ConfigError(f"tissue.{key}: expected a finite number >= 0, got {x!r}")
+        super().__post_init__()
+        object.__setattr__(self, "normal", self.normal / np.linalg.norm(self.normal))
 
     @classmethod
     def from_dict(cls, d: dict, where: str = "tissue") -> "TissueBlock":
-        """Build from a table; cutting coefficients sit in a sub-table ``cutting``."""
-        check_table(d, where, {f.name for f in fields(cls)})
-        kw = {}
-        for key, val in d.items():
-            if key == "cutting":
-                check_table(val, f"{where}.cutting", {f.name for f in fields(CuttingModel)})
-                try:
-                    val = CuttingModel(**{k: float(v) for k, v in val.items()})
-                except (ConfigError, TypeError, ValueError) as exc:
-                    raise ConfigError(f"{where}.{exc}") from None
-            elif key in ("origin_m", "normal", "model"):
-                pass
-            else:
-                try:
-                    val = float(val)
-                except (TypeError, ValueError):
-                    raise ConfigError(f"{where}.{key}: expected a number, got {val!r}") from None
-            kw[key] = val
-        try:
-            return cls(**kw)
-        except ConfigError as exc:
-            raise ConfigError(f"{where}: {exc}") from None
+        """Build from a plain table through the one validator (errors name ``where.key``)."""
+        return validate(cls, d, "", where)
 
     def compute_depth(self, p_tip) -> float:
         """Penetration (m) of the point below the surface, clamped to [0, thickness]."""

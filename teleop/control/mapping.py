@@ -24,7 +24,8 @@ import numpy as np
 
 from teleop.dynamics import constraints as C
 from teleop.dynamics.registry import FrameMap
-from teleop.errors import ConfigError, check_table
+from teleop.errors import ConfigError
+from teleop.typed import validate
 
 
 def _rotation(R, name: str) -> np.ndarray:
@@ -64,19 +65,11 @@ class Registration:
 
     @classmethod
     def from_dict(cls, d: dict, where: str = "mapping") -> "Registration":
-        """Keys: position_m (3), rpy_rad (3), scale, force_scale, torque_scale."""
-        import pinocchio as pin
+        """A scene's [mapping] table (position_m, rpy_rad, scale, force_scale, torque_scale,
+        feedback_cutoff_hz) checked by the scene's validator; errors name ``where.key``."""
+        from teleop.scenario.tables import MappingSpec  # the scene layer imports this one, not back
 
-        check_table(d, where, ("position_m", "rpy_rad", "scale", "force_scale", "torque_scale"))
-        rpy = np.asarray(d.get("rpy_rad", (0.0, 0.0, 0.0)), dtype=float)
-        if rpy.shape != (3,) or not np.all(np.isfinite(rpy)):
-            raise ConfigError(f"{where}.rpy_rad: expected 3 finite angles, got {d.get('rpy_rad')!r}")
-        try:
-            return cls(d.get("position_m", (0.0, 0.0, 0.0)), pin.rpy.rpyToMatrix(*rpy),
-                       float(d.get("scale", 1.0)), float(d.get("force_scale", 1.0)),
-                       None if d.get("torque_scale") is None else float(d["torque_scale"]))
-        except (TypeError, ValueError) as exc:
-            raise ConfigError(f"{where}: {exc}") from None
+        return validate(MappingSpec, d, "", where).registration()
 
     # -- poses and twists -------------------------------------------------------------------
     def point_to_patient(self, x_M) -> np.ndarray:

@@ -1,138 +1,93 @@
-"""CobotConfig: every setting of the simulated cobot master, validated on creation (SI units)."""
+"""CobotConfig: every setting of the simulated cobot master, validated on creation (SI units).
+
+The rules sit beside each field (teleop.typed.setting); ``teleop.typed.validate`` checks a scene's
+``[cobot]`` table against them, and ``CobotConfig(...)`` built from Python checks the same rules.
+"""
 
 from __future__ import annotations
 
-import math
-from dataclasses import dataclass, field, fields
-
-import numpy as np
+from dataclasses import dataclass
 
 from teleop.can.faults import Faults
-from teleop.errors import ConfigError, check_table
+from teleop.errors import FieldError
+from teleop.typed import Checked, setting, validate
 
-PREFIX = "cobot"
-
-
-def _num(v, key, lo=-math.inf, hi=math.inf, lo_open=False):
-    try:
-        x = float(v)
-    except (TypeError, ValueError):
-        raise ConfigError(f"{PREFIX}.{key}: expected a number, got {v!r}") from None
-    if math.isnan(x) or x < lo or x > hi or (lo_open and x == lo):
-        raise ConfigError(f"{PREFIX}.{key}: expected a value in {'(' if lo_open else '['}{lo}, {hi}], got {x}")
-    return x
+Vec = tuple[float, ...]
 
 
-def _vec(v, key, n, lo=-math.inf, positive=False):
-    a = np.asarray(v, dtype=float) if not isinstance(v, str) else np.array([np.nan])
-    if a.ndim == 0:
-        a = np.full(n, float(a))
-    if a.shape != (n,) or not np.all(np.isfinite(a)) or np.any(a < lo) or (positive and np.any(a <= 0)):
-        raise ConfigError(f"{PREFIX}.{key}: expected {'a positive' if positive else 'a'} scalar or {n} finite values, got {v!r}")
-    return tuple(float(x) for x in a)
+def _fd_only(fd: bool) -> str | None:
+    return None if fd else ("the 1 kHz cycle needs CAN FD; classic CAN at 1 Mbit/s is 87.5 % loaded with "
+                            "worst-case stuffing (robots/cobot/README.md)")
 
 
 @dataclass(frozen=True)
-class CobotConfig:
-    """Settings of :class:`teleop.master.CobotMaster`; ``from_dict({}, "master")`` gives defaults."""
+class FaultSettings(Checked, Faults):
+    """CAN faults the simulated device injects (the scene's ``[cobot.faults]``): see teleop.can.faults."""
 
-    scale: float = 1.0  #: motion scale s: p_V = offset + s R_off p_H
-    offset_m: tuple = (0.0, 0.0, 0.0)  #: φ position offset, m
-    offset_rotvec_rad: tuple = (0.0, 0.0, 0.0)  #: φ rotation offset as a rotation vector, rad
-    kp: object = 40000.0  #: 1/s^2, scalar or 6-vector (x y z, rx ry rz)
-    ki: object = 400000.0  #: 1/s^3
-    kd: object = 400.0  #: 1/s
-    integral_limit: object = 2e-6  #: anti-windup clamp of the error integral, m*s / rad*s
-    servo_bandwidth_hz: float = 200.0  #: velocity servo bandwidth (first-order lag), Hz
-    max_velocity: tuple = (0.5, 0.5, 0.5, 10.0, 10.0, 10.0)  #: joint velocity limits, m/s, rad/s
-    max_acceleration: tuple = (20.0, 20.0, 20.0, 400.0, 400.0, 400.0)  #: m/s^2, rad/s^2
-    encoder_m: float = 25e-6  #: gantry encoder resolution, m (the paper's 25 um)
-    encoder_rad: float = 5e-4  #: wrist encoder resolution, rad (25 um of arc at 50 mm)
-    force_noise_N: float = 0.02  #: load-cell noise std, N
-    torque_noise_Nm: float = 0.0005  #: load-cell noise std, N*m
-    force_bias_N: tuple = (0.05, -0.03, 0.08)  #: load-cell bias, N (removed by the start-up tare)
-    torque_bias_Nm: tuple = (0.001, -0.0005, 0.0)  #: N*m
-    max_force_N: float = 100.0  #: saturation of the sensed hand force, N
-    max_torque_Nm: float = 5.0  #: saturation of the sensed hand torque, N*m
-    workspace_margin_m: float = 0.005  #: commands into a travel limit stop this close to it, m / rad
-    fd: bool = True  #: CAN FD (the 1 kHz cycle needs it; classic CAN does not fit 60 %)
-    bitrate_bps: float = 1_000_000.0  #: nominal bit rate, bit/s
-    data_bitrate_bps: float = 5_000_000.0  #: CAN FD data-phase bit rate, bit/s
+    loss_pct: float = setting(0.0, ge=0.0, le=100.0, doc="% of frames dropped")
+    latency_ms: float = setting(0.0, ge=0.0, le=1000.0, doc="ms added to every device frame")
+    jitter_ms: float = setting(0.0, ge=0.0, le=1000.0, doc="ms, uniform extra delay in [0, jitter]")
+    corrupt_pct: float = setting(0.0, ge=0.0, le=100.0, doc="% of frames with one payload bit flipped")
+    silent_after_s: float | None = setting(None, ge=0.0, doc="s after which the device stops sending")
+    bus_off_at_s: float | None = setting(None, ge=0.0, doc="s at which the device goes bus-off")
+
+
+@dataclass(frozen=True)
+class CobotConfig(Checked):
+    """Settings of :class:`teleop.master.CobotMaster`; ``CobotConfig()`` gives defaults."""
+
+    scale: float = setting(1.0, gt=0.0, le=100.0, doc="motion scale s: p_V = offset + s R_off p_H")
+    offset_m: Vec = setting((0.0, 0.0, 0.0), n=3, doc="phi position offset, m")
+    offset_rotvec_rad: Vec = setting((0.0, 0.0, 0.0), n=3, doc="phi rotation offset as a rotation vector, rad")
+    kp: Vec = setting(40000.0, n=6, broadcast=True, ge=0.0, doc="1/s^2, scalar or 6-vector (x y z, rx ry rz)")
+    ki: Vec = setting(400000.0, n=6, broadcast=True, ge=0.0, doc="1/s^3")
+    kd: Vec = setting(400.0, n=6, broadcast=True, ge=0.0, doc="1/s")
+    integral_limit: Vec = setting(2e-6, n=6, broadcast=True, ge=0.0, doc="anti-windup clamp of the error integral, m*s / rad*s")
+    servo_bandwidth_hz: float = setting(200.0, gt=0.0, le=1e4, doc="velocity servo bandwidth (first-order lag), Hz")
+    max_velocity: Vec = setting((0.5, 0.5, 0.5, 10.0, 10.0, 10.0), n=6, broadcast=True, gt=0.0,
+                                doc="joint velocity limits, m/s, rad/s")
+    max_acceleration: Vec = setting((20.0, 20.0, 20.0, 400.0, 400.0, 400.0), n=6, broadcast=True, gt=0.0,
+                                    doc="m/s^2, rad/s^2")
+    encoder_m: float = setting(25e-6, gt=0.0, le=1e-2, doc="gantry encoder resolution, m (the paper's 25 um)")
+    encoder_rad: float = setting(5e-4, gt=0.0, le=1e-2, doc="wrist encoder resolution, rad")
+    force_noise_N: float = setting(0.02, ge=0.0, le=10.0, doc="load-cell noise std, N")
+    torque_noise_Nm: float = setting(0.0005, ge=0.0, le=10.0, doc="load-cell noise std, N*m")
+    force_bias_N: Vec = setting((0.05, -0.03, 0.08), n=3, doc="load-cell bias, N (removed by the start-up tare)")
+    torque_bias_Nm: Vec = setting((0.001, -0.0005, 0.0), n=3, doc="N*m")
+    max_force_N: float = setting(100.0, gt=0.0, le=1e3, doc="saturation of the sensed hand force, N")
+    max_torque_Nm: float = setting(5.0, gt=0.0, le=1e3, doc="saturation of the sensed hand torque, N*m")
+    workspace_margin_m: float = setting(0.005, ge=0.0, le=10.0, doc="commands stop this close to a travel limit, m / rad")
+    fd: bool = setting(True, check=_fd_only, doc="CAN FD (the 1 kHz cycle needs it; classic CAN does not fit 60 %)")
+    bitrate_bps: float = setting(1_000_000.0, gt=0.0, le=20e6, doc="nominal bit rate, bit/s")
+    data_bitrate_bps: float = setting(5_000_000.0, gt=0.0, le=20e6, doc="CAN FD data-phase bit rate, bit/s")
     #: python-can interface of the host bus. The simulated ones (SIMULATED_INTERFACES) put the
     #: simulated device on the same channel: "teleop_lockstep" (teleop.can.lockstep, the default)
     #: or python-can's "virtual"; any other name is real hardware, driven without the simulator.
-    interface: str = "teleop_lockstep"
-    channel: str | None = None  #: python-can channel; None: a fresh private channel
-    read_window_s: float = 3e-4  #: host reads feedback and sends commands this long after SYNC, s
-    stale_cycles: int = 3  #: cycles without fresh feedback that trip the watchdog
+    interface: str = setting("teleop_lockstep", check=lambda s: None if s else "expected a python-can interface name",
+                             doc="python-can interface of the host bus")
+    channel: str | None = setting(None, doc="python-can channel; none: a fresh private channel")
+    read_window_s: float = setting(3e-4, gt=0.0, le=10.0, doc="host reads feedback this long after SYNC, s")
+    stale_cycles: int = setting(3, ge=1, le=10000, doc="cycles without fresh feedback that trip the watchdog")
     #: |q_r - q_v| that latches the fault "tracking_error" (the device has lost the reference tool:
     #: zero velocity, the tool held), m and rad in the virtual tool's space
-    tracking_fault_m: float = 0.02
-    tracking_fault_rad: float = 0.35
-    heartbeat_period_s: float = 0.01  #: host and device heartbeat period, s
-    heartbeat_timeout_s: float = 0.05  #: device heartbeat timeout at the host, s
-    tare_cycles: int = 20  #: start-up cycles averaged to tare the load cell
-    free_damping: tuple = (20.0, 20.0, 20.0, 1.0, 1.0, 1.0)  #: clutch-released admittance, N*s/m, N*m*s/rad
-    capture_path: str | None = None  #: record the wire to .log / .asc / .blf
-    realtime: bool = False  #: pace step() to the wall clock
-    observer_bandwidth_hz: float = 20.0  #: joint observer bandwidth (teleop/master/observer.py), Hz
-    faults: Faults = field(default_factory=Faults)
+    tracking_fault_m: float = setting(0.02, gt=0.0, le=100.0, doc="tracking fault threshold, m")
+    tracking_fault_rad: float = setting(0.35, gt=0.0, le=100.0, doc="tracking fault threshold, rad")
+    heartbeat_period_s: float = setting(0.01, gt=0.0, le=10.0, doc="host and device heartbeat period, s")
+    heartbeat_timeout_s: float = setting(0.05, gt=0.0, le=10.0, doc="device heartbeat timeout at the host, s")
+    tare_cycles: int = setting(20, ge=1, le=10000, doc="start-up cycles averaged to tare the load cell")
+    free_damping: Vec = setting((20.0, 20.0, 20.0, 1.0, 1.0, 1.0), n=6, broadcast=True, gt=0.0,
+                                doc="clutch-released admittance, N*s/m, N*m*s/rad")
+    capture_path: str | None = setting(None, doc="record the wire to .log / .asc / .blf")
+    realtime: bool = setting(False, doc="pace step() to the wall clock")
+    observer_bandwidth_hz: float = setting(20.0, gt=0.0, le=100.0, doc="joint observer bandwidth, Hz")
+    faults: FaultSettings = setting(factory=FaultSettings, doc="CAN faults of the simulated device")
 
     def __post_init__(self):
-        s = object.__setattr__
-        s(self, "scale", _num(self.scale, "scale", 0.0, 100.0, lo_open=True))
-        for key, n in (("offset_m", 3), ("offset_rotvec_rad", 3), ("force_bias_N", 3), ("torque_bias_Nm", 3)):
-            s(self, key, _vec(getattr(self, key), key, n))
-        for key in ("kp", "ki", "kd", "integral_limit"):
-            s(self, key, _vec(getattr(self, key), key, 6, lo=0.0))
-        for key in ("max_velocity", "max_acceleration", "free_damping"):
-            s(self, key, _vec(getattr(self, key), key, 6, positive=True))
-        s(self, "servo_bandwidth_hz", _num(self.servo_bandwidth_hz, "servo_bandwidth_hz", 0.0, 1e4, lo_open=True))
-        for key in ("encoder_m", "encoder_rad"):
-            s(self, key, _num(getattr(self, key), key, 0.0, 1e-2, lo_open=True))
-        for key in ("tracking_fault_m", "tracking_fault_rad"):
-            s(self, key, _num(getattr(self, key), key, 0.0, 100.0, lo_open=True))
-        for key in ("force_noise_N", "torque_noise_Nm", "workspace_margin_m"):
-            s(self, key, _num(getattr(self, key), key, 0.0, 10.0))
-        for key in ("max_force_N", "max_torque_Nm"):
-            s(self, key, _num(getattr(self, key), key, 0.0, 1e3, lo_open=True))
-        s(self, "observer_bandwidth_hz", _num(self.observer_bandwidth_hz, "observer_bandwidth_hz", 0.0,
-                                              100.0, lo_open=True))
-        for key in ("bitrate_bps", "data_bitrate_bps"):
-            s(self, key, _num(getattr(self, key), key, 0.0, 20e6, lo_open=True))
-        for key in ("read_window_s", "heartbeat_period_s", "heartbeat_timeout_s"):
-            s(self, key, _num(getattr(self, key), key, 0.0, 10.0, lo_open=True))
-        for key in ("stale_cycles", "tare_cycles"):
-            v = getattr(self, key)
-            if isinstance(v, bool) or not isinstance(v, (int, np.integer)) or not 1 <= v <= 10000:
-                raise ConfigError(f"{PREFIX}.{key}: expected an integer in [1, 10000], got {v!r}")
-        for key in ("fd", "realtime"):
-            if not isinstance(getattr(self, key), bool):
-                raise ConfigError(f"{PREFIX}.{key}: expected true or false, got {getattr(self, key)!r}")
-        if not self.fd:
-            raise ConfigError(f"{PREFIX}.fd: the 1 kHz cycle needs CAN FD; classic CAN at 1 Mbit/s is "
-                              "87.5 % loaded with worst-case stuffing (robots/cobot/README.md)")
-        if not isinstance(self.interface, str) or not self.interface:
-            raise ConfigError(f"{PREFIX}.interface: expected a python-can interface name, got {self.interface!r}")
-        if self.capture_path is not None and not isinstance(self.capture_path, str):
-            raise ConfigError(f"{PREFIX}.capture_path: expected a file path or none, got {self.capture_path!r}")
+        super().__post_init__()
         if self.heartbeat_timeout_s <= self.heartbeat_period_s:
-            raise ConfigError(f"{PREFIX}.heartbeat_timeout_s: must exceed heartbeat_period_s")
-        if isinstance(self.faults, dict):
-            s(self, "faults", Faults.from_dict(self.faults, f"{PREFIX}.faults"))
-        elif not isinstance(self.faults, Faults):
-            raise ConfigError(f"{PREFIX}.faults: expected a table of fault settings")
+            raise FieldError("heartbeat_timeout_s", "must exceed heartbeat_period_s")
 
     @classmethod
     def from_dict(cls, d: dict, where: str = "cobot") -> "CobotConfig":
-        """Build from a scene's table; unknown keys and bad values raise ConfigError naming
-        ``f"{where}.{key}"`` and the reason."""
-        check_table(d, where, {f.name for f in fields(cls)}, "setting")
-        kw = dict(d)
-        if "faults" in kw:
-            kw["faults"] = Faults.from_dict(kw["faults"], f"{where}.faults")
-        try:
-            return cls(**kw)
-        except ConfigError as e:
-            msg = str(e)
-            raise ConfigError(where + msg[len(PREFIX):] if msg.startswith(PREFIX + ".") else msg) from None
+        """Build from a plain table through the one validator (errors name ``where.key``)."""
+        return validate(cls, d, "", where)

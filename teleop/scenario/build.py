@@ -51,12 +51,9 @@ def build_effects(scene: Scene, body: RigidBody) -> list:
 
 
 def build_registration(scene: Scene):
-    """The master-to-patient mapping of a teleoperation scene (identity when it has no slave)."""
-    from teleop.control.mapping import Registration
-
-    d = {k: v for k, v in scene.extra.get("mapping", {}).items() if k != "feedback_cutoff_hz"}
+    """The master-to-patient mapping of a teleoperation scene (the scene's [mapping])."""
     try:
-        return Registration.from_dict(d, "mapping")
+        return scene.mapping.registration()
     except ConfigError as e:
         raise SceneError(scene.path, "mapping", str(e)) from None
 
@@ -66,7 +63,7 @@ def master_fixture_spec(scene: Scene) -> FixtureSpec:
     written in the patient frame (where the tissue is) and is mapped into the master workspace by
     the registration: points through the inverse map, normals rotated, lengths times the scale."""
     spec = scene.fixture
-    if "slave" not in scene.extra:
+    if scene.slave is None:
         return spec
     from dataclasses import replace
 

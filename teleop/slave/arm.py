@@ -1,6 +1,6 @@
 """The slave arm: its configuration, its Pinocchio model with the tool frame E, and its state.
 
-``SlaveConfig`` is a frozen dataclass read from a plain dict (a scene's ``[slave]`` table).
+``SlaveConfig`` is a frozen dataclass, a node of the scene tree (its ``[slave]`` table).
 ``build_model`` loads the arm (example-robot-data's Panda or UR5, or any URDF), appends the tool
 URDF at the flange with ``pin.appendModel`` (the tool's mass joins the last link), and adds the
 frame ``E`` at the tool tip. ``SlaveArm`` owns a ``pin.Data``, the follower QP and the joint state;
@@ -15,14 +15,16 @@ from __future__ import annotations
 
 from dataclasses import dataclass, fields
 from pathlib import Path
+from typing import Literal
 
 import numpy as np
 import pinocchio as pin
 
-from teleop.errors import ConfigError, check_table
+from teleop.errors import ConfigError
 from teleop.resources import robot_file
 from teleop.slave.limits import JointLimits
 from teleop.slave.solvers import PACKAGES, installed_solvers
+from teleop.typed import Checked, setting, validate
 
 SCALPEL_URDF = robot_file("scalpel/scalpel.urdf")
 
@@ -37,131 +39,101 @@ ARMS = {
 TOOLS = {"scalpel": (SCALPEL_URDF, "scalpel_tip")}
 
 
-def _num(where, key, x, lo=None, hi=None, strict=False) -> float:
-    try:
-        x = float(x)
-    except (TypeError, ValueError):
-        raise ConfigError(f"{where}.{key}: expected a number, got {x!r}") from None
-    bad = not np.isfinite(x) or (lo is not None and (x <= lo if strict else x < lo)) or (hi is not None and x > hi)
-    if bad:
-        raise ConfigError(f"{where}.{key}: {x} is out of range (min {lo}{' exclusive' if strict else ''}, max {hi})")
-    return x
+def _file(p: str) -> str | None:
+    return None if Path(p).is_file() else f"no such file {p!r}"
 
 
-def _vec(where, key, x, n=None) -> tuple:
-    try:
-        a = np.asarray(x, dtype=float).reshape(-1)
-    except (TypeError, ValueError):
-        raise ConfigError(f"{where}.{key}: expected a list of numbers, got {x!r}") from None
-    if (n is not None and a.shape != (n,)) or not np.all(np.isfinite(a)):
-        raise ConfigError(f"{where}.{key}: expected {n or 'some'} finite numbers, got {x!r}")
-    return tuple(float(v) for v in a)
+def _arm_name(arm) -> str | None:
+    if isinstance(arm, str) and arm not in ARMS:
+        return f"unknown arm {arm!r}; expected one of {sorted(ARMS)} or a table"
+    return None
+
+
+def _tool_name(tool) -> str | None:
+    if isinstance(tool, str) and tool not in TOOLS:
+        return f"unknown tool {tool!r}; expected one of {sorted(TOOLS)} or a table"
+    return None
+
+
+def _solver(name: str) -> str | None:
+    if name in installed_solvers():
+        return None
+    known = (f"QP solver {name!r} is supported but not installed (pip install {PACKAGES[name]})"
+             if name in PACKAGES else f"unknown QP solver {name!r}")
+    return f"{known}; installed: {list(installed_solvers())}"
+
+
+class _Pairs:
+    """Iterates as (key, value) pairs of its set fields, so ``dict(spec)`` reads it as a mapping."""
+
+    def __iter__(self):
+        return iter((f.name, getattr(self, f.name)) for f in fields(self) if getattr(self, f.name) is not None)
 
 
 @dataclass(frozen=True)
-class SlaveConfig:
+class UrdfArm(_Pairs, Checked):
+    """An arm from a URDF: ``flange`` the frame the tool is mounted on; q0 (rad) and a_max (rad/s^2)
+    default to the neutral pose and 10 rad/s^2."""
+
+    urdf: str = setting(check=_file, doc="URDF file of the arm")
+    flange: str = setting(doc="frame the tool is mounted on")
+    q0: tuple[float, ...] | None = setting(None, doc="initial joint angles, rad")
+    a_max: tuple[float, ...] | None = setting(None, gt=0.0, doc="joint acceleration limits, rad/s^2")
+    package_dirs: tuple[str, ...] | None = setting(None, doc="folders the URDF's package:// paths resolve in")
+
+
+@dataclass(frozen=True)
+class UrdfTool(_Pairs, Checked):
+    """A tool from a URDF: ``tip`` the frame at the blade tip."""
+
+    urdf: str = setting(check=_file, doc="URDF file of the tool")
+    tip: str = setting(doc="frame at the tool tip")
+
+
+@dataclass(frozen=True)
+class SlaveConfig(Checked):
     """Settings of the slave arm and its follower (SI units; gains in 1/s).
 
-    arm: "panda" | "ur5" | {"urdf": path, "flange": frame, "q0": [...], "a_max": [...]}.
-    tool: "scalpel" | {"urdf": path, "tip": frame}. Weights are per (m/s)^2 (position),
-    per (rad/s)^2 (orientation) and per (rad/s)^2 (posture, damping); ``impedance_Ns_per_m``
-    turns the QP's row multipliers into forces (N) for ``fixture_forces``. ``kkt_shortcut``: solve
-    the QP without its joint bounds first (one linear solve, exact when no bound binds) and run
-    ``solver`` only when that solution leaves the bounds.
+    arm: "panda" | "ur5" | {urdf, flange, q0, a_max}. tool: "scalpel" | {urdf, tip}. Weights are
+    per (m/s)^2 (position), per (rad/s)^2 (orientation) and per (rad/s)^2 (posture, damping);
+    ``impedance_Ns_per_m`` turns the QP's row multipliers into forces (N) for ``fixture_forces``.
+    ``kkt_shortcut``: solve the QP without its joint bounds first (one linear solve, exact when no
+    bound binds) and run ``solver`` only when that solution leaves the bounds.
     """
 
-    arm: object = "panda"
-    tool: object = "scalpel"
-    mount_xyz_m: tuple = (0.0, 0.0, 0.0)
-    mount_rpy_rad: tuple = (0.0, 0.0, 0.0)
-    base_xyz_m: tuple = (0.0, 0.0, 0.0)
-    base_rpy_rad: tuple = (0.0, 0.0, 0.0)
-    q0: tuple | None = None
-    solver: str = "osqp"
-    eps: float = 1e-7
-    max_iter: int = 4000
-    weight_position: float = 1.0
-    weight_orientation: float = 0.1
-    weight_posture: float = 1e-4
-    damping: float = 1e-8
-    lm_damping: float = 1e-2
-    slack_weight: float = 1e6
-    k_task_1ps: float = 300.0
-    k_fixture_1ps: float = 300.0
-    k_posture_1ps: float = 1.0
-    velocity_scale: float = 1.0
-    acceleration_scale: float = 1.0
-    position_margin_rad: float = 0.0
-    servo_lag_s: float = 0.0
-    impedance_Ns_per_m: float = 200.0
-    relaxed_tol_mps: float = 1e-6
-    tracking_alarm_m: float = 0.01
-    fallback: str = "dls"
-    kkt_shortcut: bool = True
+    arm: str | UrdfArm = setting("panda", check=_arm_name, doc="arm name or a URDF arm")
+    tool: str | UrdfTool = setting("scalpel", check=_tool_name, doc="tool name or a URDF tool")
+    mount_xyz_m: tuple[float, ...] = setting((0.0, 0.0, 0.0), n=3, doc="tool mount on the flange, m")
+    mount_rpy_rad: tuple[float, ...] = setting((0.0, 0.0, 0.0), n=3, doc="tool mount on the flange, rad")
+    base_xyz_m: tuple[float, ...] = setting((0.0, 0.0, 0.0), n=3, doc="arm base in the world (X_WS), m")
+    base_rpy_rad: tuple[float, ...] = setting((0.0, 0.0, 0.0), n=3, doc="arm base in the world (X_WS), rad")
+    q0: tuple[float, ...] | None = setting(None, doc="initial joint angles, rad (default: the arm's)")
+    solver: str = setting("osqp", check=_solver, doc="QP solver (qpsolvers name)")
+    eps: float = setting(1e-7, gt=0.0, doc="solver tolerance")
+    max_iter: int = setting(4000, ge=1, doc="solver iteration limit")
+    weight_position: float = setting(1.0, gt=0.0)
+    weight_orientation: float = setting(0.1, gt=0.0)
+    weight_posture: float = setting(1e-4, ge=0.0)
+    damping: float = setting(1e-8, ge=0.0)
+    lm_damping: float = setting(1e-2, ge=0.0)
+    slack_weight: float = setting(1e6, gt=0.0)
+    k_task_1ps: float = setting(300.0, gt=0.0, doc="task gain, 1/s")
+    k_fixture_1ps: float = setting(300.0, gt=0.0, doc="fixture gain, 1/s")
+    k_posture_1ps: float = setting(1.0, ge=0.0, doc="posture gain, 1/s")
+    velocity_scale: float = setting(1.0, gt=0.0, doc="scale on the model's velocity limits")
+    acceleration_scale: float = setting(1.0, gt=0.0, doc="scale on the acceleration limits")
+    position_margin_rad: float = setting(0.0, ge=0.0, doc="margin inside the joint limits, rad")
+    servo_lag_s: float = setting(0.0, ge=0.0, doc="joint servo time constant, s")
+    impedance_Ns_per_m: float = setting(200.0, gt=0.0, doc="row multipliers to forces, N*s/m")
+    relaxed_tol_mps: float = setting(1e-6, gt=0.0, doc="slack above which fixtures count as relaxed, m/s")
+    tracking_alarm_m: float = setting(0.01, gt=0.0, doc="tip tracking error that raises the alarm, m")
+    fallback: Literal["dls", "hold"] = setting("dls", doc="what the follower does when the QP fails")
+    kkt_shortcut: bool = setting(True, doc="try the bound-free KKT solve first")
 
     @classmethod
     def from_dict(cls, d: dict, where: str = "slave") -> "SlaveConfig":
-        check_table(d, where, {f.name for f in fields(cls)})
-        kw = {}
-        arm = d.get("arm", "panda")
-        if isinstance(arm, str):
-            if arm not in ARMS:
-                raise ConfigError(f"{where}.arm: unknown arm {arm!r}; expected one of {sorted(ARMS)} or a table")
-        elif isinstance(arm, dict):
-            check_table(arm, f"{where}.arm", ("urdf", "flange", "q0", "a_max", "package_dirs"))
-            if "urdf" not in arm or "flange" not in arm:
-                raise ConfigError(f"{where}.arm: a URDF arm needs both 'urdf' and 'flange'")
-            if not Path(arm["urdf"]).is_file():
-                raise ConfigError(f"{where}.arm.urdf: no such file {arm['urdf']!r}")
-            arm = tuple(sorted((k, tuple(v) if isinstance(v, list) else v) for k, v in arm.items()))
-        else:
-            raise ConfigError(f"{where}.arm: expected a name or a table, got {arm!r}")
-        kw["arm"] = arm
-        tool = d.get("tool", "scalpel")
-        if isinstance(tool, str):
-            if tool not in TOOLS:
-                raise ConfigError(f"{where}.tool: unknown tool {tool!r}; expected one of {sorted(TOOLS)} or a table")
-        elif isinstance(tool, dict):
-            if set(tool) != {"urdf", "tip"}:
-                raise ConfigError(f"{where}.tool: a URDF tool needs exactly 'urdf' and 'tip'")
-            if not Path(tool["urdf"]).is_file():
-                raise ConfigError(f"{where}.tool.urdf: no such file {tool['urdf']!r}")
-            tool = (("tip", tool["tip"]), ("urdf", tool["urdf"]))
-        else:
-            raise ConfigError(f"{where}.tool: expected a name or a table, got {tool!r}")
-        kw["tool"] = tool
-        for key in ("mount_xyz_m", "mount_rpy_rad", "base_xyz_m", "base_rpy_rad"):
-            if key in d:
-                kw[key] = _vec(where, key, d[key], 3)
-        if d.get("q0") is not None:
-            kw["q0"] = _vec(where, "q0", d["q0"])
-        solver = d.get("solver", "osqp")
-        if solver not in installed_solvers():
-            known = (f"QP solver {solver!r} is supported but not installed (pip install {PACKAGES[solver]})"
-                     if solver in PACKAGES else f"unknown QP solver {solver!r}")
-            raise ConfigError(f"{where}.solver: {known}; installed: {list(installed_solvers())}")
-        kw["solver"] = solver
-        fallback = d.get("fallback", "dls")
-        if fallback not in ("dls", "hold"):
-            raise ConfigError(f"{where}.fallback: expected 'dls' or 'hold', got {fallback!r}")
-        kw["fallback"] = fallback
-        if "kkt_shortcut" in d:
-            if not isinstance(d["kkt_shortcut"], bool):
-                raise ConfigError(f"{where}.kkt_shortcut: expected true or false, got {d['kkt_shortcut']!r}")
-            kw["kkt_shortcut"] = d["kkt_shortcut"]
-        pos = ("eps", "weight_position", "weight_orientation", "slack_weight", "k_task_1ps",
-               "k_fixture_1ps", "velocity_scale", "acceleration_scale", "impedance_Ns_per_m",
-               "relaxed_tol_mps", "tracking_alarm_m")
-        nonneg = ("weight_posture", "damping", "lm_damping", "k_posture_1ps", "position_margin_rad", "servo_lag_s")
-        for key in pos:
-            if key in d:
-                kw[key] = _num(where, key, d[key], lo=0.0, strict=True)
-        for key in nonneg:
-            if key in d:
-                kw[key] = _num(where, key, d[key], lo=0.0)
-        if "max_iter" in d:
-            kw["max_iter"] = int(_num(where, "max_iter", d["max_iter"], lo=1))
-        return cls(**kw)
+        """Build from a plain table through the one validator (errors name ``where.key``)."""
+        return validate(cls, d, "", where)
 
 
 @dataclass(frozen=True, eq=False)

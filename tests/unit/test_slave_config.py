@@ -86,7 +86,8 @@ def test_shipped_scenes_run_on_the_base_install():
     from teleop.scenario.schema import list_scenes, load_scene
 
     for name in list_scenes():
-        assert load_scene(name).extra.get("slave", {}).get("solver", "osqp") == "osqp", name
+        slave = load_scene(name).slave
+        assert slave is None or slave.solver == "osqp", name
 
 
 def test_scene_errors_name_the_key_once(tmp_path):
