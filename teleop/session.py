@@ -67,7 +67,7 @@ class MasterRecorder(Hook):
             "t": np.zeros(n), "q_r": np.zeros((n, 6)), "q_v_p": np.zeros((n, 3)),
             "p_r": np.zeros((n, 3)), "R_r": np.zeros((n, 3, 3)), "R_v": np.zeros((n, 3, 3)),
             "lam": np.zeros((n, m)), "operator_W": np.zeros((n, 6)), "master_q": np.zeros((n, 6)),
-            "constraint_W": np.zeros((n, 6)), "tick_us": np.zeros(n),
+            "can_frames_lost": np.zeros(n, dtype=np.int64), "constraint_W": np.zeros((n, 6)), "tick_us": np.zeros(n),
         }
         self.n = 0
         self.nan = False
@@ -88,8 +88,9 @@ class MasterRecorder(Hook):
         log["operator_W"][i] = loop.hand_W
         log["constraint_W"][i] = tool.constraint_wrench_W
         joints = loop.master.joints()
-        if joints is not None:
+        if joints is not None:  # a device: its encoders and the bus's running loss count
             log["master_q"][i] = joints
+            log["can_frames_lost"][i] = loop.master.stats().get("can_frames_lost", 0)
         log["tick_us"][i] = loop.tick_ns * 1e-3
         self.n = i + 1
 

@@ -143,10 +143,10 @@ def incision_point(integrator: str, period_ms: float, solver: str, eps, seconds:
     from teleop.runtime import run_scene
 
     base = load_scene(INCISION)
-    slave = dict(base.extra["slave"], solver=solver, kkt_shortcut=not every_tick)
+    slave = replace(base.slave, solver=solver, kkt_shortcut=not every_tick)
     if eps is not None:
-        slave["eps"] = eps
-    sc = replace(base, extra={**base.extra, "slave": slave}).with_overrides(
+        slave = replace(slave, eps=eps)
+    sc = replace(base, slave=slave).with_overrides(
         integrator=integrator, dt_s=period_ms * 1e-3, duration_s=seconds)
     r = run_scene(sc)
     m, t = r.summary["metrics"], r.summary["tick_us"]

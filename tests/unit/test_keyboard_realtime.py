@@ -33,7 +33,9 @@ def test_keyboard_drives_a_scene_and_stops_it():
     op = KeyboardOperator(FixtureSpec("scalpel", tip_m=(0, 0, 0.1)), fd=r, force_N=0.5)
     os.write(w, b"w" * 3 + b"x")  # push forward, then stop at once
     s = run_scene(scene, operator=op).summary
-    assert s["status"] == "stopped_by_operator" and s["steps"] == 1 and not s["nan"]
+    # x is a clean stop: the run is ok (both sides did what was asked) and says who stopped it
+    assert s["status"] == "ok" and s["stopped_by_operator"] and s["master_status"] == "stopped_by_operator"
+    assert s["steps"] == 1 and not s["nan"]
     os.close(w)
     os.close(r)
 
