@@ -19,7 +19,8 @@ import numpy as np
 from teleop.dynamics.constraints import RemoteCenter
 from teleop.dynamics.rotations import cross
 from teleop.errors import ConfigError, SceneError
-from teleop.slave.kernels import project_onto_fixture
+from teleop.slave.projection import project_onto_fixture
+from teleop.slave.rows import RowStack
 
 
 class SlaveSide:
@@ -58,12 +59,7 @@ class SlaveSide:
         self._alpha = 1.0 - math.exp(-2.0 * math.pi * fc * scene.dt_s) if fc > 0 else 1.0
         self._feedback = np.zeros(6)
         self.rcm = [c for c in self.constraints if isinstance(c, RemoteCenter)]
-        # the follower's fitted rows, for project_target: the holonomic ones with h unscaled, and all
-        # (only their G is read); None when a row is not of the fitted form
-        rows = self.arm.qp.rows
-        hol = [i for c, r0 in zip(rows.constraints, np.cumsum([0] + [c.rows for c in rows.constraints]))
-               if c.holonomic for i in range(r0, r0 + c.rows)]
-        self._rows = None if rows.direct else (rows.coefficients_of(hol), rows.coefficients)
+        self._rows = RowStack(self.constraints)  # the fixture's rows, for project_target
         normal = np.asarray(self.spec.plane_normal, dtype=float)
         self._normal = normal / np.linalg.norm(normal)
         self._plane_origin = np.asarray(self.spec.plane_origin_m, dtype=float)
@@ -79,37 +75,9 @@ class SlaveSide:
         return self.arm.reset((p, R))
 
     def project_target(self, p, R, v, w):
-        """The target moved onto the patient-frame fixture: Newton steps on the holonomic rows
-        (minimum-norm twist corrections, retraction by exp), then the twist onto every row. The
-        virtual tool carries the device's tracking error (tens of um, mrad); the slave follows its
-        closest admissible pose instead of fighting its own fixture rows. One compiled call
-        (:func:`teleop.slave.kernels.project_onto_fixture`) when every row has the fitted form;
-        :meth:`project_target_reference` otherwise, and as the reference."""
-        if self._rows is None:
-            return self.project_target_reference(p, R, v, w)
-        p, R, v, w = (np.ascontiguousarray(x, dtype=float) for x in (p, R, v, w))  # the mapping's: (3,), (3, 3)
-        return project_onto_fixture(self._rows[0], self._rows[1], p, R, v, w, 3, 1e-12)
-
-    def project_target_reference(self, p, R, v, w):
-        """:meth:`project_target` with the constraints' own methods and numpy."""
-        import pinocchio as pin
-
-        from teleop.dynamics.constraints import stack_jacobian, stack_residual
-
-        hol = [c for c in self.constraints if c.holonomic]
-        for _ in range(3 if hol else 0):
-            h = stack_residual(hol, p, R)
-            if float(np.abs(h).max()) < 1e-12:
-                break
-            G = stack_jacobian(hol, p, R)
-            d = -np.linalg.lstsq(G, h, rcond=None)[0]
-            p, R = p + d[:3], pin.exp3(d[3:]) @ R
-        if self.constraints:
-            G = stack_jacobian(self.constraints, p, R)
-            nu = np.concatenate([v, w])
-            nu = nu - np.linalg.lstsq(G, G @ nu, rcond=None)[0]
-            v, w = nu[:3], nu[3:]
-        return p, R, v, w
+        """The target moved onto the patient-frame fixture
+        (:func:`teleop.slave.projection.project_onto_fixture`)."""
+        return project_onto_fixture(self._rows, p, R, v, w)
 
     def step(self, p_v, R_v, v_v, w_v) -> np.ndarray:
         """One tick toward the mapped virtual tool (projected onto the fixture); returns the contact
