@@ -25,7 +25,14 @@ import numpy as np
 from numba import njit
 
 from teleop.dynamics import effects as E
-from teleop.dynamics.kernels.rows import _cross, _dot, _rv, stack_rows
+from teleop.dynamics.kernels.rows import _cross, _dot, _rv, constraint_rows
+
+
+@njit(cache=True)
+def stack_rows(G, b, kinds, offsets, params, p, R, v, w):
+    h = np.empty(G.shape[0])
+    for k in range(kinds.shape[0]):
+        constraint_rows(kinds[k], params[k], p, R, v, w, G, b, h, offsets[k])
 
 #: Delassus solve modes: no rows, Cholesky factor L, or a pseudo-inverse matrix (rank-deficient K)
 SOLVE_NONE, SOLVE_CHOLESKY, SOLVE_PINV = 0, 1, 2
