@@ -33,7 +33,7 @@ import numpy as np
 import pinocchio as pin
 
 from teleop.slave import kernels
-from teleop.slave.rows import RowStack
+from teleop.dynamics.rows import RowStack
 from teleop.slave.solvers import make_solver
 
 
@@ -52,7 +52,7 @@ class FollowerQP:
     """Workspace and solver of the follower for one arm and one fixed set of fixture constraints.
 
     ``build`` fills the linear system above in place (one compiled call,
-    :func:`teleop.slave.kernels.build_system`, on the rows of :class:`RowStack`, the same rows the
+    :func:`teleop.slave.kernels.build_system`, on the rows of :class:`teleop.dynamics.rows.RowStack`, the same rows the
     master evaluates). ``solve`` solves it when ``cfg.kkt_shortcut`` is set (one compiled LU solve of
     size m + nv) and keeps its solution when within the bounds; otherwise the persistent QP solver
     ``cfg.solver`` runs on the full problem, which ``problem()`` writes.

@@ -20,7 +20,7 @@ from teleop.dynamics.constraints import RemoteCenter
 from teleop.dynamics.rotations import cross
 from teleop.errors import ConfigError, SceneError
 from teleop.slave.projection import project_onto_fixture
-from teleop.slave.rows import RowStack
+from teleop.dynamics.rows import RowStack
 
 
 class SlaveSide:

@@ -10,7 +10,7 @@ from scipy.optimize import minimize
 from teleop.dynamics import constraints as C
 from teleop.dynamics import fixtures
 from teleop.slave.projection import project_onto_fixture
-from teleop.slave.rows import RowStack
+from teleop.dynamics.rows import RowStack
 
 PLANE_O = np.array([0.5, 0.0, 0.2])
 R_CUT = np.array([[1.0, 0.0, 0.0], [0.0, -1.0, 0.0], [0.0, 0.0, -1.0]])
