@@ -74,6 +74,7 @@ class FollowerQP:
         self._rhs = np.zeros(n)
         self.b, self._mgq = self._rhs[:m], self._rhs[m:]
         self._e = np.zeros(6)
+        self._p, self._R = np.zeros(3), np.zeros((3, 3))
         self._lbq = self._ubq = np.zeros(nv)
         self.bound_margin = 0.0  # after a successful solve: min over joints of (qd - lb, ub - qd)
         self._minus_inv_rho = -1.0 / rho
@@ -100,7 +101,9 @@ class FollowerQP:
         until the next build, or None when the target is not finite (the system is then unusable).
         The target is C-ordered float arrays of shapes (3,), (3, 3), (3,), (3,), as
         ``SlaveArm.step`` makes it: the kernel indexes them unchecked."""
-        G, _, h = self.rows.evaluate(T[:3, 3], T[:3, :3])
+        self._p[:] = T[:3, 3]  # contiguous copies: the rows' kernel runs its fastest specialisation
+        self._R[:] = T[:3, :3]
+        G, _, h = self.rows.evaluate(self._p, self._R)
         ep2 = kernels.build_system(q, J, T, p_t, R_t, v_t, w_t, q_post, G, h, *self._kernel_consts,
                                    self._K, self._rhs, self._e)
         if ep2 < 0.0:
