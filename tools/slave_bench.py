@@ -13,10 +13,16 @@ Pink gets no fixture rows, so it solves a smaller problem than the slave.
 
 from __future__ import annotations
 
+import json
 import sys
 import time
 
 import numpy as np
+import pinocchio as pin
+import qpsolvers
+
+from teleop.dynamics import fixtures
+from teleop.slave import SlaveArm, SlaveConfig
 
 PLANE_O = np.array([0.5, 0.0, 0.2])
 R_CUT = np.array([[1.0, 0.0, 0.0], [0.0, -1.0, 0.0], [0.0, 0.0, -1.0]])
@@ -35,9 +41,6 @@ def _stats(ts) -> dict:
 
 def _time_slave(solver, n_steps, kkt_shortcut=True):
     """(tick times s, the arm, number of ticks that ran the QP solver)."""
-    from teleop.dynamics import fixtures
-    from teleop.slave import SlaveArm, SlaveConfig
-
     fx = fixtures.scalpel(plane_origin=PLANE_O, depth=0.005)
     cfg = SlaveConfig.from_dict({"solver": solver, "kkt_shortcut": kkt_shortcut}, "slave")
     arm = SlaveArm(cfg, fx.constraints, DT)
@@ -53,19 +56,15 @@ def _time_slave(solver, n_steps, kkt_shortcut=True):
 
 
 def _time_pink(arm, n_steps):
-    import pink
-    import pinocchio as pin
+    import pink  # a test extra: loaded on demand
     from pink.tasks import FrameTask, PostureTask
 
-    from teleop.slave import SlaveArm
-
-    assert isinstance(arm, SlaveArm)
     arm.reset((_target(0)[0], R_CUT))
     conf = pink.Configuration(arm.model, arm.model.createData(), arm.q.copy())
     ft = FrameTask("E", position_cost=1.0, orientation_cost=0.1, lm_damping=1e-2)
     post = PostureTask(cost=1e-4)
     post.set_target(arm.q_post)
-    solver = next(s for s in ("daqp", "quadprog", "proxqp", "osqp") if s in __import__("qpsolvers").available_solvers)
+    solver = next(s for s in ("daqp", "quadprog", "proxqp", "osqp") if s in qpsolvers.available_solvers)
     ts = []
     for k in range(1, n_steps + 1):
         p, _ = _target(k)
@@ -94,6 +93,4 @@ def measure(n_steps: int = 3000) -> dict:
 
 
 if __name__ == "__main__":
-    import json
-
     print(json.dumps(measure(int(sys.argv[1]) if len(sys.argv) > 1 else 3000), indent=2))

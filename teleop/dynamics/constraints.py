@@ -8,6 +8,12 @@ angular velocity (rad/s), Pinocchio's LOCAL_WORLD_ALIGNED convention. A constrai
 * ``bias(p, R, v, w)``: d/dt(G) @ nu, shape (rows,), so that  d/dt(G nu) = G @ nudot + bias;
 * ``residual(p, R)``: h, shape (rows,), for holonomic constraints (h = 0 on the manifold).
 
+The rows of the built-in constraints are written once, in compiled code
+(:mod:`teleop.dynamics.kernels.rows`); each class holds its parameters and names its kernel
+(:attr:`Constraint.kernel`), and its methods call that code. A user's own constraint subclasses
+:class:`Constraint` and fills the methods in Python; :func:`compiled_kind` says which path a
+constraint takes (see its docstring for the protocol).
+
 Rows are normalised so that the multiplier of each row is a force in N (rows acting on ``v``) or a
 torque in N*m (rows acting on ``w`` only); ``units`` names them. The same objects constrain the
 master's reference tool (mapped to Euler-angle coordinates by the engine) and the slave arm's tool
@@ -21,6 +27,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from teleop.dynamics.kernels import rows as K
 from teleop.dynamics.rotations import cross
 from teleop.errors import ConfigError
 
@@ -61,14 +68,20 @@ def plane_tangents(n: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 
 
 class Constraint(ABC):
-    """A block of Pfaffian rows on a rigid body's twist. Subclasses fill three pure methods."""
+    """A block of Pfaffian rows on a rigid body's twist. Subclasses fill three pure methods.
+
+    ``kernel``: the compiled row kernel (a ``KIND_*`` code of :mod:`teleop.dynamics.kernels.rows`)
+    that computes this class's rows, or None (a user's constraint: its Python methods are called).
+    A class that sets it also gives :meth:`kernel_params`. See :func:`compiled_kind`.
+    """
 
     name: str = "constraint"
     holonomic: bool = True
     rows: int = 1
     units: tuple[str, ...] = ("N",)
-    #: G does not depend on the pose and the bias is zero (the engine then evaluates them once).
+    #: G does not depend on the pose and the bias is zero.
     constant: bool = False
+    kernel: int | None = None
 
     @abstractmethod
     def jacobian(self, p: np.ndarray, R: np.ndarray) -> np.ndarray:
@@ -82,10 +95,70 @@ class Constraint(ABC):
         """h (rows,) in m or rad; zero on the constraint manifold. Nonholonomic rows have none."""
         raise ConfigError(f"constraint {self.name!r} is nonholonomic: it has no residual h(q)")
 
+    def kernel_params(self) -> np.ndarray:
+        """The (NPAR,) float parameters the compiled kernel reads (classes that set ``kernel``)."""
+        raise NotImplementedError(f"constraint {self.name!r} has no compiled kernel")
+
+
+#: the names a compiled constraint class must not see overridden below it (see compiled_kind)
+KERNEL_PROTOCOL = ("jacobian", "bias", "residual", "rows", "holonomic", "kernel", "kernel_params")
+
+
+def compiled_kind(c: Constraint) -> int | None:
+    """The compiled row kernel that computes ``c``'s rows, or None (its Python methods are used).
+
+    The protocol: the class in ``type(c)``'s MRO that sets ``kernel`` (not None) owns the kernel;
+    it is used only if no class below that owner redefines any name of :data:`KERNEL_PROTOCOL`.
+    A subclass of a built-in that overrides, say, ``jacobian`` therefore takes the Python path for
+    all its rows, never a kernel that would silently ignore the override.
+    """
+    mro = type(c).__mro__
+    owner = next((i for i, k in enumerate(mro) if "kernel" in k.__dict__), None)
+    if owner is None or mro[owner].__dict__["kernel"] is None:
+        return None
+    if any(name in k.__dict__ for k in mro[:owner] for name in KERNEL_PROTOCOL):
+        return None
+    return int(mro[owner].__dict__["kernel"])
+
+
+def _f(x) -> np.ndarray:
+    return np.ascontiguousarray(x, dtype=float)
+
+
+class _Compiled(Constraint):
+    """The methods of a built-in constraint: its compiled rows (:func:`kernels.rows.one_constraint`)."""
+
+    def kernel_params(self) -> np.ndarray:
+        return self._par  # type: ignore[attr-defined]
+
+    def _set_params(self, *parts) -> None:
+        par = np.zeros(K.NPAR)
+        flat = np.concatenate([np.atleast_1d(np.asarray(x, dtype=float)) for x in parts])
+        par[: flat.size] = flat
+        object.__setattr__(self, "_par", par)
+
+    def _eval(self, p, R, v=None, w=None):
+        z = np.zeros(3)
+        return K.one_constraint(self.kernel, self._par, self.rows, _f(p), _f(R),  # type: ignore[attr-defined]
+                                z if v is None else _f(v), z if w is None else _f(w))
+
+    def jacobian(self, p, R):
+        return self._eval(p, R)[0]
+
+    def bias(self, p, R, v, w):
+        return self._eval(p, R, v, w)[1]
+
+    def residual(self, p, R):
+        if not self.holonomic:
+            return super().residual(p, R)
+        return self._eval(p, R)[2]
+
 
 @dataclass(frozen=True, eq=False)
-class PlaneHeight(Constraint):
-    """Body origin at ``height`` (m) above a plane through ``origin`` with unit ``normal``."""
+class PlaneHeight(_Compiled):
+    """Body origin at ``height`` (m) above a plane through ``origin`` with unit ``normal``.
+
+    h = n . (p - o) - height (m); G = [n, 0]."""
 
     origin: np.ndarray = field(default_factory=lambda: np.zeros(3))
     normal: np.ndarray = field(default_factory=lambda: np.array([0.0, 0.0, 1.0]))
@@ -96,26 +169,18 @@ class PlaneHeight(Constraint):
     rows = 1
     units = ("N",)
     constant = True
+    kernel = K.KIND_PLANE_HEIGHT
 
     def __post_init__(self):
         object.__setattr__(self, "origin", _vec3(self.origin, f"{self.name}.origin"))
         object.__setattr__(self, "normal", _unit(self.normal, f"{self.name}.normal"))
-        G = np.zeros((1, 6))
-        G[0, :3] = self.normal
-        object.__setattr__(self, "_G", G)
-
-    def residual(self, p, R):
-        return np.array([self.normal @ (p - self.origin) - self.height])
-
-    def jacobian(self, p, R):
-        return self._G
-
-    def bias(self, p, R, v, w):
-        return np.zeros(1)
+        if not np.isfinite(self.height):
+            raise ConfigError(f"{self.name}.height: expected a finite number, got {self.height}")
+        self._set_params(self.origin, self.normal, self.height)
 
 
 @dataclass(frozen=True, eq=False)
-class AxisInPlane(Constraint):
+class AxisInPlane(_Compiled):
     """Body axis ``axis_B`` (unit, body frame) stays perpendicular to ``normal``: a disk upright.
 
     h = n . (R a_B) (dimensionless, ~rad). Its multiplier is a torque (N*m) about (R a_B) x n.
@@ -128,26 +193,16 @@ class AxisInPlane(Constraint):
     holonomic = True
     rows = 1
     units = ("N*m",)
+    kernel = K.KIND_AXIS_IN_PLANE
 
     def __post_init__(self):
         object.__setattr__(self, "axis_B", _unit(self.axis_B, f"{self.name}.axis"))
         object.__setattr__(self, "normal", _unit(self.normal, f"{self.name}.normal"))
-
-    def residual(self, p, R):
-        return np.array([self.normal @ (R @ self.axis_B)])
-
-    def jacobian(self, p, R):
-        G = np.zeros((1, 6))
-        G[0, 3:] = cross(R @ self.axis_B, self.normal)
-        return G
-
-    def bias(self, p, R, v, w):
-        a = R @ self.axis_B
-        return np.array([self.normal @ cross(w, cross(w, a))])
+        self._set_params(self.axis_B, self.normal)
 
 
 @dataclass(frozen=True, eq=False)
-class RollingWithoutSlip(Constraint):
+class RollingWithoutSlip(_Compiled):
     """Nonholonomic: the contact point of an upright disk (radius m) does not slide on the plane.
 
     The contact point is ``p - radius * normal`` (valid while the disk is held upright), and its
@@ -162,27 +217,18 @@ class RollingWithoutSlip(Constraint):
     rows = 2
     units = ("N", "N")
     constant = True
+    kernel = K.KIND_ROLLING
 
     def __post_init__(self):
         _positive(self.radius, f"{self.name}.radius")
         n = _unit(self.normal, f"{self.name}.normal")
         object.__setattr__(self, "normal", n)
         t1, t2 = plane_tangents(n)
-        G = np.zeros((2, 6))
-        for i, t in enumerate((t1, t2)):
-            G[i, :3] = t
-            G[i, 3:] = -self.radius * cross(n, t)
-        object.__setattr__(self, "_G", G)
-
-    def jacobian(self, p, R):
-        return self._G
-
-    def bias(self, p, R, v, w):
-        return np.zeros(2)
+        self._set_params(t1, t2, n, self.radius)
 
 
 @dataclass(frozen=True, eq=False)
-class SphereContact(Constraint):
+class SphereContact(_Compiled):
     """The body origin stays on a sphere (centre m, radius m), the body axis ``normal_B`` radial.
 
     h = p - c - radius * R n_B (3 rows, m). Its multipliers are the world force (N) the sphere
@@ -197,33 +243,17 @@ class SphereContact(Constraint):
     holonomic = True
     rows = 3
     units = ("N", "N", "N")
+    kernel = K.KIND_SPHERE
 
     def __post_init__(self):
         object.__setattr__(self, "center", _vec3(self.center, f"{self.name}.center"))
         _positive(self.radius, f"{self.name}.radius")
         object.__setattr__(self, "normal_B", _unit(self.normal_B, f"{self.name}.normal"))
-
-    def residual(self, p, R):
-        return p - self.center - self.radius * (R @ self.normal_B)
-
-    def jacobian(self, p, R):
-        b = R @ self.normal_B
-        r = self.radius
-        G = np.zeros((3, 6))
-        G[0, 0] = G[1, 1] = G[2, 2] = 1.0
-        # d/dt(-r R n_B) = -r w x b = r [b]x w
-        G[0, 4], G[0, 5] = -r * b[2], r * b[1]
-        G[1, 3], G[1, 5] = r * b[2], -r * b[0]
-        G[2, 3], G[2, 4] = -r * b[1], r * b[0]
-        return G
-
-    def bias(self, p, R, v, w):
-        b = R @ self.normal_B
-        return self.radius * cross(cross(w, b), w)
+        self._set_params(self.center, self.radius, self.normal_B)
 
 
 @dataclass(frozen=True, eq=False)
-class PointDepth(Constraint):
+class PointDepth(_Compiled):
     """A body point ``point_B`` (m, body frame) held ``depth`` (m) below a plane (unit normal out).
 
     h = n . (p + R d - o) + depth. The scalpel's blade tip at a fixed cutting depth.
@@ -238,6 +268,7 @@ class PointDepth(Constraint):
     holonomic = True
     rows = 1
     units = ("N",)
+    kernel = K.KIND_POINT_DEPTH
 
     def __post_init__(self):
         object.__setattr__(self, "origin", _vec3(self.origin, f"{self.name}.origin"))
@@ -245,23 +276,11 @@ class PointDepth(Constraint):
         object.__setattr__(self, "point_B", _vec3(self.point_B, f"{self.name}.point"))
         if not np.isfinite(self.depth):
             raise ConfigError(f"{self.name}.depth: expected a finite number, got {self.depth}")
-
-    def residual(self, p, R):
-        return np.array([self.normal @ (p + R @ self.point_B - self.origin) + self.depth])
-
-    def jacobian(self, p, R):
-        G = np.zeros((1, 6))
-        G[0, :3] = self.normal
-        G[0, 3:] = cross(R @ self.point_B, self.normal)
-        return G
-
-    def bias(self, p, R, v, w):
-        d = R @ self.point_B
-        return np.array([self.normal @ cross(w, cross(w, d))])
+        self._set_params(self.origin, self.normal, self.depth, self.point_B)
 
 
 @dataclass(frozen=True, eq=False)
-class AxisAlong(Constraint):
+class AxisAlong(_Compiled):
     """Body axis ``axis_B`` stays parallel to the world ``direction``: two rows (N*m).
 
     h_i = t_i . (R a_B) for the two tangents t_i of ``direction``. Keeps a blade normal to tissue.
@@ -274,30 +293,17 @@ class AxisAlong(Constraint):
     holonomic = True
     rows = 2
     units = ("N*m", "N*m")
+    kernel = K.KIND_AXIS_ALONG
 
     def __post_init__(self):
         object.__setattr__(self, "axis_B", _unit(self.axis_B, f"{self.name}.axis"))
         d = _unit(self.direction, f"{self.name}.direction")
         object.__setattr__(self, "direction", d)
-        object.__setattr__(self, "_T", np.array(plane_tangents(d)))
-
-    def residual(self, p, R):
-        return self._T @ (R @ self.axis_B)
-
-    def jacobian(self, p, R):
-        a = R @ self.axis_B
-        G = np.zeros((2, 6))
-        G[0, 3:] = cross(a, self._T[0])
-        G[1, 3:] = cross(a, self._T[1])
-        return G
-
-    def bias(self, p, R, v, w):
-        a = R @ self.axis_B
-        return self._T @ cross(w, cross(w, a))
+        self._set_params(self.axis_B, *plane_tangents(d))
 
 
 @dataclass(frozen=True, eq=False)
-class KnifeEdge(Constraint):
+class KnifeEdge(_Compiled):
     """Nonholonomic: a body point ``point_B`` has no velocity along the body axis ``side_B``.
 
     The scalpel's blade cannot slip sideways: s . (v + w x R d) = 0 with s = R side_B (N).
@@ -310,27 +316,16 @@ class KnifeEdge(Constraint):
     holonomic = False
     rows = 1
     units = ("N",)
+    kernel = K.KIND_KNIFE_EDGE
 
     def __post_init__(self):
         object.__setattr__(self, "point_B", _vec3(self.point_B, f"{self.name}.point"))
         object.__setattr__(self, "side_B", _unit(self.side_B, f"{self.name}.side"))
-
-    def jacobian(self, p, R):
-        s = R @ self.side_B
-        G = np.zeros((1, 6))
-        G[0, :3] = s
-        G[0, 3:] = cross(R @ self.point_B, s)
-        return G
-
-    def bias(self, p, R, v, w):
-        s = R @ self.side_B
-        d = R @ self.point_B
-        v_point = v + cross(w, d)
-        return np.array([cross(w, s) @ v_point + s @ cross(w, cross(w, d))])
+        self._set_params(self.point_B, self.side_B)
 
 
 @dataclass(frozen=True, eq=False)
-class RemoteCenter(Constraint):
+class RemoteCenter(_Compiled):
     """A trocar (remote centre of motion): the tool shaft, the line through the body point
     ``point_B`` along body axis ``axis_B``, passes through the world point ``center`` (m).
 
@@ -346,6 +341,7 @@ class RemoteCenter(Constraint):
     holonomic = True
     rows = 2
     units = ("N", "N")
+    kernel = K.KIND_REMOTE_CENTER
 
     def __post_init__(self):
         object.__setattr__(self, "center", _vec3(self.center, f"{self.name}.center"))
@@ -355,31 +351,7 @@ class RemoteCenter(Constraint):
         helper = np.array([1.0, 0.0, 0.0]) if abs(a[0]) < 0.9 else np.array([0.0, 1.0, 0.0])
         n1 = helper - (helper @ a) * a
         n1 /= np.linalg.norm(n1)
-        object.__setattr__(self, "_N_B", np.array([n1, cross(a, n1)]))
-
-    def residual(self, p, R):
-        # offset of the shaft from the trocar, along the shaft's two body normals (m)
-        return (self._N_B @ R.T) @ (p + R @ self.point_B - self.center)
-
-    def jacobian(self, p, R):
-        # material point of the shaft at the trocar: r = c - p (world), moving at v + w x r
-        r = self.center - p
-        G = np.zeros((2, 6))
-        for i in range(2):
-            n = R @ self._N_B[i]
-            G[i, :3] = n
-            G[i, 3:] = cross(r, n)
-        return G
-
-    def bias(self, p, R, v, w):
-        r = self.center - p
-        out = np.empty(2)
-        for i in range(2):
-            n = R @ self._N_B[i]
-            v_r = v + cross(w, r)
-            # d/dt[n . (v + w x r)] with rdot = -v: (w x n).(v + w x r) + n.(w x -v)
-            out[i] = cross(w, n) @ v_r - n @ cross(w, v)
-        return out
+        self._set_params(self.center, self.point_B, n1, cross(a, n1))
 
 
 def stack_jacobian(constraints, p, R) -> np.ndarray:

@@ -125,3 +125,19 @@ def total_wrench(effects, p, R, v, w, t: float, operator_W=None) -> np.ndarray:
     for e in effects:
         e.add_wrench(p, R, v, w, t, out)
     return out
+
+
+def effect_params(effects) -> tuple[np.ndarray, tuple]:
+    """Split effects into the ones the compiled kernels apply, summed into fx = (c_lin N*s/m, c_ang N*m*s/rad,
+    gravity force (3,) N), and the rest (a tuple, run in Python)."""
+    fx, rest = np.zeros(5), []
+    for e in effects:
+        if type(e) is LinearDamper:
+            fx[0] += e.c
+        elif type(e) is AngularDamper:
+            fx[1] += e.c
+        elif type(e) is Gravity:
+            fx[2:5] += e._f
+        else:
+            rest.append(e)
+    return fx, tuple(rest)

@@ -20,19 +20,12 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from teleop.dynamics.constraints import stack_jacobian, stack_residual
-from teleop.dynamics import kernels
-from teleop.dynamics.kernels import left_pinv
-from teleop.dynamics.model import ConstrainedBody
-from teleop.dynamics.multipliers import solve_delassus
+import pinocchio as pin
+
 from teleop.dynamics.body import Kinematics
-from teleop.dynamics.rotations import (
-    EulerChart,
-    chart_conditioning,
-    euler_from_rotation,
-    rate_map_terms,
-    rechart,
-)
+from teleop.dynamics.kernels.motion import flat_advance, left_pinv
+from teleop.dynamics.model import ConstrainedBody
+from teleop.dynamics.rotations import EulerChart, chart_conditioning, euler_from_rotation, rechart
 from teleop.errors import ConfigError
 
 #: Newton projection: stop when the holonomic residual norm is below this (m or rad).
@@ -69,14 +62,12 @@ def project_position(model: ConstrainedBody, state: ToolState) -> None:
     """Newton iterations on h(q) = 0: the M-weighted minimum-norm twist correction, mapped to q."""
     if not model.holonomic:
         return
-    rhs = np.zeros(model.m)
     for _ in range(PROJECTION_ITERS):
         pt = model.pose_terms(state.chart, state.q)
-        h = stack_residual(model.holonomic, pt.p, pt.R)
-        if float(np.abs(h).max()) < PROJECTION_TOL:
+        d, err = model.correction(pt.p, pt.R)
+        if err < PROJECTION_TOL:
             return
-        rhs[model.holonomic_mask] = h
-        state.q = state.q - model.rates(pt, pt.MinvGt @ pt.K.solve(rhs))
+        state.q = state.q - model.rates(pt, d)
 
 
 def project_velocity(model: ConstrainedBody, state: ToolState) -> None:
@@ -194,13 +185,10 @@ class Parametric(Integrator):
     def step(self, model, state, h, operator_W):
         param, chart = self.param, state.chart
         ev = model.evaluate(chart, state.q, state.qd, state.t, operator_W)
-        if param.flat and model.compiled:
-            return self._flat_step(model, state, h, ev)
         if param.flat:
-            zdd = self._pinv @ ev.qdd
-        else:
-            _, Pinv = self._jac(chart, state.z)
-            zdd = Pinv @ (ev.qdd - param.curvature(chart, state.z, state.zd))
+            return self._flat_step(model, state, h, ev)
+        _, Pinv = self._jac(chart, state.z)
+        zdd = Pinv @ (ev.qdd - param.curvature(chart, state.z, state.zd))
         state.zd = state.zd + h * zdd
         state.z = state.z + h * state.zd
         P, Pinv = self._jac(chart, state.z)
@@ -214,15 +202,13 @@ class Parametric(Integrator):
 
 
     def _flat_step(self, model, state, h, ev):
-        """:meth:`step` after the evaluation, for an affine psi with the compiled model: the same
-        arithmetic in two kernel calls."""
+        """:meth:`step` after the evaluation, for an affine psi (no curvature term): the advance
+        and the projection each in one kernel call."""
         P, Pinv = self._P, self._pinv
-        state.z, state.zd, state.q, state.qd = kernels.flat_advance(state.z, state.zd, ev.qdd, P, Pinv,
-                                                                    self._q0, h)
-        if model.nonholonomic and model.m:
+        state.z, state.zd, state.q, state.qd = flat_advance(state.z, state.zd, ev.qdd, P, Pinv, self._q0, h)
+        if model.nonholonomic:
             pt = model.pose_terms(state.chart, state.q)
-            state.zd, state.qd = kernels.project_parameter_rates(pt.R, pt.E_B, pt.E_inv, pt.G, pt.MinvGt,
-                                                                 pt.S, pt.mode, state.qd, P, Pinv)
+            state.zd, state.qd = model.project_parameter_rates(pt, state.qd, P, Pinv)
         return ev
 
 
@@ -233,8 +219,6 @@ class LieGroup(Integrator):
     name = "lie_group"
 
     def reset(self, model, state, parametrization):
-        import pinocchio as pin  # only this integrator needs it
-
         self._exp3 = pin.exp3
         kin = Kinematics(state.chart, state.q, state.qd)
         self.p, self.R = kin.p.copy(), kin.R.copy()
@@ -247,31 +231,27 @@ class LieGroup(Integrator):
         self.p = self.p + h * self.v
         self.R = self._exp3(h * self.w) @ self.R
         self._project(model)
-        self._write_chart(state)
+        self._write_chart(model, state)
         return ev
 
     def _project(self, model):
         for _ in range(PROJECTION_ITERS if model.holonomic else 0):
-            h = stack_residual(model.holonomic, self.p, self.R)
-            if float(np.abs(h).max()) < PROJECTION_TOL:
+            d, err = model.correction(self.p, self.R, holonomic_only=True)
+            if err < PROJECTION_TOL:
                 break
-            G = stack_jacobian(model.holonomic, self.p, self.R)
-            MinvGt = model.twist_mass_inverse(self.R) @ G.T
-            mu, _ = solve_delassus(G @ MinvGt, h)
-            d = -MinvGt @ mu
-            self.p = self.p + d[:3]
-            self.R = self._exp3(d[3:]) @ self.R
+            self.p = self.p - d[:3]
+            self.R = self._exp3(-d[3:]) @ self.R
         if model.m:
             nu = model.project_twist_at(self.p, self.R, np.concatenate([self.v, self.w]))
             self.v, self.w = nu[:3], nu[3:]
 
-    def _write_chart(self, state):
+    def _write_chart(self, model, state):
         theta = euler_from_rotation(state.chart, self.R)
         if chart_conditioning(state.chart, theta) < 0.25:
             state.chart, theta, _ = rechart(state.chart, theta, np.zeros(3))
-        _, _, E_inv, _ = rate_map_terms(state.chart, theta)
         state.q = np.concatenate([self.p, theta])
-        state.qd = np.concatenate([self.v, E_inv @ (self.R.T @ self.w)])
+        pt = model.pose_terms(state.chart, state.q)
+        state.qd = np.concatenate([self.v, pt.E_inv @ (self.R.T @ self.w)])
 
 
 INTEGRATORS = {

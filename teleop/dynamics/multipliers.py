@@ -5,7 +5,12 @@
 
 M is factored (Cholesky), never inverted. The Delassus matrix K = A M^-1 A^T is factored by
 Cholesky when it is well conditioned; when rows are redundant or nearly dependent, a symmetric
-eigendecomposition gives the minimum-norm multipliers and the numerical rank is reported.
+eigendecomposition gives the minimum-norm multipliers and the numerical rank is reported (the
+engine's compiled solve, :func:`teleop.dynamics.kernels.motion.delassus_solve`).
+
+This module is the chart-coordinate form that :func:`teleop.dynamics.model.evaluate_literal` uses
+as a reference for tests; the engine itself solves eq. 8 in the kernels of
+:mod:`teleop.dynamics.kernels.motion`.
 """
 
 from __future__ import annotations
@@ -15,6 +20,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.linalg.lapack import dpotrf, dpotrs
 
+from teleop.dynamics.kernels.motion import delassus_solve
 from teleop.errors import DynamicsError
 
 #: Relative eigenvalue floor below which a direction of K counts as dependent.
@@ -46,60 +52,11 @@ def cho_solve(L: np.ndarray, B: np.ndarray) -> np.ndarray:
 
 
 def solve_delassus(K: np.ndarray, rhs: np.ndarray) -> tuple[np.ndarray, int]:
-    """Solve K lam = rhs for symmetric PSD K (m, m) through :class:`DelassusFactor`: Cholesky with
-    a pivot-ratio check, else eigendecomposition with eigenvalues below RANK_RTOL * max dropped
-    (minimum-norm, least-squares for inconsistent rows). Returns (lam, rank)."""
-    if K.shape[0] == 0:
-        return np.zeros(0), 0
-    f = DelassusFactor(K)
-    return f.solve(rhs), f.rank
-
-
-class DelassusFactor:
-    """A factored symmetric PSD matrix K (m, m): Cholesky when well conditioned, otherwise a
-    truncated eigendecomposition (minimum-norm / least-squares solves). ``rank`` is numerical."""
-
-    __slots__ = ("L", "V", "w", "rank")
-
-    def __init__(self, K: np.ndarray):
-        m = K.shape[0]
-        self.L = self.V = self.w = None
-        L, info = dpotrf(K, lower=1, clean=1, overwrite_a=0)
-        if info == 0:
-            d = L.diagonal().tolist()  # positive for a successful Cholesky; m is small
-            if min(d) ** 2 > RANK_RTOL * max(d) ** 2:
-                self.L, self.rank = L, m
-                return
-        self._eigen(K)
-
-    @classmethod
-    def from_cholesky(cls, K: np.ndarray, L: np.ndarray, ok: bool) -> "DelassusFactor":
-        """The factor of K from a Cholesky factor L computed elsewhere (the compiled kernel);
-        ``ok`` False (no usable factor) takes the eigendecomposition fallback."""
-        self = cls.__new__(cls)
-        self.V = self.w = None
-        if ok:
-            self.L, self.rank = L, K.shape[0]
-        else:
-            self.L = None
-            self._eigen(K)
-        return self
-
-    def _eigen(self, K: np.ndarray) -> None:
-        w, V = np.linalg.eigh(K)
-        keep = w > RANK_RTOL * max(w[-1], 0.0)
-        self.V, self.w, self.rank = V[:, keep], w[keep], int(keep.sum())
-
-    def pseudo_inverse(self) -> np.ndarray:
-        """K^+ (m, m) of the eigen fallback: V diag(1/w) V^T over the kept directions."""
-        return (self.V / self.w) @ self.V.T
-
-    def solve(self, rhs: np.ndarray) -> np.ndarray:
-        if self.L is not None:
-            return dpotrs(self.L, rhs, lower=1)[0]
-        if rhs.ndim == 1:
-            return self.V @ ((self.V.T @ rhs) / self.w)
-        return self.V @ ((self.V.T @ rhs) / self.w[:, None])
+    """Solve K lam = rhs for symmetric PSD K (m, m) with the engine's compiled solve
+    (:func:`teleop.dynamics.kernels.motion.delassus_solve`): Cholesky with a pivot-ratio check, else
+    eigendecomposition with eigenvalues below RANK_RTOL * max dropped (minimum-norm, least-squares
+    for inconsistent rows). Returns (lam, rank)."""
+    return delassus_solve(np.ascontiguousarray(K, dtype=float), np.ascontiguousarray(rhs, dtype=float), RANK_RTOL)
 
 
 def compute_constrained_acceleration(

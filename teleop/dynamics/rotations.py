@@ -137,63 +137,6 @@ def rate_map(chart: EulerChart, theta: np.ndarray, theta_dot: np.ndarray):
     return R, E, d1 * dcol1 + d2 * dcol2
 
 
-def _rot_cols(M: list, k: int, c: float, s: float) -> None:
-    """In place, M <- M @ R_k(angle) for a row-major 3x3 list M (only two columns change)."""
-    i, j = (k + 1) % 3, (k + 2) % 3
-    for r in (0, 3, 6):
-        mi, mj = M[r + i], M[r + j]
-        M[r + i] = c * mi + s * mj
-        M[r + j] = c * mj - s * mi
-
-
-def _rot_vec_T(v: list, k: int, c: float, s: float) -> list:
-    """R_k(angle)^T @ v for a 3-list v."""
-    i, j = (k + 1) % 3, (k + 2) % 3
-    out = list(v)
-    out[i] = c * v[i] + s * v[j]
-    out[j] = c * v[j] - s * v[i]
-    return out
-
-
-def _cross3(a, b) -> tuple:
-    return (a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0])
-
-
-def rate_map_terms(chart: EulerChart, theta: np.ndarray):
-    """Pose-only pieces of :func:`rate_map`: ``(R_WB, E_B, E_B^-1, (a1, u, a2))`` such that
-
-        d/dt(E_B) thetadot = -(d1 d3) a1 - (d1 d2) u - (d2 d3) a2   for rates (d1, d2, d3),
-
-    so a caller can cache them per pose and get Edot qd for any rates with three scalings. Scalar
-    arithmetic throughout: for 3x3 work it beats a dozen small numpy calls.
-    """
-    a, b, c = chart.axes
-    t1, t2, t3 = float(theta[0]), float(theta[1]), float(theta[2])
-    c1, s1, c2, s2, c3, s3 = math.cos(t1), math.sin(t1), math.cos(t2), math.sin(t2), math.cos(t3), math.sin(t3)
-    M = chart._R0_list  # type: ignore[attr-defined]
-    M = list(M)
-    _rot_cols(M, a, c1, s1)
-    _rot_cols(M, b, c2, s2)
-    _rot_cols(M, c, c3, s3)
-    ea = [0.0, 0.0, 0.0]
-    ea[a] = 1.0
-    eb = [0.0, 0.0, 0.0]
-    eb[b] = 1.0
-    ec = [0.0, 0.0, 0.0]
-    ec[c] = 1.0
-    RbT_ea = _rot_vec_T(ea, b, c2, s2)
-    col1 = _rot_vec_T(RbT_ea, c, c3, s3)
-    col2 = _rot_vec_T(eb, c, c3, s3)
-    # inverse of E = [col1 col2 ec] by the adjugate: rows r_i over det
-    r0, r1, r2 = _cross3(col2, ec), _cross3(ec, col1), _cross3(col1, col2)
-    det = col1[0] * r0[0] + col1[1] * r0[1] + col1[2] * r0[2]
-    inv = 1.0 / det if det != 0.0 else math.inf
-    E = np.array([[col1[0], col2[0], ec[0]], [col1[1], col2[1], ec[1]], [col1[2], col2[2], ec[2]]])
-    E_inv = np.array([r0, r1, r2]) * inv
-    u = _rot_vec_T(list(_cross3(eb, RbT_ea)), c, c3, s3)
-    return np.array(M).reshape(3, 3), E, E_inv, (_cross3(ec, col1), u, _cross3(ec, col2))
-
-
 def euler_from_rotation(chart: EulerChart, R_WB: np.ndarray) -> np.ndarray:
     """Euler angles (rad) of ``R_WB`` in ``chart``. Only well defined away from the singularity.
 

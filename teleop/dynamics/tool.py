@@ -12,7 +12,6 @@ import math
 import numpy as np
 
 from teleop.dynamics.body import Kinematics, RigidBody, kinetic_energy
-from teleop.dynamics.constraints import stack_residual
 from teleop.dynamics.fixtures import Fixture
 from teleop.dynamics.integrators import (
     Integrator,
@@ -42,7 +41,6 @@ class ReferenceTool:
     ``chart``: the Euler chart of the coordinates; defaults to the fixture parametrization's chart.
     ``max_speed_m_s``, ``max_rate_rad_s``: a step that ends faster than this has diverged (an
     unstable stiffness for the period); the tool then holds its last pose, status "diverged".
-    ``compiled``: False runs the numpy reference instead of the compiled kernels (for tests).
     """
 
     def __init__(
@@ -55,11 +53,10 @@ class ReferenceTool:
         chart: EulerChart | None = None,
         max_speed_m_s: float = 100.0,
         max_rate_rad_s: float = 1e4,
-        compiled: bool = True,
     ):
         self.body = body
         self.fixture = fixture
-        self.model = ConstrainedBody(body, fixture.constraints, effects, coriolis=coriolis, compiled=compiled)
+        self.model = ConstrainedBody(body, fixture.constraints, effects, coriolis=coriolis)
         self.integrator = make_integrator(integrator) if isinstance(integrator, str) else integrator
         param = fixture.parametrization
         if chart is None:
@@ -72,7 +69,7 @@ class ReferenceTool:
         self.lam = np.zeros(self.model.m)
         self.rank = self.model.m
         self.wrench_W = np.zeros(6)
-        self._G = np.zeros((self.model.m, 6))
+        self._constraint_wrench = np.zeros(6)
         self.recharts = 0
         self.acceleration_W = np.zeros(6)
         if not (max_speed_m_s > 0 and max_rate_rad_s > 0):
@@ -131,7 +128,7 @@ class ReferenceTool:
         s.t += h
         self.lam, self.rank, self.wrench_W = ev.lam, ev.rank, ev.wrench_W
         self.acceleration_W = ev.nudot  # (vdot m/s^2, wdot rad/s^2), world: eq. 19's feedforward
-        self._G = ev.G
+        self._constraint_wrench = ev.constraint_wrench_W
         self._maybe_rechart()
         self.status = STATUS_NAN if bad_input else STATUS_OK
         return self.status
@@ -148,12 +145,13 @@ class ReferenceTool:
         self.status = STATUS_SINGULAR
         self.lam = np.zeros(self.model.m)
         self.acceleration_W = np.zeros(6)
+        self._constraint_wrench = np.zeros(6)
 
     @property
     def constraint_wrench_W(self) -> np.ndarray:
         """G^T lam (6,): the wrench (N, N*m, world, at the body origin) the constraints applied
         over the last step, the force the master renders."""
-        return self._G.T @ self.lam if self.model.m else np.zeros(6)
+        return self._constraint_wrench
 
     def _maybe_rechart(self) -> None:
         s = self.state
@@ -191,12 +189,12 @@ class ReferenceTool:
     def twist(self):
         """(v (3,) m/s, w (3,) rad/s), world frame."""
         pt = self.model.pose_terms(self.state.chart, self.state.q)
-        return self.state.qd[:3].copy(), pt.R @ (pt.E_B @ self.state.qd[3:])
+        return self.state.qd[:3].copy(), pt.E_W @ self.state.qd[3:]
 
     def residual(self) -> np.ndarray:
         """Holonomic residuals (m or rad) at the current pose."""
         p, R = self.pose()
-        return stack_residual(self.model.constraints, p, R)
+        return self.model.rows.evaluate(p, R)[2][self.model.holonomic_mask]
 
     def energy(self) -> float:
         """Kinetic plus potential energy of the conservative effects (J)."""

@@ -17,6 +17,7 @@ from dataclasses import dataclass, fields
 from pathlib import Path
 from typing import Literal
 
+import example_robot_data as erd
 import numpy as np
 import pinocchio as pin
 
@@ -153,8 +154,6 @@ def _rpy_se3(xyz, rpy) -> pin.SE3:
 def build_model(cfg: SlaveConfig, where: str = "slave") -> ArmModel:
     """Load arm + tool, append the tool at the flange, add frame "E"; validate q0 and limits."""
     if isinstance(cfg.arm, str):
-        import example_robot_data as erd
-
         erd_name, flange, q0, a_max = ARMS[cfg.arm]
         full = erd.load(erd_name).model
     else:

@@ -31,10 +31,9 @@ import math
 
 import numpy as np
 import pinocchio as pin
-from scipy.linalg.lapack import dgesv
 
 from teleop.slave import kernels
-from teleop.slave.rows import FixtureRows
+from teleop.dynamics.rows import RowStack
 from teleop.slave.solvers import make_solver
 
 
@@ -49,64 +48,41 @@ def compute_target_twist(p, R, p_t, R_t, v_t, w_t, k: float) -> tuple[np.ndarray
     return nu, e
 
 
-def _bound_margin(qd, lb, ub) -> float:
-    """The least distance (rad/s) of qd to its bounds: >= 0 within them (as the kernel's)."""
-    return min(np.minimum(qd - lb, ub - qd).tolist())
-
-
 class FollowerQP:
     """Workspace and solver of the follower for one arm and one fixed set of fixture constraints.
 
-    ``build`` fills the linear system above in place. ``solve`` solves it when ``cfg.kkt_shortcut``
-    is set (one LU solve of size m + nv) and keeps its solution when within the bounds; otherwise
-    the persistent QP solver ``cfg.solver`` runs on the full problem, which ``problem()`` writes.
-
-    ``compiled``: build the system and solve it without bounds in the kernels of
-    :mod:`teleop.slave.kernels` (when every fixture row is of the fitted form); ``False`` keeps the
-    numpy reference, which the tests hold equal.
+    ``build`` fills the linear system above in place (one compiled call,
+    :func:`teleop.slave.kernels.build_system`, on the rows of :class:`teleop.dynamics.rows.RowStack`, the same rows the
+    master evaluates). ``solve`` solves it when ``cfg.kkt_shortcut`` is set (one compiled LU solve of
+    size m + nv) and keeps its solution when within the bounds; otherwise the persistent QP solver
+    ``cfg.solver`` runs on the full problem, which ``problem()`` writes.
     """
 
-    def __init__(self, nv: int, constraints, cfg, compiled: bool = True):
+    def __init__(self, nv: int, constraints, cfg):
         self.nv = nv
-        self.rows = FixtureRows(constraints, h_scale=-cfg.k_fixture_1ps)
+        self.rows = RowStack(constraints)
         self.constraints = self.rows.constraints
         self.m = m = self.rows.m
         n = nv + m
         self.cfg = cfg
-        self.W = np.array([cfg.weight_position] * 3 + [cfg.weight_orientation] * 3)
-        rho, k = cfg.slack_weight, cfg.k_task_1ps
-        # -gq = P' x with x = (q_post - q, R_t, e, v_t, w_t) and P = [w_post k_post I; 0; k W J; W J]
-        # (R_t, with no weight, sits in x so that one product tests the whole target's finiteness).
-        # One flat buffer holds [k W; W; G] (12 + m, 6), then b (m), then -gq (nv), in this order so
-        # that each product writes where the next reads: the rows write (G, b) at once, the product
-        # [k W; W; G] J gives P's last rows and Aq = G J, and (b, -gq) is the system's right side.
-        top, gb = 6 * 12, 6 * 12 + 7 * m
-        buf = np.zeros(gb + nv)
-        self._kWWG = buf[: top + 6 * m].reshape(12 + m, 6)
-        self._kWWG[:6] = k * np.diag(self.W)
-        self._kWWG[6:12] = np.diag(self.W)
-        self._G_b, self._rhs = buf[top:gb], buf[top + 6 * m :]
-        self.b, self._mgq = buf[top + 6 * m : gb], buf[gb:]
-        self._PJ = np.zeros((nv + 21 + m, nv))  # [w_post k_post I; 0 (9 rows); k W J; W J; G J]
-        self._PJ[:nv] = cfg.weight_posture * cfg.k_posture_1ps * np.eye(nv)
-        self._P, self._kWJ_WJ_GJ = self._PJ[: nv + 21], self._PJ[nv + 9 :]
-        self._WJ, self._GJ = self._PJ[nv + 15 : nv + 21], self._PJ[nv + 21 :]
-        x = self._x = np.zeros(nv + 21)
-        self._x_dq, self._x_target = x[:nv], x[nv:]
-        self._x_Rt = x[nv : nv + 9].reshape(3, 3)
-        self._e, self._e_p, self._e_R = x[nv + 9 : nv + 15], x[nv + 9 : nv + 12], x[nv + 12 : nv + 15]
-        self._x_v, self._x_w = x[nv + 15 : nv + 18], x[nv + 18 :]
+        rho = cfg.slack_weight
         self.position_error_m = 0.0  # |p_t - p| (m) at the last build
-        # the linear system in (y, qd) and views of its blocks
+        # the linear system in (y, qd), its right-hand side (b, -gq), and views of its blocks
         self._K = np.zeros((n, n))
         self._K[:m, :m] = -np.eye(m) / rho
-        self._Aq, self._AqT, self._Hq = self._K[:m, m:], self._K[m:, :m], self._K[m:, m:]
-        self._Hq_diag = self._K.reshape(-1)[m * (n + 1) :: n + 1]
+        self._Aq, self._Hq = self._K[:m, m:], self._K[m:, m:]
+        self._rhs = np.zeros(n)
+        self.b, self._mgq = self._rhs[:m], self._rhs[m:]
+        self._e = np.zeros(6)
+        self._p, self._R = np.zeros(3), np.zeros((3, 3))
         self._lbq = self._ubq = np.zeros(nv)
         self.bound_margin = 0.0  # after a successful solve: min over joints of (qd - lb, ub - qd)
         self._minus_inv_rho = -1.0 / rho
-        self._lam0 = cfg.damping + cfg.weight_posture
-        self._lm_W = (cfg.lm_damping * cfg.weight_position, cfg.lm_damping * cfg.weight_orientation)
+        W = np.array([cfg.weight_position] * 3 + [cfg.weight_orientation] * 3)
+        self._kernel_consts = (float(cfg.k_fixture_1ps), W, float(cfg.k_task_1ps),
+                               cfg.weight_posture * cfg.k_posture_1ps, float(cfg.damping + cfg.weight_posture),
+                               float(cfg.lm_damping * cfg.weight_position),
+                               float(cfg.lm_damping * cfg.weight_orientation))
         # the full problem in x = (qd, s), for the QP solver
         self._H = np.zeros((n, n))
         self._H[nv:, nv:] = rho * np.eye(m)
@@ -117,15 +93,7 @@ class FollowerQP:
         self._ub = np.full(n, np.inf)
         self.solver = make_solver(cfg.solver, n, m, eps=cfg.eps, max_iter=cfg.max_iter)
         self.used_solver = False  # whether the last solve() ran the QP solver
-        self.compiled = bool(compiled) and not self.rows.direct
-        self._kernel_consts = (self.rows.coefficients, self.W, float(k), cfg.weight_posture * cfg.k_posture_1ps,
-                               float(self._lam0), float(self._lm_W[0]), float(self._lm_W[1]))
         self._z = np.zeros(n)
-
-    def compute_fixture_rows(self, p, R):
-        """(G (m, 6), b (m,)) at the tool pose p (m), R: the rows and the right-hand side
-        b = -k_fixture h (holonomic rows) or 0, new arrays."""
-        return self.rows.evaluate(p, R)
 
     def build(self, q, J, T, p_t, R_t, v_t, w_t, q_post, lb, ub):
         """Fill the linear system from the state (q rad, J, the tool's pose matrix T (4, 4)) and the
@@ -133,38 +101,16 @@ class FollowerQP:
         until the next build, or None when the target is not finite (the system is then unusable).
         The target is C-ordered float arrays of shapes (3,), (3, 3), (3,), (3,), as
         ``SlaveArm.step`` makes it: the kernel indexes them unchecked."""
-        if self.compiled:
-            ep2 = kernels.build_system(q, J, T, p_t, R_t, v_t, w_t, q_post, *self._kernel_consts,
-                                       self._K, self._rhs, self._e)
-            if ep2 < 0.0:
-                return None
-            self.position_error_m = math.sqrt(ep2)
-            self._lbq, self._ubq = lb, ub
-            return self._e
-        return self._build_numpy(q, J, T, p_t, R_t, v_t, w_t, q_post, lb, ub)
-
-    def _build_numpy(self, q, J, T, p_t, R_t, v_t, w_t, q_post, lb, ub):
-        e, x_target = self._e, self._x_target
-        self._x_Rt[:] = R_t
-        np.subtract(p_t, T[:3, 3], out=self._e_p)
-        self._e_R[:] = pin.log3(np.dot(R_t, T[:3, :3].T))  # NaN, never an error, if R_t is not finite
-        self._x_v[:] = v_t
-        self._x_w[:] = w_t
-        if not math.isfinite(np.vdot(x_target, x_target)):
+        self._p[:] = T[:3, 3]  # contiguous copies: the rows' kernel runs its fastest specialisation
+        self._R[:] = T[:3, :3]
+        G, _, h = self.rows.evaluate(self._p, self._R)
+        ep2 = kernels.build_system(q, J, T, p_t, R_t, v_t, w_t, q_post, G, h, *self._kernel_consts,
+                                   self._K, self._rhs, self._e)
+        if ep2 < 0.0:
             return None
-        np.subtract(q_post, q, out=self._x_dq)
-        if self.m:
-            self.rows.evaluate_into(T, self._G_b)
-        np.dot(self._kWWG, J, out=self._kWJ_WJ_GJ)
-        np.matmul(J.T, self._WJ, out=self._Hq)
-        ep2, eR2 = np.vdot(self._e_p, self._e_p), np.vdot(self._e_R, self._e_R)
         self.position_error_m = math.sqrt(ep2)
-        self._Hq_diag += self._lam0 + self._lm_W[0] * ep2 + self._lm_W[1] * eR2  # lam + w_post
-        self._Aq[:] = self._GJ
-        self._AqT[:] = self._GJ.T
-        np.dot(self._x, self._P, out=self._mgq)
         self._lbq, self._ubq = lb, ub
-        return e
+        return self._e
 
     def problem(self):
         """(H, g, A, b, lb, ub) of the built QP in x = (qd, s), for a QP solver; buffers that the
@@ -181,27 +127,18 @@ class FollowerQP:
         """Solve the built QP: (qd, slack, y_eq, ok), new arrays. When ok, qd is finite and within
         the bounds, and ``bound_margin`` (rad/s) is its least distance to them."""
         lb, ub, m = self._lbq, self._ubq, self.m
-        if self.cfg.kkt_shortcut and self.compiled:
+        if self.cfg.kkt_shortcut:
             z = self._z
             margin = kernels.solve_unbounded(self._K, self._rhs, self.nv, lb, ub, z)
             if margin >= 0.0:  # no bound is active: this is the QP's solution (NaN: singular)
                 self.bound_margin, self.used_solver = margin, False
                 y = z[:m].copy()
                 return z[m:].copy(), y * self._minus_inv_rho, y, True
-        elif self.cfg.kkt_shortcut:
-            z, info = dgesv(self._K, self._rhs)[2:]
-            qd = z[m:]
-            if info == 0 and math.isfinite(np.vdot(z, z)):
-                margin = _bound_margin(qd, lb, ub)
-                if margin >= 0.0:  # no bound is active: this is the QP's solution
-                    self.bound_margin, self.used_solver = margin, False
-                    y = z[:m]
-                    return qd, y * self._minus_inv_rho, y, True
         self.used_solver = True
         r = self.solver.solve(*self.problem())
         nv = self.nv
         qd = np.minimum(np.maximum(r.x[:nv], lb), ub)  # solver tolerance only
-        self.bound_margin = _bound_margin(qd, lb, ub)
+        self.bound_margin = min(np.minimum(qd - lb, ub - qd).tolist())
         return qd, r.x[nv:], r.y_eq, r.ok and math.isfinite(np.vdot(qd, qd))
 
     def compute_fallback(self, J, e, lb, ub, hold: bool, qd_prev) -> np.ndarray:

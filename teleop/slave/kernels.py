@@ -4,10 +4,11 @@ and its unbounded solve.
 Why compiled: the follower's tick is some thirty numpy operations on arrays of 6 to 13 entries,
 each costing about a microsecond of call overhead whatever its size; here it is three calls.
 
-The readable definitions stay in Python and are the reference: ``JointLimits`` documents the
-bounds (and tests/property/test_slave_properties.py holds them against joint-by-joint formulas),
-and ``FollowerQP`` with ``compiled=False`` builds and solves the same system in numpy;
-tests/unit/test_slave_kernels.py holds the two equal. Units as in :mod:`teleop.slave.follower`.
+Each is written once, here; set ``NUMBA_DISABLE_JIT=1`` to step through them in Python. The tests
+hold them against independent oracles, not against a second copy: the bounds against hand-computed
+cases (tests/property/test_slave_properties.py), the system and its solve against the QP's own
+definition, daqp and quadprog, and the KKT conditions (tests/unit/test_slave_kernels.py).
+Units as in :mod:`teleop.slave.follower`.
 """
 
 from __future__ import annotations
@@ -17,9 +18,7 @@ import math
 import numpy as np
 from numba import njit
 
-from teleop.dynamics.kernels.so3 import exp3, log3
-
-_EPS = np.finfo(np.float64).eps
+from teleop.dynamics.kernels.so3 import log3
 
 
 @njit(cache=True)
@@ -47,28 +46,12 @@ def velocity_bounds(q, qd_prev, dt, q_min, q_max, margin, v_max, a_max, lb, ub):
 
 
 @njit(cache=True)
-def fixture_rows(C, T):
-    """(G.ravel(), scale h) (7 m,) of :class:`teleop.slave.rows.FixtureRows`' fitted rows C (28 m, 16)
-    at the pose matrix T (4, 4): out_j = sum_a (sum_b C[4 j + a, b] T.flat[b]) T[a, 3]."""
-    out = np.empty(C.shape[0] // 4)
-    for j in range(out.shape[0]):
-        acc = 0.0
-        for a in range(4):
-            ct = 0.0
-            for b in range(16):
-                ct += C[4 * j + a, b] * T[b // 4, b % 4]
-            acc += ct * T[a, 3]
-        out[j] = acc
-    return out
-
-
-@njit(cache=True)
-def build_system(q, J, T, p_t, R_t, v_t, w_t, q_post, C, W, k_task, w_post_k, lam0, lm_p, lm_o, K, rhs, e):
+def build_system(q, J, T, p_t, R_t, v_t, w_t, q_post, G, h, k_fix, W, k_task, w_post_k, lam0, lm_p, lm_o, K, rhs, e):
     """Fill the follower's linear system (see :mod:`teleop.slave.follower`) in place.
 
     K (m + nv, m + nv): writes the blocks Aq = G J, Aq' and Hq (the block -I/rho is left as it is);
-    rhs (m + nv,): (b, -gq); e (6,): the pose error (m, rad). C (28 m, 16): the fitted fixture rows
-    of :class:`teleop.slave.rows.FixtureRows` with b's scale folded in. Returns |p_t - p|^2 (m^2),
+    rhs (m + nv,): (b, -gq); e (6,): the pose error (m, rad). G (m, 6), h (m,): the fixture rows and
+    residuals (m or rad, 0 on nonholonomic rows) at T, so b = -k_fix h. Returns |p_t - p|^2 (m^2),
     or -1 when the target (p_t, R_t, v_t, w_t) is not finite, leaving K and rhs unusable.
     """
     nv = q.shape[0]
@@ -89,13 +72,12 @@ def build_system(q, J, T, p_t, R_t, v_t, w_t, q_post, C, W, k_task, w_post_k, la
         return -1.0
     ep2 = e[0] * e[0] + e[1] * e[1] + e[2] * e[2]
     eR2 = e[3] * e[3] + e[4] * e[4] + e[5] * e[5]
-    rows = fixture_rows(C, T)
     for r in range(m):
-        rhs[r] = rows[6 * m + r]
+        rhs[r] = -k_fix * h[r]
         for i in range(nv):
             s = 0.0
             for c in range(6):
-                s += rows[6 * r + c] * J[c, i]
+                s += G[r, c] * J[c, i]
             K[r, m + i] = s
             K[m + i, r] = s
     # Hq = J' W J + lam I, with lam = lam0 + LM damping on the pose error
@@ -163,33 +145,3 @@ def solve_unbounded(K, rhs, nv, lb, ub, z):
     for i in range(nv):
         margin = min(margin, z[m + i] - lb[i], ub[i] - z[m + i])
     return margin
-
-
-@njit(cache=True)
-def project_onto_fixture(C_hol, C_all, p, R, v, w, iters, tol):
-    """A pose and twist moved onto fixture rows: up to ``iters`` Newton steps on the holonomic rows
-    C_hol (minimum-norm twist corrections d, p += d_v, R <- exp(d_w) R) until max |h| < tol, then the
-    twist (v, w) minus its least-squares component along every row's G (C_all). C_hol, C_all as in
-    :func:`fixture_rows`, with scale 1 (h in m or rad); the singular-value cut is numpy's lstsq default. Returns (p, R, v, w), new arrays."""
-    T = np.eye(4)
-    T[:3, :3] = R
-    T[:3, 3] = p
-    mh = C_hol.shape[0] // 28
-    for _ in range(iters if mh else 0):
-        rows = fixture_rows(C_hol, T)
-        h = rows[6 * mh :]
-        if np.abs(h).max() < tol:
-            break
-        d = -np.linalg.lstsq(rows[: 6 * mh].reshape(mh, 6), h, rcond=_EPS * max(mh, 6))[0]
-        E = exp3(d[3:])
-        T[:3, :3] = E @ T[:3, :3].copy()
-        for i in range(3):
-            T[i, 3] += d[i]
-    nu = np.empty(6)
-    nu[:3] = v
-    nu[3:] = w
-    m = C_all.shape[0] // 28
-    if m:
-        G = fixture_rows(C_all, T)[: 6 * m].reshape(m, 6)
-        nu -= np.linalg.lstsq(G, G @ nu, rcond=_EPS * max(m, 6))[0]
-    return T[:3, 3].copy(), T[:3, :3].copy(), nu[:3].copy(), nu[3:].copy()

@@ -11,6 +11,9 @@ from __future__ import annotations
 import numpy as np
 import pinocchio as pin
 
+from teleop.dynamics.constraints import stack_residual
+from teleop.errors import ConfigError
+from teleop.slave.arm import build_model
 from teleop.slave.follower import FollowerQP, compute_target_twist
 
 __all__ = ["STATUSES", "FollowerQP", "SlaveArm", "compute_target_twist"]
@@ -35,13 +38,11 @@ class SlaveArm:
     """The slave arm and its follower: joint state q (rad), qd (rad/s), tau (N*m), the tool frame E.
 
     ``step(p_t, R_t, v_t, w_t)`` runs one tick of ``dt_s`` and returns a status from ``STATUSES``.
-    ``compiled=False`` builds and solves the follower's system in numpy (the reference).
+    ``fixture_constraints``: any :class:`teleop.dynamics.constraints.Constraint` objects, a user's
+    own included, in the patient frame (the arm's world).
     """
 
-    def __init__(self, cfg, fixture_constraints=(), dt_s: float = 1e-3, compiled: bool = True):
-        from teleop.errors import ConfigError
-        from teleop.slave.arm import build_model
-
+    def __init__(self, cfg, fixture_constraints=(), dt_s: float = 1e-3):
         if not np.isfinite(dt_s) or dt_s <= 0:
             raise ConfigError(f"slave.dt_s: expected a positive period, got {dt_s}")
         if cfg.k_task_1ps * dt_s >= 1.0 or cfg.k_fixture_1ps * dt_s >= 1.0:
@@ -52,7 +53,7 @@ class SlaveArm:
         self.data = self.model.createData()
         self.nv = self.model.nv
         self.q_post = am.q0.copy()
-        self.qp = FollowerQP(self.nv, fixture_constraints, cfg, compiled)
+        self.qp = FollowerQP(self.nv, fixture_constraints, cfg)
         self.fixture_constraints = self.qp.constraints
         self._alpha = dt_s / (cfg.servo_lag_s + dt_s)
         self.status = "ok"
@@ -95,8 +96,6 @@ class SlaveArm:
 
     def fixture_residual(self) -> np.ndarray:
         """Holonomic fixture residuals at the current tool pose (m or rad)."""
-        from teleop.dynamics.constraints import stack_residual
-
         return stack_residual(self.fixture_constraints, self.p, self.R)
 
     # -- ticks ------------------------------------------------------------------------------

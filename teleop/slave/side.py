@@ -15,7 +15,7 @@ import numpy as np
 from teleop.control.mapping import Registration
 from teleop.dynamics.rotations import cross
 from teleop.link.messages import ContactFeedback, ToolCommand
-from teleop.slave.kernels import project_onto_fixture
+from teleop.slave.projection import project_onto_fixture
 from teleop.slave.qp import SlaveArm
 
 
@@ -43,10 +43,7 @@ class SlaveSide:
     def __init__(self, arm: SlaveArm, registration: Registration, tissue=None, tip_B=(0.0, 0.0, 0.0)):
         self.arm, self.reg, self.tissue = arm, registration, tissue
         self.tip_B = np.asarray(tip_B, dtype=float)
-        rows = arm.qp.rows
-        hol = [i for c, r0 in zip(rows.constraints, np.cumsum([0] + [c.rows for c in rows.constraints]))
-               if c.holonomic for i in range(r0, r0 + c.rows)]
-        self._rows = None if rows.direct else (rows.coefficients_of(hol), rows.coefficients)
+        self._rows = arm.qp.rows  # the fixture's rows (RowStack), the same the master evaluates
         self.state = SlaveState()
         self._target = None
         self._seq = 0
@@ -57,11 +54,9 @@ class SlaveSide:
         return self.arm.reset((p, R))
 
     def project(self, p, R, v, w):
-        """The target moved onto the patient-frame fixture (one compiled call)."""
-        if self._rows is None:
-            return p, R, v, w
-        p, R, v, w = (np.ascontiguousarray(x, dtype=float) for x in (p, R, v, w))
-        return project_onto_fixture(self._rows[0], self._rows[1], p, R, v, w, 3, 1e-12)
+        """The target moved onto the patient-frame fixture
+        (:func:`teleop.slave.projection.project_onto_fixture`)."""
+        return project_onto_fixture(self._rows, p, R, v, w)
 
     def follow(self, cmd: ToolCommand | None, t_s: float) -> ContactFeedback:
         """One tick toward the newest command (see the module docstring)."""

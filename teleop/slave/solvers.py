@@ -9,8 +9,9 @@ values every tick through ``solve(H, g, A_eq, b_eq, lb, ub)``. It returns a :cla
 whose equality duals ``y_eq`` follow one sign convention for all solvers (OSQP's):
 ``H x + g + A_eq' y_eq + (bound terms) = 0``. Infinite bounds are given as +-inf.
 
-The OSQP wrapper builds its sparse structures once (fixed sparsity pattern with explicit zeros)
-and afterwards updates only the values of P, q, A, l, u, warm-starting from the previous tick; the
+osqp is a base dependency and imported here; daqp, proxsuite and quadprog are optional (the test
+extras) and imported by their wrappers on demand. The OSQP wrapper builds its sparse structures
+once (fixed sparsity pattern with explicit zeros) and afterwards updates only the values of P, q, A, l, u, warm-starting from the previous tick; the
 DAQP wrapper keeps one model and its active set from tick to tick. The follower calls a solver
 only on ticks where a joint bound binds (see ``teleop.slave.follower``), unless its
 ``kkt_shortcut`` is off.
@@ -25,6 +26,7 @@ from dataclasses import dataclass
 import numpy as np
 import qpsolvers
 import scipy.sparse as sp
+from osqp import ext_builtin as osqp_ext
 
 from teleop.errors import SolverError
 
@@ -76,7 +78,7 @@ class OsqpSolver(QPSolver):
 
     def __init__(self, n, m, eps=1e-7, max_iter=4000, polish=True):
         super().__init__(n, m, eps, max_iter)
-        from osqp import ext_builtin as ext
+        ext = osqp_ext
 
         iu = np.triu_indices(n)
         order = np.lexsort((iu[0], iu[1]))  # CSC: column-major

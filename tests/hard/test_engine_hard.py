@@ -3,6 +3,7 @@
 import numpy as np
 import pytest
 
+from teleop.dynamics.kernels import motion
 from teleop.dynamics import fixtures
 from teleop.dynamics.body import RigidBody
 from teleop.dynamics.effects import AngularDamper, LinearDamper
@@ -110,10 +111,10 @@ def test_no_operator_wrench_needs_no_second_compilation():
 
     tool = _sphere_tool("parametric")
     tool.step(1e-3, np.zeros(6))
-    n = len(kernels.evaluate.signatures)
+    n = len(motion.evaluate.signatures)
     tool.step(1e-3, None)
     tool.step(1e-3, np.array([np.nan, 0, 0, 0, 0, 0]))
-    assert len(kernels.evaluate.signatures) == n
+    assert len(motion.evaluate.signatures) == n
 
 
 def test_singular_step_goes_to_safe_state():

@@ -51,30 +51,71 @@ def test_tissue_wrench_is_finite_and_never_pulls_in(depth, v, w):
     assert rep.wrench[:2] @ np.array(v)[:2] <= 1e-12
 
 
-def _reference_bounds(lim, q, qd_prev, dt):
-    """compute_velocity_bounds written out joint by joint (the formulas of teleop.slave.limits)."""
-    lb, ub = np.empty(lim.nv), np.empty(lim.nv)
-    for i in range(lim.nv):
-        up, dn = lim.q_max[i] - lim.margin_rad - q[i], q[i] - lim.q_min[i] - lim.margin_rad
-        a, v = lim.a_max[i], lim.v_max[i]
-        hi = min(v, up / dt, np.sqrt(2 * a * max(up, 0.0)))
-        lo = -min(v, dn / dt, np.sqrt(2 * a * max(dn, 0.0)))
-        hi = max(hi, 0.0) if np.isfinite(hi) else v
-        lo = min(lo, 0.0) if np.isfinite(lo) else -v
-        lb[i], ub[i] = max(lo, qd_prev[i] - a * dt), min(hi, qd_prev[i] + a * dt)
-        if lb[i] > ub[i]:
-            lb[i] = ub[i] = min(max(qd_prev[i], lo), hi)
-    return lb, ub
+# Hand-computed bounds of one joint: q_min = -1, q_max = 1 rad, v_max = 2 rad/s, a_max = 10 rad/s^2,
+# dt = 0.01 s, margin 0 unless given. Columns: q, qd_prev, margin, (lb, ub).
+HAND = [
+    # mid-range at rest: the acceleration box +-a dt = +-0.1 is the tightest
+    (0.0, 0.0, 0.0, (-0.1, 0.1)),
+    # mid-range at full speed: the velocity limit above, the acceleration box below
+    (0.0, 2.0, 0.0, (1.9, 2.0)),
+    # 0.05 rad below q_max, moving up at 1 rad/s: room to stop sqrt(2 a 0.05) = 1, crossing 0.05 / dt = 5
+    (0.95, 1.0, 0.0, (0.9, 1.0)),
+    # 0.002 rad below q_max at rest: sqrt(2 a 0.002) = 0.2, crossing 0.002 / dt = 0.2, box 0.1
+    (0.998, 0.0, 0.0, (-0.1, 0.1)),
+    # 0.0005 rad below q_max: crossing 0.0005 / dt = 0.05 caps it (sqrt(2 a d) = 0.1)
+    (0.9995, 0.0, 0.0, (-0.1, 0.05)),
+    # on q_max: may not go up (0), may come back at the acceleration box
+    (1.0, 0.0, 0.0, (-0.1, 0.0)),
+    # beyond q_max by 0.1: caps on the way up collapse to 0
+    (1.1, 0.0, 0.0, (-0.1, 0.0)),
+    # the margin moves the limit: 0.2 rad kept free, q 0.3 below q_max leaves 0.1: sqrt(2) = 1.414...,
+    # 10, box qd_prev 1.5 +- 0.1: ub = min(1.4142, 1.6) = 1.41421356
+    (0.7, 1.5, 0.2, (1.4, np.sqrt(2.0))),
+    # moving up fast toward q_max: caps 0.3 / dt = 30, sqrt(2 a 0.3) = 2.449 -> v 2; box around -3
+    # misses the box [-2, 2] (qd_prev beyond v_max): both collapse onto qd_prev's nearest point, -2
+    (0.7, -3.0, 0.0, (-2.0, -2.0)),
+    # near q_min moving down at 1.5: room below 0.05: sqrt(1) = 1 < 1.4 = qd_prev - a dt: the boxes miss,
+    # collapse onto -1 (nearest to -1.5 in [-1, 2])
+    (-0.95, -1.5, 0.0, (-1.0, -1.0)),
+    # q not finite: only the velocity limit and the acceleration box
+    (np.nan, 0.5, 0.0, (0.4, 0.6)),
+    (np.inf, -1.95, 0.0, (-2.0, -1.85)),
+]
+
+
+def test_velocity_bounds_by_hand():
+    """The bounds of one joint in the cases worked out by hand above (1e-12 rad/s)."""
+    for q, qd, margin, (lo, hi) in HAND:
+        lim = JointLimits([-1.0], [1.0], [2.0], [10.0], margin)
+        lb, ub = lim.compute_velocity_bounds(np.array([q]), np.array([qd]), 0.01)
+        assert np.allclose([lb[0], ub[0]], [lo, hi], rtol=0, atol=1e-12), (q, qd, margin, lb, ub, (lo, hi))
 
 
 @settings(max_examples=300, deadline=None)
 @given(q=vec3, qd=vec3, near=st.floats(0.0, 1.0), dt=st.sampled_from([1e-4, 1e-3, 1e-2]),
        bad=st.sampled_from([None, np.nan, np.inf, -np.inf]))
-def test_velocity_bounds_match_the_joint_by_joint_formulas(q, qd, near, dt, bad):
-    """Near and far from the limits (the fast path), at rest or moving, and with q not finite."""
-    q = np.array(q) * near
+def test_velocity_bounds_keep_their_promises(q, qd, near, dt, bad):
+    """Near and far from the limits, at rest or moving, and with q not finite, the box keeps the
+    promises of teleop.slave.limits (its values are checked by hand above): every qd in it keeps
+    the joint from crossing its limits within the tick and leaves room to stop at a_max; it lies
+    in the acceleration box, or has collapsed onto one point."""
+    q, qd = np.array(q) * near, np.array(qd)
     if bad is not None:
         q[1] = bad
-    lb, ub = LIM.compute_velocity_bounds(q, np.array(qd), dt)
-    rlb, rub = _reference_bounds(LIM, q, np.array(qd), dt)
-    assert np.allclose(lb, rlb, rtol=1e-12, atol=1e-12) and np.allclose(ub, rub, rtol=1e-12, atol=1e-12)
+    lb, ub = LIM.compute_velocity_bounds(q, qd, dt)
+    a, v = LIM.a_max, LIM.v_max
+    assert np.all(lb <= ub) and np.all(ub <= v + 1e-12) and np.all(lb >= -v - 1e-12)
+    fin = np.isfinite(q)
+    up, dn = LIM.q_max - q, q - LIM.q_min
+    for i in np.flatnonzero(fin):
+        if up[i] >= 0:
+            assert ub[i] <= up[i] / dt + 1e-12 and max(ub[i], 0.0) ** 2 <= 2 * a[i] * up[i] + 1e-12
+        else:
+            assert ub[i] <= 1e-15  # beyond the limit: only back
+        if dn[i] >= 0:
+            assert -lb[i] <= dn[i] / dt + 1e-12 and max(-lb[i], 0.0) ** 2 <= 2 * a[i] * dn[i] + 1e-12
+        else:
+            assert lb[i] >= -1e-15
+    meets = (lb >= qd - a * dt - 1e-12) & (ub <= qd + a * dt + 1e-12)
+    collapsed = lb == ub
+    assert np.all(meets | collapsed)

@@ -27,13 +27,16 @@ def test_target_twist_is_feedforward_plus_error():
 
 
 def test_fixture_rows_match_finite_differences_through_the_arm():
-    """d/dt h(pose(q)) along a joint velocity equals G J qd (rows of the holonomic fixtures)."""
+    """d/dt h(pose(q)) along a joint velocity, by central differences of Pinocchio's placement of E,
+    equals the QP's row block A[:, :nv] qd = G J qd (rows of the holonomic fixtures)."""
     rcm = C.RemoteCenter(center=PLANE_O + [0, 0, 0.05], point_B=(0, 0, 0), axis_B=(0, 0, 1))
     cons = fixtures.scalpel(plane_origin=PLANE_O, depth=0.005).holonomic + (rcm,)
     arm = _arm(cons=cons)
     rng = np.random.default_rng(1)
     qd = rng.normal(size=arm.nv)
-    G, _ = arm.qp.compute_fixture_rows(arm.p, arm.R)
+    lb, ub = -arm.limits.v_max, arm.limits.v_max
+    arm.qp.build(arm.q, arm.J, arm.T_WE, arm.p, arm.R, np.zeros(3), np.zeros(3), arm.q_post, lb, ub)
+    A = arm.qp.problem()[2][:, : arm.nv]
     h = 1e-6
     res = []
     for sgn in (1.0, -1.0):
@@ -42,7 +45,7 @@ def test_fixture_rows_match_finite_differences_through_the_arm():
         M = arm.data.oMf[arm.frame_E]
         res.append(C.stack_residual(cons, M.translation, M.rotation))
     fd = (res[0] - res[1]) / (2 * h)
-    assert np.allclose(G @ arm.J @ qd, fd, atol=1e-6)
+    assert np.allclose(A @ qd, fd, atol=1e-6)
 
 
 @pytest.mark.parametrize("solver", ["osqp", "daqp", "proxqp", "quadprog"])
@@ -104,38 +107,47 @@ def test_servo_lag_slows_the_response():
 
 
 class _Bent(C.Constraint):
-    """A row that is not polynomial in the pose (h = sin(k p_x)): FixtureRows must evaluate it
-    with its own methods."""
+    """A user's own row, not polynomial in the pose: h = sin(5 (p_x - x0)) / 5 (m), zero at x0."""
 
     rows, holonomic = 1, True
 
+    def __init__(self, x0: float):
+        self.x0 = x0
+
     def jacobian(self, p, R):
-        return np.array([[5.0 * np.cos(5.0 * p[0]), 0, 0, 0, 0, 0]])
+        return np.array([[np.cos(5.0 * (p[0] - self.x0)), 0, 0, 0, 0, 0]])
 
     def residual(self, p, R):
-        return np.array([np.sin(5.0 * p[0])])
+        return np.array([np.sin(5.0 * (p[0] - self.x0)) / 5.0])
 
     def bias(self, p, R, v, w):
-        return np.zeros(1)
+        return np.array([-5.0 * np.sin(5.0 * (p[0] - self.x0)) * v[0] ** 2])
 
 
-def test_fixture_rows_match_the_constraints():
-    """The fitted rows equal every constraint class's own G and h (scaled) at random poses."""
-    from teleop.slave.rows import FixtureRows
-
-    cons = (fixtures.scalpel((0.5, 0, 0.2), (0.1, 0.2, 1.0), 0.005, (0.01, 0.0, 0.12)).constraints
-            + fixtures.rolling_disk(0.03).constraints + fixtures.sphere((0.01, -0.02, 0.03), 0.05).constraints
-            + fixtures.laparoscopic(plane_origin=PLANE_O, trocar=PLANE_O + [0, 0, 0.075]).constraints
-            + (C.PlaneHeight(origin=(0, 0, 0.3), normal=(0, 0, 1), height=0.01), _Bent()))
-    rows = FixtureRows(cons, h_scale=-300.0)
-    assert rows.direct == (cons[-1],)
-    rng = np.random.default_rng(3)
-    for _ in range(200):
-        p, R = rng.uniform(-1.0, 1.0, 3), pin.exp3(rng.normal(size=3) * 2.0)
-        G, b = rows.evaluate(p, R)
-        h = np.concatenate([c.residual(p, R) if c.holonomic else np.zeros(c.rows) for c in cons])
-        assert np.abs(G - C.stack_jacobian(cons, p, R)).max() < 1e-12
-        assert np.abs(b + 300.0 * h).max() < 1e-10
+def test_a_users_own_constraint_enters_the_qp_and_holds():
+    """The QP's rows and right-hand side are every constraint's own G J and -k_fixture h (a user's
+    constraint next to built-in ones), and the arm, pulled off the user's row, stays on it while it
+    follows the rest of the target."""
+    start = PLANE_O + [-0.03, 0.0, -0.005]
+    cons = fixtures.scalpel(plane_origin=PLANE_O, depth=0.005).holonomic + (_Bent(start[0]),)
+    arm = _arm("daqp", cons=cons)
+    qp = arm.qp
+    lb, ub = -arm.limits.v_max, arm.limits.v_max
+    p, R = arm.tool_pose()
+    p_off = p + [1e-3, 1e-3, 2e-4]  # off the user's row and the depth row
+    for at in (p, p_off):  # h = 0 and h != 0: the rows at the arm's pose, as the constraints give them
+        arm.reset((at, R))
+        qp.build(arm.q, arm.J, arm.T_WE, p, R, np.zeros(3), np.zeros(3), arm.q_post, lb, ub)
+        _, _, A, b, _, _ = qp.problem()
+        G = C.stack_jacobian(cons, arm.p, arm.R)
+        h = C.stack_residual(cons, arm.p, arm.R)
+        assert np.allclose(A[:, : arm.nv], G @ arm.J, atol=1e-12, rtol=0)
+        assert np.allclose(b, -arm.cfg.k_fixture_1ps * h, atol=1e-12, rtol=0)
+    arm.reset((p, R))
+    for _ in range(300):  # pulled along +x and +y: the user's row holds x, the arm follows y
+        arm.step(p + [0.002, 0.002, 0.0], R)
+    assert abs(arm.fixture_residual()[-1]) < 1e-6 and abs(arm.p[0] - p[0]) < 1e-6
+    assert abs(arm.p[1] - p[1] - 0.002) < 1e-4
 
 
 def test_kkt_shortcut_is_the_qp_solution_when_no_bound_binds():

@@ -1,45 +1,11 @@
-"""Compiled kernels (numba) of the engine's hot path, each one call per use:
+"""Compiled kernels (numba) of the engine, each piece of math written once:
 
-* :mod:`.rows` - the constraint rows G and their velocity-product terms, by kind code;
-* :mod:`.motion` - the pose terms, one evaluation of eqs. 8-9, the kinetic-energy projection of
-  the rates, and the flat (affine psi) parametric step.
+* :mod:`.rows` - the constraint rows G, their velocity-product terms and residuals, by kind code;
+* :mod:`.motion` - the chart terms, one evaluation of eqs. 8-9 from given rows (G, b), the
+  kinetic-energy projection of twists and rates, and the flat (affine psi) parametric step;
+* :mod:`.so3` - log3 and exp3.
 
-The readable definitions stay in Python and are the reference; tests/unit/test_kernels.py holds
-every kernel equal to them. Kernels compile on first use and are cached on disk.
+They compile on first use and are cached on disk; ``NUMBA_DISABLE_JIT=1`` runs the same code as
+plain Python, for a debugger. They are tested against independent oracles (finite differences,
+Pinocchio's constrained dynamics, the chart-coordinate form of eqs. 8-9, energy).
 """
-
-from teleop.dynamics.kernels.motion import (
-    SOLVE_CHOLESKY,
-    SOLVE_NONE,
-    SOLVE_PINV,
-    cholesky,
-    constraint_terms,
-    effect_params,
-    evaluate,
-    flat_advance,
-    left_pinv,
-    newton_euler,
-    pose_terms,
-    project_parameter_rates,
-    project_rates,
-    project_twist,
-    rate_map_terms,
-)
-from teleop.dynamics.kernels.rows import (
-    KIND_AXIS_ALONG,
-    KIND_AXIS_IN_PLANE,
-    KIND_KNIFE_EDGE,
-    KIND_POINT_DEPTH,
-    KIND_REMOTE_CENTER,
-    KIND_SPHERE,
-    NPAR,
-    row_params,
-    stack_rows,
-)
-
-__all__ = [
-    "KIND_AXIS_ALONG", "KIND_AXIS_IN_PLANE", "KIND_KNIFE_EDGE", "KIND_POINT_DEPTH", "KIND_REMOTE_CENTER",
-    "KIND_SPHERE", "NPAR", "SOLVE_CHOLESKY", "SOLVE_NONE", "SOLVE_PINV", "cholesky", "constraint_terms",
-    "effect_params", "evaluate", "flat_advance", "left_pinv", "newton_euler", "pose_terms",
-    "project_parameter_rates", "project_rates", "project_twist", "rate_map_terms", "row_params", "stack_rows",
-]

@@ -1,20 +1,18 @@
-"""Compiled kernels (numba) of the engine's motion: the pose terms, one evaluation of eqs. 8-9
-and the kinetic-energy projection of the rates, each in one call.
+"""Compiled kernels (numba) of the engine's motion, each written once: the chart terms, one
+evaluation of eqs. 8-9 (chart and twist form), the kinetic-energy projection of twists and rates,
+and the flat (affine psi) parametric step.
 
-Why compiled: an evaluation is some sixty operations on 3-vectors and 3x3 to 6x6 matrices. In
-numpy each costs about a microsecond of call overhead whatever its size, which is what kept the
-step at 30x one ``pinocchio.aba``. Here each call does the same arithmetic in one pass.
+Every kernel takes the constraint rows as inputs: G (m, 6) on the twist nu = (v, w) (world, at the
+body origin) and the velocity-product term b (m,) = d/dt(G) nu, both from
+:class:`teleop.dynamics.rows.RowStack`, so a user's Python constraint goes through the same solve.
+M_nu^-1 = blockdiag(I3/m, R J^-1 R^T); the Delassus matrix K = G M_nu^-1 G^T is factored by
+Cholesky, or, when rows are redundant (a pivot ratio below ``rtol``), by a truncated symmetric
+eigendecomposition (minimum-norm multipliers; the numerical rank is returned).
 
-The readable definitions stay in Python and are the reference: :mod:`teleop.dynamics.rotations`
-(``rate_map_terms``), the constraint classes' ``jacobian`` and ``bias``, and
-``ConstrainedBody.evaluate(compiled=False)``. The tests check every kernel against them. A
-constraint class without a kernel row function (a user's own, say) sends its model down the
-Python path; nothing else changes.
-
-Conventions are those of :mod:`teleop.dynamics.model`: twist nu = (v, w), world frame, at the
-body origin; G (m, 6) acts on nu; M_nu^-1 = blockdiag(I3/m, R J^-1 R^T).
-
-The constraint rows come from :mod:`teleop.dynamics.kernels.rows`.
+Why compiled: an evaluation is some sixty operations on 3-vectors and 3x3 to 6x6 matrices; numpy
+costs about a microsecond of call overhead per operation whatever its size. ``NUMBA_DISABLE_JIT=1``
+runs this code as Python. Tested against Pinocchio's constrained dynamics, the chart-coordinate
+form of eqs. 8-9 (:func:`teleop.dynamics.model.evaluate_literal`), finite differences and energy.
 """
 
 from __future__ import annotations
@@ -24,30 +22,9 @@ import math
 import numpy as np
 from numba import njit
 
-from teleop.dynamics import effects as E
-from teleop.dynamics.kernels.rows import _cross, _dot, _rv, stack_rows
+from teleop.dynamics.kernels.rows import _cross, _dot, _rv
 
-#: Delassus solve modes: no rows, Cholesky factor L, or a pseudo-inverse matrix (rank-deficient K)
-SOLVE_NONE, SOLVE_CHOLESKY, SOLVE_PINV = 0, 1, 2
-
-
-def effect_params(effects) -> tuple[np.ndarray, tuple]:
-    """Split effects into the compiled ones, summed into fx = (c_lin N*s/m, c_ang N*m*s/rad,
-    gravity force (3,) N), and the rest (a tuple, run in Python)."""
-    fx, rest = np.zeros(5), []
-    for e in effects:
-        if type(e) is E.LinearDamper:
-            fx[0] += e.c
-        elif type(e) is E.AngularDamper:
-            fx[1] += e.c
-        elif type(e) is E.Gravity:
-            fx[2:5] += e._f
-        else:
-            rest.append(e)
-    return fx, tuple(rest)
-
-
-# -- pose terms -----------------------------------------------------------------------------------
+# -- chart terms -------------------------------------------------------------------------------------
 @njit(cache=True, inline="always")
 def _rot_cols(M, k, c, s):
     """M <- M @ R_k(angle) (only two columns change)."""
@@ -69,10 +46,11 @@ def _rot_vec_T(v, k, c, s, out):
 
 @njit(cache=True)
 def rate_map_terms(R0, axes, theta):
-    """Compiled twin of :func:`teleop.dynamics.rotations.rate_map_terms`.
+    """Pose-only chart terms at Euler angles theta (3,) rad of the chart (R0 (3, 3), axes (3,)).
 
-    Returns R (3, 3), E_B (3, 3), E_B^-1 (3, 3) and dE (3, 3) whose rows are (a1, u, a2), with
-    d/dt(E_B) thetadot = -(d1 d3) a1 - (d1 d2) u - (d2 d3) a2.
+    Returns R = R_WB (3, 3), E_B (3, 3) (body rate = E_B thetadot), E_B^-1 (3, 3), dE (3, 3)
+    whose rows are (a1, u, a2), with d/dt(E_B) thetadot = -(d1 d3) a1 - (d1 d2) u - (d2 d3) a2 for
+    rates (d1, d2, d3), and E_W = R E_B (3, 3) (world rate = E_W thetadot). Tested against :func:`teleop.dynamics.rotations.rate_map` (axis products).
     """
     a, bx, c = axes[0], axes[1], axes[2]
     c1, s1 = math.cos(theta[0]), math.sin(theta[0])
@@ -118,7 +96,7 @@ def rate_map_terms(R0, axes, theta):
     dE[1] = u
     _cross(ec, col2, r)
     dE[2] = r
-    return R, E, Einv, dE
+    return R, E, Einv, dE, R @ E
 
 
 @njit(cache=True)
@@ -149,52 +127,11 @@ def cholesky(K, rtol):
 
 
 @njit(cache=True)
-def constraint_terms(R, p, J_inv, inv_m, G_template, kinds, offsets, params, rtol):
-    """Pose-only dynamics terms at (p, R): I_W^-1 = R J^-1 R^T (3, 3), G (m, 6), M_nu^-1 G^T
-    (6, m), the Delassus matrix K = G M_nu^-1 G^T (m, m), its Cholesky factor L and whether L is
-    usable (see :func:`cholesky`)."""
-    RJ = R @ J_inv
-    Iinv = np.empty((3, 3))
-    for i in range(3):
-        for j in range(3):
-            Iinv[i, j] = RJ[i, 0] * R[j, 0] + RJ[i, 1] * R[j, 1] + RJ[i, 2] * R[j, 2]
-    m = G_template.shape[0]
-    G = G_template.copy()
-    b = np.empty(m)
-    zero = np.zeros(3)
-    stack_rows(G, b, kinds, offsets, params, p, R, zero, zero)
-    MinvGt = np.empty((6, m))
-    for r in range(m):
-        for i in range(3):
-            MinvGt[i, r] = G[r, i] * inv_m
-            MinvGt[3 + i, r] = Iinv[i, 0] * G[r, 3] + Iinv[i, 1] * G[r, 4] + Iinv[i, 2] * G[r, 5]
-    K = np.empty((m, m))
-    for r in range(m):
-        for c in range(r, m):
-            s = 0.0
-            for i in range(6):
-                s += G[r, i] * MinvGt[i, c]
-            K[r, c] = K[c, r] = s
-    L, ok = cholesky(K, rtol)
-    return Iinv, G, MinvGt, K, L, ok
-
-
-@njit(cache=True)
-def pose_terms(R0, axes, q, J_inv, inv_m, G_template, kinds, offsets, params, rtol):
-    """Everything that depends on the pose q (6,) only, for a chart (R0, axes): R, E_B, E_B^-1,
-    dE (see :func:`rate_map_terms`) followed by :func:`constraint_terms`."""
-    R, E, Einv, dE = rate_map_terms(R0, axes, q[3:])
-    Iinv, G, MinvGt, K, L, ok = constraint_terms(R, q[:3], J_inv, inv_m, G_template, kinds, offsets,
-                                                 params, rtol)
-    return R, E, Einv, dE, Iinv, G, MinvGt, K, L, ok
-
-
-@njit(cache=True)
 def _solve(S, mode, rhs):
-    """lam with K lam = rhs: S is the Cholesky factor L (mode 1) or the pseudo-inverse (mode 2)."""
+    """lam with L L^T lam = rhs for a lower Cholesky factor L = S (``mode`` is 1)."""
     m = rhs.shape[0]
     lam = np.zeros(m)
-    if mode == SOLVE_CHOLESKY:
+    if mode == 1:
         y = np.empty(m)
         for i in range(m):
             s = rhs[i]
@@ -206,12 +143,6 @@ def _solve(S, mode, rhs):
             for k in range(i + 1, m):
                 s -= S[k, i] * lam[k]
             lam[i] = s / S[i, i]
-    elif mode == SOLVE_PINV:
-        for i in range(m):
-            s = 0.0
-            for k in range(m):
-                s += S[i, k] * rhs[k]
-            lam[i] = s
     return lam
 
 
@@ -223,115 +154,6 @@ def _add_product(A, x, sign, out):
         for r in range(A.shape[1]):
             s += A[i, r] * x[r]
         out[i] += sign * s
-
-
-@njit(cache=True)
-def newton_euler(R, Iinv, J, inv_m, coriolis, G, MinvGt, S, mode, kinds, offsets, params, p, v, w, F_in,
-                 fx):
-    """Eqs. 8-9 in twist form at pose (p, R), twist (v, w) (world), under the wrench F_in (6,)
-    plus the compiled effects fx = (c_lin N*s/m, c_ang N*m*s/rad, gravity force (3,) N) (see
-    :func:`effect_params`).
-
-    Returns nudot (6,) = (vdot, wdot) world, lam (m,) and the total wrench F (6,).
-    """
-    F = np.empty(6)
-    for i in range(3):
-        F[i] = F_in[i] - fx[0] * v[i] + fx[2 + i]
-        F[3 + i] = F_in[3 + i] - fx[1] * w[i]
-    free = np.empty(6)
-    for i in range(3):
-        free[i] = F[i] * inv_m
-    tq = np.empty(3)
-    if coriolis:  # w x I_W w = R (w_B x J w_B)
-        wB = np.empty(3)
-        for i in range(3):
-            wB[i] = R[0, i] * w[0] + R[1, i] * w[1] + R[2, i] * w[2]
-        JwB = J @ wB
-        g = np.empty(3)
-        _cross(wB, JwB, g)
-        _rv(R, g[0], g[1], g[2], tq)
-        for i in range(3):
-            tq[i] = F[3 + i] - tq[i]
-    else:
-        tq[:] = F[3:]
-    _rv(Iinv, tq[0], tq[1], tq[2], free[3:])
-    m = G.shape[0]
-    nudot = free.copy()
-    lam = np.zeros(m)
-    if m:
-        scratch = np.empty((m, 6))
-        b = np.zeros(m)
-        stack_rows(scratch, b, kinds, offsets, params, p, R, v, w)
-        rhs = np.empty(m)
-        for r in range(m):
-            s = -b[r]
-            for i in range(6):
-                s -= G[r, i] * free[i]
-            rhs[r] = s
-        lam = _solve(S, mode, rhs)
-        _add_product(MinvGt, lam, 1.0, nudot)
-    return nudot, lam, F
-
-
-@njit(cache=True)
-def evaluate(R, E, Einv, dE, Iinv, J, inv_m, coriolis, G, MinvGt, S, mode,
-             kinds, offsets, params, p, qd, F, fx):
-    """Eqs. 8-9 at chart rates qd (6,) under the wrench F (6,) (operator plus the Python effects,
-    world) and the compiled effects fx (see :func:`newton_euler`).
-
-    Returns qdd (6,) chart accelerations, nudot (6,) = (vdot, wdot) world, lam (m,) and the total
-    wrench (6,).
-    """
-    d1, d2, d3 = qd[3], qd[4], qd[5]
-    w = np.empty(3)
-    _rv(R, E[0, 0] * d1 + E[0, 1] * d2 + E[0, 2] * d3, E[1, 0] * d1 + E[1, 1] * d2 + E[1, 2] * d3,
-        E[2, 0] * d1 + E[2, 1] * d2 + E[2, 2] * d3, w)
-    nudot, lam, F = newton_euler(R, Iinv, J, inv_m, coriolis, G, MinvGt, S, mode, kinds, offsets,
-                                 params, p, qd[:3], w, F, fx)
-    k1, k2, k3 = d1 * d3, d1 * d2, d2 * d3
-    qdd = np.empty(6)
-    qdd[:3] = nudot[:3]
-    x = np.empty(3)
-    for i in range(3):  # R^T wdot - Edot thetadot
-        x[i] = (R[0, i] * nudot[3] + R[1, i] * nudot[4] + R[2, i] * nudot[5]
-                + k1 * dE[0, i] + k2 * dE[1, i] + k3 * dE[2, i])
-    _rv(Einv, x[0], x[1], x[2], qdd[3:])
-    return qdd, nudot, lam, F
-
-
-@njit(cache=True)
-def project_twist(G, MinvGt, S, mode, nu):
-    """nu - M^-1 G^T K^+ G nu (6,): the admissible twist closest to nu in kinetic energy."""
-    m = G.shape[0]
-    out = nu.copy()
-    if m == 0:
-        return out
-    Gnu = np.empty(m)
-    for r in range(m):
-        s = 0.0
-        for i in range(6):
-            s += G[r, i] * nu[i]
-        Gnu[r] = s
-    _add_product(MinvGt, _solve(S, mode, Gnu), -1.0, out)
-    return out
-
-
-@njit(cache=True)
-def project_rates(R, E, Einv, G, MinvGt, S, mode, qd):
-    """The admissible rates closest to qd (6,) in kinetic energy: T^-1 (nu - M^-1 G^T K^+ G nu)."""
-    nu = np.empty(6)
-    nu[:3] = qd[:3]
-    d1, d2, d3 = qd[3], qd[4], qd[5]
-    _rv(R, E[0, 0] * d1 + E[0, 1] * d2 + E[0, 2] * d3, E[1, 0] * d1 + E[1, 1] * d2 + E[1, 2] * d3,
-        E[2, 0] * d1 + E[2, 1] * d2 + E[2, 2] * d3, nu[3:])
-    nu = project_twist(G, MinvGt, S, mode, nu)
-    out = np.empty(6)
-    out[:3] = nu[:3]
-    x = np.empty(3)
-    for i in range(3):
-        x[i] = R[0, i] * nu[3] + R[1, i] * nu[4] + R[2, i] * nu[5]
-    _rv(Einv, x[0], x[1], x[2], out[3:])
-    return out
 
 
 @njit(cache=True)
@@ -355,7 +177,7 @@ def left_pinv(P):
         out[:] = np.nan
         return out
     for c in range(n):
-        out[:, c] = _solve(L, SOLVE_CHOLESKY, P[c].copy())
+        out[:, c] = _solve(L, 1, P[c].copy())
     return out
 
 
@@ -383,11 +205,178 @@ def flat_advance(z, zd, qdd, P, Pinv, q0, h):
     return z2, zd2, q, qd
 
 
+
+
+# -- eqs. 8-9 and the projections, from rows (G, b) ----------------------------------------------
 @njit(cache=True)
-def project_parameter_rates(R, E, Einv, G, MinvGt, S, mode, qd, P, Pinv):
+def delassus_solve(K, rhs, rtol):
+    """(lam (m,), rank): K lam = rhs for a symmetric PSD K (m, m). Cholesky when every pivot ratio
+    min(d)^2 / max(d)^2 exceeds ``rtol``; else the eigendecomposition with eigenvalues below
+    rtol * max dropped (minimum-norm, least squares for inconsistent rows)."""
+    m = K.shape[0]
+    if m == 0:
+        return np.zeros(0), 0
+    L, ok = cholesky(K, rtol)
+    if ok:
+        return _solve(L, 1, rhs), m
+    w, V = np.linalg.eigh(K)
+    floor = rtol * max(w[m - 1], 0.0)
+    lam = np.zeros(m)
+    rank = 0
+    for k in range(m):
+        if w[k] > floor:
+            rank += 1
+            c = 0.0
+            for i in range(m):
+                c += V[i, k] * rhs[i]
+            c /= w[k]
+            for i in range(m):
+                lam[i] += c * V[i, k]
+    return lam, rank
+
+
+@njit(cache=True)
+def _inverse_inertia(R, J_inv):
+    """I_W^-1 = R J^-1 R^T (3, 3)."""
+    RJ = R @ J_inv
+    Iinv = np.empty((3, 3))
+    for i in range(3):
+        for j in range(3):
+            Iinv[i, j] = RJ[i, 0] * R[j, 0] + RJ[i, 1] * R[j, 1] + RJ[i, 2] * R[j, 2]
+    return Iinv
+
+
+@njit(cache=True)
+def solve_rows(R, J_inv, inv_m, G, rhs, rtol):
+    """(d (6,), lam (m,), rank): lam = K^+ rhs and d = M_nu^-1 G^T lam, the twist of least kinetic
+    energy with G d = rhs (when consistent), at the attitude R."""
+    Iinv = _inverse_inertia(R, J_inv)
+    m = G.shape[0]
+    MinvGt = np.empty((6, m))
+    for r in range(m):
+        for i in range(3):
+            MinvGt[i, r] = G[r, i] * inv_m
+            MinvGt[3 + i, r] = Iinv[i, 0] * G[r, 3] + Iinv[i, 1] * G[r, 4] + Iinv[i, 2] * G[r, 5]
+    K = np.empty((m, m))
+    for r in range(m):
+        for c in range(r, m):
+            s = 0.0
+            for i in range(6):
+                s += G[r, i] * MinvGt[i, c]
+            K[r, c] = K[c, r] = s
+    lam, rank = delassus_solve(K, rhs, rtol)
+    d = np.zeros(6)
+    _add_product(MinvGt, lam, 1.0, d)
+    return d, lam, rank
+
+
+@njit(cache=True)
+def newton_euler(R, J, J_inv, inv_m, coriolis, G, b, v, w, F_in, fx, rtol):
+    """Eqs. 8-9 in twist form at attitude R, twist (v, w) (world), rows G (m, 6), b (m,), under the
+    wrench F_in (6,) plus the compiled effects fx = (c_lin N*s/m, c_ang N*m*s/rad, gravity force
+    (3,) N) (see :func:`effect_params`).
+
+    Returns nudot (6,) = (vdot, wdot) world, lam (m,) in N and N*m, the rank of K, the total
+    applied wrench F (6,) and the constraint wrench G^T lam (6,).
+    """
+    F = np.empty(6)
+    for i in range(3):
+        F[i] = F_in[i] - fx[0] * v[i] + fx[2 + i]
+        F[3 + i] = F_in[3 + i] - fx[1] * w[i]
+    free = np.empty(6)
+    for i in range(3):
+        free[i] = F[i] * inv_m
+    tq = np.empty(3)
+    if coriolis:  # w x I_W w = R (w_B x J w_B)
+        wB = np.empty(3)
+        for i in range(3):
+            wB[i] = R[0, i] * w[0] + R[1, i] * w[1] + R[2, i] * w[2]
+        JwB = J @ wB
+        g = np.empty(3)
+        _cross(wB, JwB, g)
+        _rv(R, g[0], g[1], g[2], tq)
+        for i in range(3):
+            tq[i] = F[3 + i] - tq[i]
+    else:
+        tq[:] = F[3:]
+    Iinv = _inverse_inertia(R, J_inv)
+    _rv(Iinv, tq[0], tq[1], tq[2], free[3:])
+    m = G.shape[0]
+    rhs = np.empty(m)
+    for r in range(m):
+        s = -b[r]
+        for i in range(6):
+            s -= G[r, i] * free[i]
+        rhs[r] = s
+    d, lam, rank = solve_rows(R, J_inv, inv_m, G, rhs, rtol)
+    Gtl = np.zeros(6)
+    for r in range(m):
+        for i in range(6):
+            Gtl[i] += G[r, i] * lam[r]
+    return free + d, lam, rank, F, Gtl
+
+
+@njit(cache=True)
+def evaluate(R, E, Einv, dE, J, J_inv, inv_m, coriolis, G, b, qd, F, fx, rtol):
+    """Eqs. 8-9 at chart rates qd (6,) (chart terms from :func:`rate_map_terms`), rows G, b and
+    the wrench F (6,) (operator plus the Python effects, world); see :func:`newton_euler`.
+
+    Returns qdd (6,) chart accelerations, nudot (6,), lam (m,), rank, total wrench (6,) and the
+    constraint wrench G^T lam (6,).
+    """
+    d1, d2, d3 = qd[3], qd[4], qd[5]
+    w = np.empty(3)
+    _rv(R, E[0, 0] * d1 + E[0, 1] * d2 + E[0, 2] * d3, E[1, 0] * d1 + E[1, 1] * d2 + E[1, 2] * d3,
+        E[2, 0] * d1 + E[2, 1] * d2 + E[2, 2] * d3, w)
+    nudot, lam, rank, F, Gtl = newton_euler(R, J, J_inv, inv_m, coriolis, G, b, qd[:3], w, F, fx, rtol)
+    k1, k2, k3 = d1 * d3, d1 * d2, d2 * d3
+    qdd = np.empty(6)
+    qdd[:3] = nudot[:3]
+    x = np.empty(3)
+    for i in range(3):  # R^T wdot - Edot thetadot
+        x[i] = (R[0, i] * nudot[3] + R[1, i] * nudot[4] + R[2, i] * nudot[5]
+                + k1 * dE[0, i] + k2 * dE[1, i] + k3 * dE[2, i])
+    _rv(Einv, x[0], x[1], x[2], qdd[3:])
+    return qdd, nudot, lam, rank, F, Gtl
+
+
+@njit(cache=True)
+def project_twist(R, J_inv, inv_m, G, nu, rtol):
+    """nu - M_nu^-1 G^T K^+ G nu (6,): the admissible twist closest to nu in kinetic energy."""
+    m = G.shape[0]
+    Gnu = np.empty(m)
+    for r in range(m):
+        s = 0.0
+        for i in range(6):
+            s += G[r, i] * nu[i]
+        Gnu[r] = s
+    d, _, _ = solve_rows(R, J_inv, inv_m, G, Gnu, rtol)
+    return nu - d
+
+
+@njit(cache=True)
+def project_rates(R, E, Einv, J_inv, inv_m, G, qd, rtol):
+    """The admissible chart rates closest to qd (6,) in kinetic energy: T^-1 (projected T qd)."""
+    nu = np.empty(6)
+    nu[:3] = qd[:3]
+    d1, d2, d3 = qd[3], qd[4], qd[5]
+    _rv(R, E[0, 0] * d1 + E[0, 1] * d2 + E[0, 2] * d3, E[1, 0] * d1 + E[1, 1] * d2 + E[1, 2] * d3,
+        E[2, 0] * d1 + E[2, 1] * d2 + E[2, 2] * d3, nu[3:])
+    nu = project_twist(R, J_inv, inv_m, G, nu, rtol)
+    out = np.empty(6)
+    out[:3] = nu[:3]
+    x = np.empty(3)
+    for i in range(3):
+        x[i] = R[0, i] * nu[3] + R[1, i] * nu[4] + R[2, i] * nu[5]
+    _rv(Einv, x[0], x[1], x[2], out[3:])
+    return out
+
+
+@njit(cache=True)
+def project_parameter_rates(R, E, Einv, J_inv, inv_m, G, qd, P, Pinv, rtol):
     """:func:`project_rates` in parameter space: zd = P^+ (projected qd), and qd = P zd again.
     Returns zd (k,), qd (6,)."""
-    qp = project_rates(R, E, Einv, G, MinvGt, S, mode, qd)
+    qp = project_rates(R, E, Einv, J_inv, inv_m, G, qd, rtol)
     n, k = P.shape
     zd = np.zeros(k)
     _add_product(Pinv, qp, 1.0, zd)

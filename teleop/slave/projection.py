@@ -1,0 +1,84 @@
+"""A target pose and twist moved onto a fixture: the slave follows the closest admissible target.
+
+The virtual tool carries the master device's tracking error (tens of um, mrad). Rather than chase
+it with its own fixture rows, the slave follows the target projected onto the fixture, evaluated
+on the same rows as the master's (:class:`teleop.dynamics.rows.RowStack`):
+
+1. Newton steps on the holonomic rows: the minimum-norm twist d (6,) (m, rad) with G_h d = -h
+   (least squares, rank-revealing, so redundant rows are fine), applied as p <- p + d_v and
+   R <- exp(d_w) R (a retraction on SO(3), world frame, as the rows' twists are);
+2. the twist (v, w) minus its least-squares component along every row's G (holonomic and
+   nonholonomic): the admissible twist closest to it, G (v, w) = 0.
+
+Units: p m, R = R_WE (3, 3), v m/s, w rad/s, all in the fixture's frame (the patient frame).
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from numba import njit
+
+from teleop.dynamics.kernels.so3 import exp3
+
+_EPS = np.finfo(np.float64).eps  # singular values below eps * max(rows, 6) * s_max count as zero
+
+
+@njit(cache=True)
+def _newton_step(G, h, mask, tol, p, R) -> bool:
+    """One Newton step on the rows where ``mask``; p (3,), R (3, 3) updated in place. False (no
+    step) when max |h| on those rows is below tol (m or rad) or G, h are not finite."""
+    k = 0
+    worst = 0.0
+    for r in range(mask.shape[0]):
+        if mask[r]:
+            k += 1
+            worst = max(worst, abs(h[r]))
+    if not worst >= tol:  # converged, or NaN
+        return False
+    Gh, hh = np.empty((k, 6)), np.empty(k)
+    j = 0
+    for r in range(mask.shape[0]):
+        if mask[r]:
+            hh[j] = -h[r]
+            for c in range(6):
+                Gh[j, c] = G[r, c]
+            j += 1
+    if not np.all(np.isfinite(Gh)):
+        return False
+    d = np.linalg.lstsq(Gh, hh, rcond=_EPS * max(k, 6))[0]
+    E = exp3(d[3:])
+    R[:, :] = E @ R
+    for i in range(3):
+        p[i] += d[i]
+    return True
+
+
+@njit(cache=True)
+def _project_twist(G, nu):
+    """nu (6,) minus its least-squares component along the rows G (m, 6), in place."""
+    if not (np.all(np.isfinite(G)) and np.all(np.isfinite(nu))):
+        return
+    nu -= np.linalg.lstsq(G, G @ nu, rcond=_EPS * max(G.shape[0], 6))[0]
+
+
+def project_onto_fixture(rows, p, R, v, w, iterations: int = 3, tol: float = 1e-12):
+    """(p, R, v, w) moved onto the fixture of ``rows`` (a :class:`teleop.dynamics.rows.RowStack`):
+    up to ``iterations`` Newton steps until max |h| < ``tol`` (m or rad) on the holonomic rows, then
+    the twist onto the null space of all rows G. New arrays; a target that is not finite comes back
+    unchanged (the arm refuses it)."""
+    p = np.array(p, dtype=float)
+    R = np.array(R, dtype=float)
+    nu = np.concatenate([np.asarray(v, dtype=float), np.asarray(w, dtype=float)])
+    if rows.m == 0:
+        return p, R, nu[:3], nu[3:]
+    mask = np.asarray(rows.holonomic_mask, dtype=np.bool_)
+    if mask.any() and math.isfinite(np.vdot(p, p) + np.vdot(R, R)):
+        for _ in range(iterations):
+            G, _, h = rows.evaluate(p, R)
+            if not _newton_step(G, h, mask, tol, p, R):
+                break
+    G = rows.evaluate(p, R)[0]
+    _project_twist(np.ascontiguousarray(G), nu)
+    return p, R, nu[:3], nu[3:]
