@@ -16,9 +16,26 @@ from pathlib import Path
 
 import pytest
 
+from teleop import resources
+
 ROOT = Path(__file__).resolve().parents[2]  # the repository under test, not teleop's data
 SKIP = shutil.ignore_patterns(".git", ".venv", "build", "*.egg-info", "__pycache__", ".hypothesis",
                               ".pytest_cache", "runs", "out", "docs")
+
+
+def test_resources_find_the_shipped_data():
+    assert [p.name for p in resources.scenario_files()] == sorted(p.name for p in (ROOT / "scenarios").glob("*.toml"))
+    assert resources.robot_file("cobot/cobot.urdf").read_bytes() == (ROOT / "robots/cobot/cobot.urdf").read_bytes()
+    assert resources.robot_file("scalpel/scalpel.urdf").is_file()
+    with pytest.raises(FileNotFoundError, match="no_such_robot"):
+        resources.robot_file("no_such_robot/x.urdf")
+
+
+def test_python_dash_m_teleop_and_version():
+    r = subprocess.run([sys.executable, "-m", "teleop", "--version"], cwd=ROOT, capture_output=True, text=True, check=True)
+    assert r.stdout.startswith("teleop ")
+    r = subprocess.run([sys.executable, "-m", "teleop", "list"], cwd=ROOT, capture_output=True, text=True, check=True)
+    assert "straight_incision" in r.stdout
 
 
 def _pip(*args, cwd):
