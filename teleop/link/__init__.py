@@ -1,6 +1,7 @@
 """Master <-> slave messages and the links that carry them (in-process lockstep by default)."""
 
 from teleop.link.base import Link, LockstepLink, Mailbox
+from teleop.link.channel import ChannelSpec, SimulatedChannel
 from teleop.link.messages import SLAVE_STATUSES, ContactFeedback, MessageError, ToolCommand
 
-__all__ = ["Link", "LockstepLink", "Mailbox", "ToolCommand", "ContactFeedback", "MessageError", "SLAVE_STATUSES"]
+__all__ = ["Link", "LockstepLink", "Mailbox", "ChannelSpec", "SimulatedChannel", "ToolCommand", "ContactFeedback", "MessageError", "SLAVE_STATUSES"]
