@@ -1,4 +1,7 @@
-"""Master <-> slave messages and the links that carry them (in-process lockstep by default)."""
+"""Master <-> slave messages and the links that carry them (in-process lockstep by default).
+
+``ZenohLink`` lives in :mod:`teleop.link.zenoh_link` (imports zenoh); the wire format in
+:mod:`teleop.link.wire`."""
 
 from teleop.link.base import Link, LockstepLink, Mailbox
 from teleop.link.channel import ChannelSpec, SimulatedChannel
