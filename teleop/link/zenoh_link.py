@@ -11,8 +11,8 @@ published with congestion control DROP, priority REAL_TIME and express (no batch
 message is worth less than the next one, so nothing queues behind it. The subscriber callback
 (Zenoh's thread) decodes and hands the message to a :class:`Mailbox` under a lock; ``receive_*``
 never blocks and returns the newest in-order message (or None). A frame that fails to decode is
-counted (``bad_frames``) and dropped. ``last_receive_s`` (the clock's time of the last frame
-received, valid or not newer) feeds the heartbeat: ``alive(now_s, timeout_s=0.02)``.
+counted (``bad_frames``) and dropped. ``last_receive_s`` (the clock's time of the last valid frame,
+even one not newer) feeds the heartbeat: ``alive(now_s, timeout_s=0.02)``.
 
 Two hosts, TLS with mutual authentication (zenoh 1.x configuration keys; certificates from your
 own CA). On the slave host, listening on its address::
