@@ -6,6 +6,10 @@ master's time. Slave -> master, :class:`ContactFeedback`: the contact wrench at 
 frame origin in the patient frame P, the slave's status, the sequence number of the command it
 answered, its own sequence number and time.
 
+Both carry ``energy_J`` (6,) J: the sender's cumulative energy that has entered the channel at
+its port, per axis of the twist/wrench (the two-port time-domain passivity approach, see
+:mod:`teleop.link.passivity`). It is zero when no passivity guard runs.
+
 Both are frozen, slotted and checked when made: a message that exists is well formed (shapes,
 finite numbers, a known status). A side that cannot make a well-formed message sends none.
 """
@@ -63,6 +67,18 @@ def _seq(x, name: str) -> int:
     return int(x)
 
 
+def _energy(x, name: str) -> np.ndarray:
+    """(6,) cumulative port energy in J, non-negative; None gives zeros."""
+    if x is None:
+        a = np.zeros(6)
+        a.flags.writeable = False
+        return a
+    a = _vec(x, 6, name)
+    if float(a.min()) < 0.0:
+        raise MessageError(f"{name}: cumulative energy must be >= 0, got {a.min()!r}")
+    return a
+
+
 def _time(x, name: str) -> float:
     t = float(x)
     if not math.isfinite(t):
@@ -75,7 +91,8 @@ class ToolCommand:
     """Master -> slave: the virtual tool at master time ``t_s`` (s).
 
     ``p_m`` (3,) m and ``R`` (3, 3) the pose in M; ``v_m_s`` (3,) m/s and ``w_rad_s`` (3,) rad/s the
-    twist in M; ``clutch`` True while the operator drives the slave.
+    twist in M; ``clutch`` True while the operator drives the slave; ``energy_J`` (6,) J the energy
+    that has entered the channel at the master port so far, per axis (None: zeros).
     """
 
     seq: int
@@ -85,6 +102,7 @@ class ToolCommand:
     v_m_s: np.ndarray
     w_rad_s: np.ndarray
     clutch: bool = True
+    energy_J: np.ndarray | None = None
 
     def __post_init__(self):
         object.__setattr__(self, "seq", _seq(self.seq, "ToolCommand.seq"))
@@ -98,19 +116,22 @@ class ToolCommand:
         object.__setattr__(self, "v_m_s", v)
         object.__setattr__(self, "w_rad_s", w)
         object.__setattr__(self, "clutch", bool(self.clutch))
+        object.__setattr__(self, "energy_J", _energy(self.energy_J, "ToolCommand.energy_J"))
 
 
 @dataclass(frozen=True, slots=True)
 class ContactFeedback:
     """Slave -> master: the contact wrench ``wrench_P`` (6,: N, N*m) at the slave tool frame's
     origin, in the patient frame P, at slave time ``t_s`` (s), with the slave's ``status`` and the
-    sequence number ``command_seq`` of the command it followed (-1 for none yet)."""
+    sequence number ``command_seq`` of the command it followed (-1 for none yet), and ``energy_J``
+    (6,) J the energy that has entered the channel at the slave port so far (None: zeros)."""
 
     seq: int
     t_s: float
     wrench_P: np.ndarray
     status: str
     command_seq: int = -1
+    energy_J: np.ndarray | None = None
 
     def __post_init__(self):
         object.__setattr__(self, "seq", _seq(self.seq, "ContactFeedback.seq"))
@@ -122,3 +143,4 @@ class ContactFeedback:
         if isinstance(c, bool) or not isinstance(c, (int, np.integer)) or not -1 <= int(c) < 2**63:
             raise MessageError(f"ContactFeedback.command_seq: expected an integer >= -1, got {c!r}")
         object.__setattr__(self, "command_seq", int(c))
+        object.__setattr__(self, "energy_J", _energy(self.energy_J, "ContactFeedback.energy_J"))

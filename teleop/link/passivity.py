@@ -1,0 +1,220 @@
+"""Time-domain passivity guard (TDPA) on the delayed channel, per axis of the 6-D twist/wrench.
+
+After Ryu, Kwon, Hannaford, "Stable teleoperation with time-domain passivity control", IEEE T-RA
+20(2), 2004, and the two-port TDPA of Artigas, Ryu, Preusche, Hirzinger ("Time domain passivity
+control for position-position teleoperation architectures", Presence 19(5), 2010; "Network
+representation and passivity of delayed teleoperation systems", IROS 2011; and "Position drift
+compensation in time domain passivity based teleoperation", IROS 2010).
+
+The channel is a two-port between the master port (velocity ``v_m`` in, force ``f_m`` out: the
+force the channel puts on the master) and the slave port (velocity ``v_s`` out to the slave, force
+``f_s`` in: the force the slave's environment puts on the slave, which is what is sent back).
+Power into the channel, per axis and per tick (W, with m/s and N, or rad/s and N*m)::
+
+    master port: p_m = -f_m * v_m        slave port: p_s = f_s * v_s
+
+Each side splits its port power into the energy that entered the channel there, ``E_in``, and the
+energy that left it there, ``E_out`` (both non-decreasing, J), and sends ``E_in`` with every
+message (``energy_J``). Without delay ``p_m + p_s = 0`` (a lossless wire); with delay the channel
+may create energy. Two passivity observers split that, one per direction of flow::
+
+    master (right to left): W_m(n) = E_in_s(n - D_sm) - E_out_m(n) + E_diss_m(n - 1)
+    slave  (left to right): W_s(n) = E_in_m(n - D_ms) - E_out_s(n) + E_diss_s(n - 1)
+
+``E_in`` of the other side is the newest received (held when a message is late or lost, which
+is conservative: it only ever grows). A negative observer means the channel has put out more than
+it was given; the controller at that port dissipates exactly ``-W``, no more:
+
+* master, impedance-type port: adaptive damping, ``f = f_m - alpha * v_m`` with
+  ``alpha = -W / (dt v_m^2)``, capped at ``alpha_max`` (N*s/m), not computed below ``v_floor``.
+* slave, admittance-type port: a velocity correction, ``v_s = v_des + dv`` with
+  ``dv = -W / (dt f_s)``, capped at ``dv_max`` (m/s), not computed below ``f_floor``.
+
+The slave's correction accumulates into a position offset ``offset`` (the drift): the slave's
+position target is the master's delayed position plus ``offset``. Drift compensation (Artigas
+et al. 2010) spends only surplus energy: when ``W_s > 0``, a correction ``-drift_gain * offset``
+is added, cut so that its energy cost does not exceed ``drift_share * W_s``; ``E_diss`` counts it
+negatively (energy given back), so the observer stays non-negative.
+
+A port with ``enabled=False`` observes and logs but never acts ("off").
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from teleop.errors import ConfigError
+
+
+def compute_port_energy(E_in: np.ndarray, E_out: np.ndarray, power_W: np.ndarray, dt_s: float):
+    """Pure: the cumulative (E_in, E_out) (6,) J after one tick of port power ``power_W`` (6,) W
+    (positive into the channel) held for ``dt_s`` s."""
+    return E_in + np.maximum(power_W, 0.0) * dt_s, E_out + np.maximum(-power_W, 0.0) * dt_s
+
+
+@dataclass(frozen=True)
+class TdpaParams:
+    """Settings of one port, validated when made.
+
+    dt_s: tick (s), > 0.
+    enabled: act (True) or only observe (False, ``passivity = "off"``).
+    alpha_max: master damping cap (N*s/m on force axes, N*m*s/rad on torque axes), > 0; SAI caps
+        it at 0.9 of what the device can render.
+    v_floor: master velocities below this (m/s or rad/s) get no damping (alpha would blow up).
+    f_floor: slave forces below this (N or N*m) get no velocity correction.
+    dv_max: slave velocity correction cap (m/s or rad/s), > 0.
+    drift_gain: drift compensation rate (1/s), >= 0 (0: off, the default: on the 1-DOF stiff-wall
+        test it recovers ~3 of ~23 mm of drift at 200 ms but leaves a ~1.4 mm limit cycle).
+    drift_share: fraction of the slave observer's surplus that compensation may spend, [0, 1].
+    """
+
+    dt_s: float
+    enabled: bool = True
+    alpha_max: float = 500.0
+    v_floor: float = 1e-4
+    f_floor: float = 1e-3
+    dv_max: float = 0.5
+    drift_gain: float = 0.0
+    drift_share: float = 0.5
+
+    def __post_init__(self):
+        for name, lo in (("dt_s", 0.0), ("alpha_max", 0.0), ("v_floor", 0.0), ("f_floor", 0.0), ("dv_max", 0.0)):
+            v = getattr(self, name)
+            if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v) or v <= lo:
+                raise ConfigError(f"TdpaParams.{name}: expected a finite number > {lo}, got {v!r}")
+        g = self.drift_gain
+        if isinstance(g, bool) or not isinstance(g, (int, float)) or not math.isfinite(g) or g < 0:
+            raise ConfigError(f"TdpaParams.drift_gain: expected a finite number >= 0, got {g!r}")
+        s = self.drift_share
+        if isinstance(s, bool) or not isinstance(s, (int, float)) or not 0.0 <= s <= 1.0:
+            raise ConfigError(f"TdpaParams.drift_share: expected a number in [0, 1], got {s!r}")
+        object.__setattr__(self, "enabled", bool(self.enabled))
+
+
+class PortLog:
+    """Per-tick record of one port, preallocated for ``capacity`` ticks: time ``t_s`` (n,) s, and
+    (n, 6) arrays of the observer ``W_J``, ``E_in_J``, ``E_out_J``, ``E_diss_J`` (J, cumulative),
+    ``E_remote_J`` (the other side's E_in as received) and ``action`` (alpha in N*s/m at the
+    master, dv in m/s at the slave)."""
+
+    FIELDS = ("W_J", "E_in_J", "E_out_J", "E_diss_J", "E_remote_J", "action")
+
+    def __init__(self, capacity: int):
+        self.n = 0
+        self.t_s = np.zeros(capacity)
+        for f in self.FIELDS:
+            setattr(self, f, np.zeros((capacity, 6)))
+
+    def record(self, t_s: float, port: _Port) -> None:
+        if self.n >= len(self.t_s):
+            return
+        k = self.n
+        self.t_s[k] = t_s
+        self.W_J[k], self.E_in_J[k], self.E_out_J[k] = port.W, port.E_in, port.E_out
+        self.E_diss_J[k], self.E_remote_J[k], self.action[k] = port.E_diss, port.E_remote, port.action
+        self.n += 1
+
+    def arrays(self) -> dict:
+        """The filled part: {"t_s": (n,), field: (n, 6), ...}."""
+        return {"t_s": self.t_s[: self.n], **{f: getattr(self, f)[: self.n] for f in self.FIELDS}}
+
+
+class _Port:
+    """State shared by both ports: cumulative energies (6,) J and the observer."""
+
+    def __init__(self, params: TdpaParams, log_capacity: int = 0):
+        self.params = params
+        self.E_in = np.zeros(6)
+        self.E_out = np.zeros(6)
+        self.E_diss = np.zeros(6)
+        self.E_remote = np.zeros(6)
+        self.W = np.zeros(6)
+        self.action = np.zeros(6)
+        self.log = PortLog(log_capacity) if log_capacity else None
+
+    def _receive(self, E_remote) -> None:
+        if E_remote is not None:
+            self.E_remote = np.maximum(self.E_remote, np.asarray(E_remote, dtype=float))
+
+    @property
+    def energy_J(self) -> np.ndarray:
+        """(6,) J: what to put in the outgoing message's ``energy_J``."""
+        return self.E_in.copy()
+
+    @property
+    def dissipated_J(self) -> float:
+        """Total energy dissipated by this port's controller so far (J, all axes)."""
+        return float(self.E_diss.sum())
+
+
+class MasterPassivity(_Port):
+    """The master port: observer W_m and adaptive damping (impedance-type port)."""
+
+    def step(self, f_m: np.ndarray, v_m: np.ndarray, E_remote=None, t_s: float = 0.0) -> np.ndarray:
+        """The force (6,) N, N*m to render on the master, from the channel's force ``f_m`` (6,) on
+        the master, the master's velocity ``v_m`` (6,) m/s, rad/s, and the slave's ``E_in``
+        ``E_remote`` (6,) J from the newest feedback (None: hold the last)."""
+        p, dt = self.params, self.params.dt_s
+        f_m, v_m = np.asarray(f_m, dtype=float), np.asarray(v_m, dtype=float)
+        self._receive(E_remote)
+        p_out = f_m * v_m
+        E_out = self.E_out + np.maximum(p_out, 0.0) * dt
+        W = self.E_remote - E_out + self.E_diss
+        alpha = np.zeros(6)
+        if p.enabled:
+            act = (W < 0.0) & (np.abs(v_m) > p.v_floor)
+            alpha[act] = np.minimum(-W[act] / (dt * v_m[act] ** 2), p.alpha_max)
+        diss = alpha * v_m * v_m * dt
+        self.E_in = self.E_in + np.maximum(-p_out, 0.0) * dt
+        self.E_out, self.E_diss, self.action = E_out, self.E_diss + diss, alpha
+        self.W = W + diss
+        if self.log is not None:
+            self.log.record(t_s, self)
+        return f_m - alpha * v_m
+
+
+class SlavePassivity(_Port):
+    """The slave port: observer W_s, velocity correction (admittance-type port), drift offset."""
+
+    def __init__(self, params: TdpaParams, log_capacity: int = 0):
+        super().__init__(params, log_capacity)
+        self.offset = np.zeros(6)
+
+    def step(self, v_des: np.ndarray, f_s: np.ndarray, E_remote=None, t_s: float = 0.0) -> np.ndarray:
+        """The velocity (6,) m/s, rad/s the slave should follow, from the channel's velocity
+        ``v_des`` (the master's, delayed), the force ``f_s`` (6,) N, N*m the environment puts on the
+        slave (the force sent back), and the master's ``E_in`` ``E_remote`` (None: hold the last).
+        ``offset`` (6,) m, rad accumulates the correction: add it to the delayed master position."""
+        p, dt = self.params, self.params.dt_s
+        v_des, f_s = np.asarray(v_des, dtype=float), np.asarray(f_s, dtype=float)
+        self._receive(E_remote)
+        p_out = -f_s * v_des
+        E_out = self.E_out + np.maximum(p_out, 0.0) * dt
+        W = self.E_remote - E_out + self.E_diss
+        dv = np.zeros(6)
+        if p.enabled:
+            act = (W < 0.0) & (np.abs(f_s) > p.f_floor)
+            dv[act] = np.clip(-W[act] / (dt * f_s[act]), -p.dv_max, p.dv_max)
+            diss = f_s * dv * dt
+            if p.drift_gain > 0.0:
+                W_after = W + diss
+                dc = -p.drift_gain * self.offset
+                cost = np.maximum(-f_s * dc * dt, 0.0)  # energy the correction would put out
+                budget = np.maximum(p.drift_share * W_after, 0.0)
+                scale = np.where(cost > budget, budget / np.maximum(cost, 1e-300), 1.0)
+                dc = np.where(W_after > 0.0, dc * scale, 0.0)
+                dv = dv + dc
+                diss = diss + f_s * dc * dt
+        else:
+            diss = np.zeros(6)
+        v = v_des + dv
+        self.E_in = self.E_in + np.maximum(f_s * v_des, 0.0) * dt
+        self.E_out, self.E_diss, self.action = E_out, self.E_diss + diss, dv
+        self.W = W + diss
+        self.offset = self.offset + dv * dt
+        if self.log is not None:
+            self.log.record(t_s, self)
+        return v

@@ -1,0 +1,192 @@
+"""The link over Eclipse Zenoh: master and slave as two processes (or two hosts).
+
+One side listens (by default the slave, on ``tcp/127.0.0.1:7447``, loopback only), the other
+connects; multicast scouting is off, so a session talks only to the endpoint it is given. Frames
+are the :mod:`teleop.link.wire` bytes, put on two key expressions::
+
+    teleop/<session>/cmd   master -> slave (ToolCommand)
+    teleop/<session>/fb    slave -> master (ContactFeedback)
+
+published with congestion control DROP, priority REAL_TIME and express (no batching): a late
+message is worth less than the next one, so nothing queues behind it. The subscriber callback
+(Zenoh's thread) decodes and hands the message to a :class:`Mailbox` under a lock; ``receive_*``
+never blocks and returns the newest in-order message (or None). A frame that fails to decode is
+counted (``bad_frames``) and dropped. ``last_receive_s`` (the clock's time of the last valid frame,
+even one not newer) feeds the heartbeat: ``alive(now_s, timeout_s=0.02)``.
+
+Two hosts, TLS with mutual authentication (zenoh 1.x configuration keys; certificates from your
+own CA). On the slave host, listening on its address::
+
+    link = ZenohLink("slave", listen="tls/10.0.0.2:7447", config_json5={
+        "transport/link/tls/root_ca_certificate": '"/etc/teleop/ca.pem"',
+        "transport/link/tls/listen_certificate": '"/etc/teleop/slave.pem"',
+        "transport/link/tls/listen_private_key": '"/etc/teleop/slave.key"',
+        "transport/link/tls/enable_mtls": "true",
+    })
+
+and on the master host::
+
+    link = ZenohLink("master", connect="tls/10.0.0.2:7447", config_json5={
+        "transport/link/tls/root_ca_certificate": '"/etc/teleop/ca.pem"',
+        "transport/link/tls/connect_certificate": '"/etc/teleop/master.pem"',
+        "transport/link/tls/connect_private_key": '"/etc/teleop/master.key"',
+        "transport/link/tls/enable_mtls": "true",
+        "transport/link/tls/verify_name_on_connect": "true",
+    })
+
+The slave certificate's subject alternative name must carry the address or name connected to.
+Keep the TCP endpoint off anything but loopback; open only the TLS port between the hosts.
+"""
+
+from __future__ import annotations
+
+import json
+import threading
+import time
+from collections.abc import Callable
+
+from teleop.errors import ConfigError, TeleopError
+from teleop.link import wire
+from teleop.link.base import Link, Mailbox
+from teleop.link.messages import ContactFeedback, MessageError, ToolCommand
+
+DEFAULT_ENDPOINT = "tcp/127.0.0.1:7447"
+ROLES = ("master", "slave")
+
+
+class LinkError(TeleopError):
+    """The link cannot be opened or is used from the wrong side."""
+
+
+def make_config(listen: str | None = None, connect: str | None = None, config_json5: dict | None = None):
+    """A zenoh.Config: peer mode, multicast scouting off, the given endpoints, then any extra
+    ``{"path/to/key": "json5 value"}`` entries (e.g. TLS)."""
+    import zenoh
+
+    c = zenoh.Config()
+    c.insert_json5("mode", '"peer"')
+    c.insert_json5("scouting/multicast/enabled", "false")
+    c.insert_json5("listen/endpoints", json.dumps([listen] if listen else []))
+    c.insert_json5("connect/endpoints", json.dumps([connect] if connect else []))
+    for key, value in (config_json5 or {}).items():
+        try:
+            c.insert_json5(key, value)
+        except Exception as e:  # zenoh raises ZError
+            raise ConfigError(f"ZenohLink config: {key}: {e}") from e
+    return c
+
+
+class ZenohLink(Link):
+    """One side of the link over Zenoh.
+
+    role: "master" (sends commands, receives feedback) or "slave" (the other way).
+    session: the key expressions' middle part, so several pairs can share a network.
+    listen / connect: Zenoh endpoints; with neither given the slave listens on
+        DEFAULT_ENDPOINT and the master connects to it.
+    config_json5: extra configuration entries (see the module docstring for TLS).
+    clock: a monotonic clock in s (``time.monotonic``), for ``last_receive_s``.
+    """
+
+    def __init__(self, role: str, session: str = "default", listen: str | None = None,
+                 connect: str | None = None, config_json5: dict | None = None,
+                 clock: Callable[[], float] = time.monotonic):
+        import zenoh
+
+        if role not in ROLES:
+            raise ConfigError(f"ZenohLink.role: expected one of {ROLES}, got {role!r}")
+        if not session or any(ch in session for ch in "/*$?#"):
+            raise ConfigError(f"ZenohLink.session: a plain non-empty name, got {session!r}")
+        if listen is None and connect is None:
+            listen, connect = (DEFAULT_ENDPOINT, None) if role == "slave" else (None, DEFAULT_ENDPOINT)
+        self.role, self.session_name, self.clock = role, session, clock
+        self.listen, self.connect = listen, connect
+        self._lock = threading.Lock()
+        self._box = Mailbox()
+        self.last_receive_s: float | None = None
+        self.received = self.bad_frames = self.sent = 0
+        self._closed = False
+        try:
+            self._session = zenoh.open(make_config(listen, connect, config_json5))
+        except Exception as e:
+            raise LinkError(f"ZenohLink({role}): cannot open a session (listen={listen}, "
+                            f"connect={connect}): {e}") from e
+        out_key, in_key = (("cmd", "fb") if role == "master" else ("fb", "cmd"))
+        self._pub = self._session.declare_publisher(
+            f"teleop/{session}/{out_key}", congestion_control=zenoh.CongestionControl.DROP,
+            priority=zenoh.Priority.REAL_TIME, express=True)
+        self._in_type = ContactFeedback if role == "master" else ToolCommand
+        self._sub = self._session.declare_subscriber(f"teleop/{session}/{in_key}", self._on_sample)
+
+    def _on_sample(self, sample) -> None:
+        now = self.clock()
+        try:
+            msg = wire.decode(sample.payload.to_bytes())
+            if not isinstance(msg, self._in_type):
+                raise MessageError(f"wire: a {type(msg).__name__} on the {self._in_type.__name__} key")
+        except MessageError:
+            with self._lock:
+                self.bad_frames += 1
+            return
+        with self._lock:
+            self.received += 1
+            self.last_receive_s = now
+            self._box.put(msg)
+
+    def _send(self, msg, role: str) -> None:
+        if self.role != role:
+            raise LinkError(f"ZenohLink: the {self.role} side cannot send a {type(msg).__name__}")
+        if self._closed:
+            return
+        try:
+            self._pub.put(wire.encode(msg))
+            self.sent += 1
+        except Exception:  # a lost peer never raises into the loop
+            pass
+
+    def _take(self, role: str):
+        if self.role != role:
+            raise LinkError(f"ZenohLink: the {self.role} side receives no such message")
+        with self._lock:
+            return self._box.take()
+
+    def send_command(self, msg: ToolCommand) -> None:
+        self._send(msg, "master")
+
+    def receive_command(self, t_s: float = 0.0) -> ToolCommand | None:
+        """The newest in-order command received so far (``t_s`` unused: wall clock)."""
+        return self._take("slave")
+
+    def send_feedback(self, msg: ContactFeedback) -> None:
+        self._send(msg, "slave")
+
+    def receive_feedback(self, t_s: float = 0.0) -> ContactFeedback | None:
+        """The newest in-order feedback received so far (``t_s`` unused: wall clock)."""
+        return self._take("master")
+
+    def alive(self, now_s: float | None = None, timeout_s: float = 0.02) -> bool:
+        """True if a frame came within ``timeout_s`` (s) before ``now_s`` (the clock's time,
+        default now); False before the first frame."""
+        last = self.last_receive_s
+        if last is None:
+            return False
+        return (self.clock() if now_s is None else now_s) - last <= timeout_s
+
+    def stats(self) -> dict:
+        with self._lock:
+            return {"sent": self.sent, "received": self.received, "delivered": self._box.delivered,
+                    "dropped_old": self._box.dropped_old, "bad_frames": self.bad_frames}
+
+    def close(self) -> None:
+        """Undeclare and close the session; safe to call twice."""
+        if self._closed:
+            return
+        self._closed = True
+        for obj in (self._sub, self._pub):
+            try:
+                obj.undeclare()
+            except Exception:
+                pass
+        try:
+            self._session.close()
+        except Exception:
+            pass

@@ -1,0 +1,166 @@
+"""TDPA: the observers against hand-computed energy sums, the controllers dissipating exactly the
+observer's deficit, and a 1-DOF delayed teleoperation against a 10 kN/m wall, unstable at 200 ms
+round trip without the guard and stable with it."""
+
+import numpy as np
+import pytest
+
+from teleop.errors import ConfigError
+from teleop.link import ChannelSpec, ContactFeedback, SimulatedChannel, ToolCommand
+from teleop.link.passivity import MasterPassivity, SlavePassivity, TdpaParams, compute_port_energy
+
+DT = 1e-3
+E6 = np.eye(6)[0]
+
+
+def test_compute_port_energy_splits_signs():
+    E_in, E_out = compute_port_energy(np.zeros(6), np.ones(6), np.array([2.0, -3.0, 0, 0, 0, 0]), 0.5)
+    np.testing.assert_allclose(E_in, [1.0, 0, 0, 0, 0, 0])
+    np.testing.assert_allclose(E_out, [1.0, 2.5, 1, 1, 1, 1])
+
+
+def test_master_observer_against_hand_sum():
+    # f on the master and v of the master, axis 0; power into the channel p = -f v
+    f = [-2.0, -2.0, 1.0, 3.0, -1.0]
+    v = [0.5, 1.0, 1.0, 2.0, -1.0]
+    E_remote = [0.0, 1e-3, 1e-3, 2e-3, 2e-3]
+    port = MasterPassivity(TdpaParams(dt_s=DT, enabled=False), log_capacity=10)
+    for k in range(5):
+        out = port.step(f[k] * E6, v[k] * E6, E_remote[k] * E6, t_s=k * DT)
+        assert out[0] == f[k]
+    # by hand: p = 1, 2, -1, -6, -1 -> E_in = (1 + 2) dt, E_out = (1 + 6 + 1) dt
+    assert port.E_in[0] == pytest.approx(3e-3) and port.E_out[0] == pytest.approx(8e-3)
+    assert port.W[0] == pytest.approx(2e-3 - 8e-3)
+    log = port.log.arrays()
+    np.testing.assert_allclose(log["W_J"][:, 0], [0, 1e-3, 0, -5e-3, -6e-3], atol=1e-15)
+    np.testing.assert_allclose(log["t_s"], np.arange(5) * DT)
+    assert np.all(port.E_in[1:] == 0) and port.dissipated_J == 0
+
+
+def test_master_controller_dissipates_exactly_the_deficit():
+    port = MasterPassivity(TdpaParams(dt_s=DT, alpha_max=1e9))
+    port.step(-1.0 * E6, 1.0 * E6, 5e-3 * E6)  # 1 mJ in, 5 mJ announced by the slave
+    out = port.step(4.0 * E6, 2.0 * E6)  # 8 mJ out: W = 5 - 8 = -3 mJ before the controller
+    alpha = 3e-3 / (DT * 4.0)
+    assert out[0] == pytest.approx(4.0 - alpha * 2.0)
+    assert port.dissipated_J == pytest.approx(3e-3) and port.W[0] == pytest.approx(0.0, abs=1e-15)
+    # below the velocity floor nothing is done, and the deficit is kept for later
+    out = port.step(4.0 * E6, 1e-6 * E6)
+    assert out[0] == 4.0 and port.W[0] < 0
+
+
+def test_master_damping_is_capped():
+    port = MasterPassivity(TdpaParams(dt_s=DT, alpha_max=10.0))
+    out = port.step(100.0 * E6, 1.0 * E6)
+    assert out[0] == pytest.approx(100.0 - 10.0) and port.W[0] < 0
+
+
+def test_slave_observer_and_velocity_correction():
+    port = SlavePassivity(TdpaParams(dt_s=DT, dv_max=1e9), log_capacity=4)
+    # slave pushes into the wall (v > 0, f < 0): p = f v = -5 W, 5 mJ out; 2 mJ announced
+    v = port.step(1.0 * E6, -5.0 * E6, 2e-3 * E6)
+    dv = -(2e-3 - 5e-3) / (DT * -5.0)
+    assert v[0] == pytest.approx(1.0 + dv) and dv < 0  # backs off
+    assert port.dissipated_J == pytest.approx(3e-3) and port.W[0] == pytest.approx(0.0, abs=1e-15)
+    assert port.offset[0] == pytest.approx(dv * DT)
+    assert port.E_in[0] == 0 and port.E_out[0] == pytest.approx(5e-3)
+    # the wall pushes the slave back: energy enters at the slave port
+    port.step(-1.0 * E6, -5.0 * E6)
+    assert port.E_in[0] == pytest.approx(5e-3)
+
+
+def test_received_energy_is_held_and_never_decreases():
+    port = MasterPassivity(TdpaParams(dt_s=DT, enabled=False))
+    port.step(np.zeros(6), np.zeros(6), 3.0 * E6)
+    port.step(np.zeros(6), np.zeros(6), None)
+    port.step(np.zeros(6), np.zeros(6), 1.0 * E6)
+    assert port.E_remote[0] == 3.0
+
+
+@pytest.mark.parametrize("kw", [dict(dt_s=0), dict(dt_s=DT, alpha_max=-1), dict(dt_s=DT, drift_gain=-1),
+                                dict(dt_s=DT, drift_share=2), dict(dt_s=float("nan"))])
+def test_params_are_validated(kw):
+    with pytest.raises(ConfigError):
+        TdpaParams(**kw)
+
+
+def two_masses(rt_ms, guard, T=6.0, loss=0.0, seed=0, drift_gain=0.0):
+    """1-DOF: a hand (spring-damper to a target ramping to 30 mm) pushes a 0.5 kg master; the
+    slave (0.5 kg, PD 2000 N/m, 40 N*s/m) follows the delayed master position, a 10 kN/m wall at
+    10 mm; the wall force goes back and is rendered on the master. Rows: t, x_m, x_s, f on the
+    master, wall force, slave offset (s, m, m, N, N, m)."""
+    ch = SimulatedChannel(ChannelSpec(round_trip_ms=rt_ms, loss=loss), np.random.default_rng(seed))
+    n = int(round(T / DT))
+    prm = TdpaParams(dt_s=DT, enabled=guard, drift_gain=drift_gain)
+    mp, sp = MasterPassivity(prm, n), SlavePassivity(prm, n)
+    m_m, b_m, m_s, K_h, B_h, Kp, Kd, k_w, x_w = 0.5, 0.5, 0.5, 300.0, 2.0, 2000.0, 40.0, 1e4, 0.01
+    xm = vm = xs = vs = x_cmd = v_cmd = f_fb = 0.0
+    out = np.zeros((n, 6))
+    for k in range(n):
+        t = k * DT
+        fb = ch.receive_feedback(t)
+        if fb is not None:
+            f_fb = fb.wrench_P[0]
+        f = mp.step(f_fb * E6, vm * E6, None if fb is None else fb.energy_J, t)[0]
+        Fh = K_h * (0.03 * min(t, 1.0) - xm) - B_h * vm
+        vm += DT * (Fh + f - b_m * vm) / m_m
+        xm += DT * vm
+        ch.send_command(ToolCommand(k, t, [xm, 0, 0], np.eye(3), [vm, 0, 0], np.zeros(3), energy_J=mp.energy_J))
+        cm = ch.receive_command(t)
+        if cm is not None:
+            x_cmd, v_cmd = cm.p_m[0], cm.v_m_s[0]
+        Fe = -k_w * (xs - x_w) if xs > x_w else 0.0
+        v = sp.step(v_cmd * E6, Fe * E6, None if cm is None else cm.energy_J, t)[0]
+        vs += DT * (Kp * (x_cmd + sp.offset[0] - xs) + Kd * (v - vs) + Fe) / m_s
+        xs += DT * vs
+        Fe = -k_w * (xs - x_w) if xs > x_w else 0.0
+        ch.send_feedback(ContactFeedback(k, t, [Fe, 0, 0, 0, 0, 0], "ok", command_seq=k, energy_J=sp.energy_J))
+        out[k] = (t, xm, xs, f, Fe, sp.offset[0])
+        if not abs(xm) < 10.0:  # diverged
+            return out[: k + 1], mp, sp
+    return out, mp, sp
+
+
+def swing(x, a, b):
+    """Peak-to-peak of x over ticks [a, b) (m)."""
+    return float(np.ptp(x[a:b]))
+
+
+def test_zero_delay_guard_does_nothing():
+    a, mp, sp = two_masses(0.0, True, T=3.0)
+    b, _, _ = two_masses(0.0, False, T=3.0)
+    np.testing.assert_array_equal(a, b)
+    assert mp.dissipated_J == 0.0 and sp.dissipated_J == 0.0
+    assert a[-1, 4] < -1.0  # pressing on the wall, and the master feels it
+    assert a[-1, 3] == pytest.approx(a[-1, 4], rel=1e-2)
+
+
+def test_unguarded_200ms_is_unstable():
+    out, mp, _ = two_masses(200.0, False, T=4.0)
+    xm = out[:, 1]
+    assert not np.all(np.abs(xm) < 0.1) or swing(xm, 3000, 4000) > 10 * swing(xm, 1000, 2000)
+    assert mp.log.W_J[: mp.log.n, 0].min() < -1.0  # the channel generated joules
+
+
+@pytest.mark.parametrize("rt_ms, loss", [(200.0, 0.0), (200.0, 0.05), (1000.0, 0.05)])
+def test_guarded_is_stable(rt_ms, loss):
+    out, mp, sp = two_masses(rt_ms, True, loss=loss)
+    xm, xs = out[:, 1], out[:, 2]
+    assert np.all(np.isfinite(out)) and len(out) == 6000
+    assert np.abs(xm).max() < 0.05 and np.abs(xs).max() < 0.05
+    assert np.abs(out[:, 4]).max() < 50.0  # wall force bounded (N)
+    assert swing(xm, 4500, 6000) <= 1.2 * swing(xm, 3000, 4500) + 1e-4  # not growing
+    assert mp.dissipated_J + sp.dissipated_J > 0
+    # the observers stay (nearly) non-negative: what is left is the floor and cap
+    assert mp.log.W_J[: mp.log.n, 0].min() > -0.01 and sp.log.W_J[: sp.log.n, 0].min() > -0.01
+    # the drift the guard causes: measured (the slave stops short of the master)
+    drift = out[-1, 5]
+    assert -0.05 < drift < 0.0
+
+
+def test_drift_compensation_spends_only_surplus_and_stays_stable():
+    plain, _, _ = two_masses(200.0, True)
+    comp, _, sp = two_masses(200.0, True, drift_gain=2.0)
+    assert np.all(np.isfinite(comp)) and np.abs(comp[:, 1]).max() < 0.05
+    assert abs(comp[-1, 5]) < abs(plain[-1, 5])  # less drift
+    assert sp.log.W_J[: sp.log.n, 0].min() > -0.01

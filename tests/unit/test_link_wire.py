@@ -1,0 +1,99 @@
+"""The binary wire format: round trip, sizes, the CRC against crccheck, corrupted frames refused."""
+
+import struct
+
+import numpy as np
+import pytest
+from crccheck.crc import Crc32
+from hypothesis import given, settings
+from hypothesis import strategies as st
+from scipy.spatial.transform import Rotation
+
+from teleop.link import wire
+from teleop.link.messages import SLAVE_STATUSES, ContactFeedback, MessageError, ToolCommand
+
+finite = st.floats(-1e6, 1e6, allow_nan=False, allow_infinity=False)
+energy = st.floats(0.0, 1e6, allow_nan=False, allow_infinity=False)
+seqs = st.integers(0, 2**63 - 1)
+
+
+@st.composite
+def commands(draw):
+    q = draw(st.lists(st.floats(-1, 1), min_size=4, max_size=4).filter(lambda q: sum(x * x for x in q) > 1e-3))
+    return ToolCommand(seq=draw(seqs), t_s=draw(finite), p_m=draw(st.lists(finite, min_size=3, max_size=3)),
+                       R=Rotation.from_quat(q).as_matrix(), v_m_s=draw(st.lists(finite, min_size=3, max_size=3)),
+                       w_rad_s=draw(st.lists(finite, min_size=3, max_size=3)), clutch=draw(st.booleans()),
+                       energy_J=draw(st.lists(energy, min_size=6, max_size=6)))
+
+
+@st.composite
+def feedbacks(draw):
+    return ContactFeedback(seq=draw(seqs), t_s=draw(finite), wrench_P=draw(st.lists(finite, min_size=6, max_size=6)),
+                           status=draw(st.sampled_from(SLAVE_STATUSES)), command_seq=draw(st.integers(-1, 2**63 - 1)),
+                           energy_J=draw(st.lists(energy, min_size=6, max_size=6)))
+
+
+def _same(a, b):
+    assert type(a) is type(b)
+    for name in a.__slots__:
+        x, y = getattr(a, name), getattr(b, name)
+        if isinstance(x, np.ndarray):
+            np.testing.assert_array_equal(x, y)
+        else:
+            assert x == y, name
+
+
+@settings(max_examples=200, deadline=None)
+@given(st.one_of(commands(), feedbacks()))
+def test_round_trip_is_exact(msg):
+    data = wire.encode(msg)
+    assert len(data) == wire.encoded_size(msg)
+    _same(wire.decode(data), msg)
+
+
+@settings(max_examples=100, deadline=None)
+@given(st.binary(min_size=0, max_size=300))
+def test_crc_is_crccheck_crc32(data):
+    assert wire.crc32(data) == Crc32.calc(data)
+
+
+def _cmd():
+    return ToolCommand(seq=7, t_s=0.5, p_m=[0.1, 0.2, 0.3], R=np.eye(3), v_m_s=[1, 2, 3], w_rad_s=[0, 0, 1])
+
+
+def _refit(data: bytes) -> bytes:
+    """Recompute the CRC so a deliberately malformed frame passes the CRC check."""
+    body = data[:-4]
+    return body + struct.pack("<I", wire.crc32(body))
+
+
+@settings(max_examples=200, deadline=None)
+@given(st.data())
+def test_any_flipped_bit_is_refused(data):
+    frame = bytearray(wire.encode(_cmd()))
+    i = data.draw(st.integers(0, len(frame) - 1))
+    frame[i] ^= 1 << data.draw(st.integers(0, 7))
+    with pytest.raises(MessageError, match="wire"):
+        wire.decode(bytes(frame))
+
+
+@pytest.mark.parametrize("mangle, reason", [
+    (lambda f: b"XLNK" + f[4:], "magic"),
+    (lambda f: _refit(f[:4] + bytes([9]) + f[5:]), "version"),
+    (lambda f: _refit(f[:5] + bytes([3]) + f[6:]), "type"),
+    (lambda f: f[:-1], "length"),
+    (lambda f: f + b"\0", "length"),
+    (lambda f: _refit(f[:5] + bytes([2]) + f[6:]), "length"),
+    (lambda f: f[:-4] + bytes(4), "CRC"),
+    (lambda f: _refit(f[:16] + struct.pack("<d", float("nan")) + f[24:]), "non-finite"),
+    (lambda f: _refit(f[:24] + struct.pack("<d", float("inf")) + f[32:]), "non-finite"),
+    (lambda f: b"", "short"),
+])
+def test_corrupted_frames_name_the_reason(mangle, reason):
+    with pytest.raises(MessageError, match=reason):
+        wire.decode(mangle(wire.encode(_cmd())))
+
+
+def test_encode_refuses_other_objects():
+    with pytest.raises(MessageError):
+        wire.encode(object())
