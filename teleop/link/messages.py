@@ -73,7 +73,7 @@ def _energy(x, name: str) -> np.ndarray:
         a = np.zeros(6)
         a.flags.writeable = False
         return a
-    a = _vec(x, 6, name)
+    (a,) = _packed((x,), (6,), (name,))
     if float(a.min()) < 0.0:
         raise MessageError(f"{name}: cumulative energy must be >= 0, got {a.min()!r}")
     return a
