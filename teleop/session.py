@@ -178,6 +178,7 @@ class Session:
         if counts is not None:
             summary["slave_statuses"] = dict(counts)
             summary["command_errors"] = self.loop.command_errors
+            summary.update(self.loop.slave.stats())
         if self.realtime:
             summary["late_ticks"] = late
         summary.update({k: v for k, v in stats.items() if k != "master_status"})

@@ -92,7 +92,13 @@ class FollowerQP:
         self._lb = np.full(n, -np.inf)
         self._ub = np.full(n, np.inf)
         self.solver = make_solver(cfg.solver, n, m, eps=cfg.eps, max_iter=cfg.max_iter)
+        # An iterative solver (OSQP) can stop at its iteration cap on this problem's conditioning
+        # (the slack weight against the damping: cond(H) ~ 1e10) when a tight acceleration box
+        # binds; then the same problem goes to DAQP, a dense active-set solver that ends at the
+        # exact solution in finitely many steps. Only when both fail does the arm fall back.
+        self.exact = None if cfg.solver == "daqp" else make_solver("daqp", n, m, eps=cfg.eps, max_iter=max(cfg.max_iter, 1000))
         self.used_solver = False  # whether the last solve() ran the QP solver
+        self.retries = 0  # solves the exact solver finished after cfg.solver failed
         self._z = np.zeros(n)
 
     def build(self, q, J, T, p_t, R_t, v_t, w_t, q_post, lb, ub):
@@ -135,7 +141,11 @@ class FollowerQP:
                 y = z[:m].copy()
                 return z[m:].copy(), y * self._minus_inv_rho, y, True
         self.used_solver = True
-        r = self.solver.solve(*self.problem())
+        problem = self.problem()
+        r = self.solver.solve(*problem)
+        if not r.ok and self.exact is not None:
+            r = self.exact.solve(*problem)
+            self.retries += r.ok
         nv = self.nv
         qd = np.minimum(np.maximum(r.x[:nv], lb), ub)  # solver tolerance only
         self.bound_margin = min(np.minimum(qd - lb, ub - qd).tolist())

@@ -53,6 +53,11 @@ class SlaveSide:
         p, R, _, _ = self.reg.target(p_M, R_M, np.zeros(3), np.zeros(3))
         return self.arm.reset((p, R))
 
+    def stats(self) -> dict:
+        """Counters for the run's summary: ``slave_qp_retries``, the ticks whose QP the exact
+        active-set solver finished after the configured solver stopped short."""
+        return {"slave_qp_retries": int(self.arm.qp.retries)}
+
     def project(self, p, R, v, w):
         """The target moved onto the patient-frame fixture
         (:func:`teleop.slave.projection.project_onto_fixture`)."""

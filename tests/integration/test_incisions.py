@@ -61,7 +61,6 @@ def test_curved_incision_steers_on_the_knife_edge():
     assert np.ptp(heading) > 0.3  # it really turned
 
 
-@pytest.mark.xfail(strict=True, reason="ends on the cobot's tracking_error since the master period was split into sense/command (branch cobot); root cause open")
 def test_curved_incision_through_the_cobot():
     """The knife-edge steering rendered by the CAN cobot (a 0.25 kg tool, above the handle's mass
     behind the load cell; φ turned so the wrist starts off its end stop). Issue #4's bounds."""
@@ -102,7 +101,6 @@ def test_cut_through_a_faulty_can_bus(seed):
     assert m["cut_length_m"] > 0.03
 
 
-@pytest.mark.xfail(strict=True, reason="the run's status now covers the slave, and the slave falls back (infeasible_fallback) on some ticks of the cobot cut; before, this was hidden behind 'ok' (issue 11, item 7). Root cause open")
 def test_straight_incision_through_the_cobot():
     """`teleop run straight_incision --master cobot`: the light scalpel (2e-5 kg m^2 about the
     blade) rendered by the CAN cobot while cutting. The slave follows the observer's estimate of

@@ -196,3 +196,20 @@ def test_target_projection_lands_on_the_fixture(scene):
         assert np.abs(stack_residual(hol, pp, RR)).max() <= 1e-10
         assert np.abs(stack_jacobian(cons, pp, RR) @ np.concatenate([vv, ww])).max() <= 1e-10
         assert np.linalg.norm(pp - p) < 0.05
+
+
+def test_a_solve_osqp_leaves_unfinished_is_finished_exactly_by_daqp():
+    """OSQP capped at 2 iterations cannot finish the ticks where a joint bound binds; the same
+    problem then goes to DAQP, and the tick's joint velocity is still quadprog's solution of the
+    QP (1e-6 rad/s): no fallback, and the retries are counted."""
+    cfg = SlaveConfig.from_dict({"solver": "osqp", "max_iter": 2}, "slave")
+    arm = SlaveArm(cfg, STACKS["scalpel"], 1e-3)
+    arm.reset((PLANE_O + [-0.03, 0.0, -0.005], R_CUT))
+    statuses = []
+    for k in range(1, 301):
+        statuses.append(arm.step(PLANE_O + [-0.03 + 1e-5 * k, 0.0, -0.005], R_CUT, np.array([0.01, 0, 0]), np.zeros(3)))
+        if arm.qp.used_solver:
+            H, g, A, b, lb, ub = arm.qp.problem()
+            x = qpsolvers.solve_qp(H, g, A=A, b=b, lb=lb, ub=ub, solver="quadprog")
+            assert np.abs(arm.qd_cmd - x[: arm.nv]).max() < 1e-6, k
+    assert arm.qp.retries > 0 and "infeasible_fallback" not in statuses
