@@ -20,6 +20,7 @@ from time import perf_counter_ns
 
 import numpy as np
 
+from teleop.errors import ConfigError
 from teleop.link.base import Link, LockstepLink
 from teleop.link.messages import MessageError, ToolCommand
 
@@ -42,6 +43,9 @@ class BilateralLoop:
     def __init__(self, tool, master, operator, dt_s: float, slave=None, link: Link | None = None,
                  feedback=None, hooks=()):
         self.tool, self.master, self.operator, self.dt = tool, master, operator, float(dt_s)
+        if slave is not None and feedback is None:
+            raise ConfigError("BilateralLoop: a slave needs a feedback path to the master, e.g. "
+                              "feedback=FeedbackPath(registration, cutoff_hz=20.0, dt_s=dt_s)")
         self.slave, self.feedback, self.hooks = slave, feedback, tuple(hooks)
         self.link = link if link is not None else LockstepLink()
         self.hand_W = np.zeros(6)      # what the hand pushed with this tick (N, N*m)

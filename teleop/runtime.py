@@ -21,7 +21,7 @@ from teleop.master.ideal import IdealMaster
 from teleop.scenario.build import build_fixture, build_registration, build_tool, master_fixture_spec
 from teleop.scenario.metrics import MasterMetrics, SlaveMetrics, TremorProbe, make_metrics
 from teleop.scenario.operators import make_operator
-from teleop.scenario.schema import Scene
+from teleop.scenario.schema import FixtureSpec, Scene
 from teleop.session import RunResult, Session
 from teleop.slave import SlaveArm
 from teleop.slave.side import SlaveSide
@@ -84,7 +84,7 @@ def run_scene(scene: Scene, progress=None, realtime: bool = False, operator=None
     if operator is None:
         operator = make_operator(scene.operator, spec_M, scene.effects, rng)
     n = int(round(scene.duration_s / scene.dt_s))
-    master_metrics = MasterMetrics(make_metrics(spec_M, n, tool.body.mass_kg))
+    master_metrics = MasterMetrics(make_metrics(spec_M, n, tool.body.mass_kg, tool.fixture.constraints))
     hooks: list = [master_metrics]
     reg = build_registration(scene)
     constraints_P = build_fixture(scene.fixture).constraints  # the fixture where the patient is
@@ -94,9 +94,9 @@ def run_scene(scene: Scene, progress=None, realtime: bool = False, operator=None
         slave.reset(*tool.pose())
         feedback = FeedbackPath(reg, scene.mapping.feedback_cutoff_hz, scene.dt_s)
         rcm = [c for c in constraints_P if isinstance(c, RemoteCenter)]
-        slave_metrics = SlaveMetrics(scene.fixture, n, slave.arm.nv, rcm)
+        slave_metrics = SlaveMetrics(scene.fixture, n, slave.arm.nv, rcm, constraints_P)
         hooks.append(slave_metrics)
-        if getattr(operator, "tremor_on", False):
+        if getattr(operator, "tremor_on", False) and isinstance(scene.fixture, FixtureSpec):
             tremor = TremorProbe(operator, n, reg.scale, reg.X_PM_R, scene.fixture.plane_normal)
             hooks.append(tremor)
     if view is not None:

@@ -90,7 +90,7 @@ def build(cls, table, where: str = "", given: dict | None = None):
     for f in flds:
         if f.name in table:
             kw[f.name] = convert(table[f.name], hints[f.name], f.metadata, join(where, f.name))
-        elif f.default is MISSING and f.default_factory is MISSING:
+        elif f.name not in kw and f.default is MISSING and f.default_factory is MISSING:
             what = "table" if _is_table(hints[f.name]) else "key"
             raise FieldError(join(where, f.name), f"required {what} is missing")
     try:
@@ -155,7 +155,8 @@ def convert(value, hint, meta, key: str):
         if len(options) < len(typing.get_args(hint)) or hint is type(None):
             return None
         raise FieldError(key, "a value is required")
-    hint = options[0] if len(options) == 1 else _pick(value, options)
+    made = [o for o in options if dataclasses.is_dataclass(o) and isinstance(value, o)]
+    hint = made[0] if made else options[0] if len(options) == 1 else _pick(value, options)
     origin = typing.get_origin(hint)
     if dataclasses.is_dataclass(hint):
         return build(hint, value, key)
@@ -267,6 +268,8 @@ def json_schema(cls, title: str = "") -> dict:
 
 
 def _object_schema(cls) -> dict:
+    if callable(getattr(cls, "__json_schema__", None)):  # a table shaped otherwise than its fields
+        return cls.__json_schema__()
     hints = typing.get_type_hints(cls)
     props, required = {}, []
     for f in dataclasses.fields(cls):
@@ -333,7 +336,10 @@ def _described(out: dict, meta) -> dict:
 
 def as_table(obj):
     """A settings object back as a plain table (the inverse of :func:`validate`): fields equal to
-    their default and None are left out, tuples and arrays become lists."""
+    their default and None are left out, tuples and arrays become lists. An object that defines
+    ``__table__()`` (a table whose shape is not its fields') gives its own."""
+    if callable(getattr(type(obj), "__table__", None)):
+        return obj.__table__()
     if dataclasses.is_dataclass(obj) and not isinstance(obj, type):
         out = {}
         for f in dataclasses.fields(obj):

@@ -9,20 +9,19 @@ a master point x_M maps to
 so a master twist (v, w) maps to (R_PM v / scale, R_PM w): rotations are not scaled. The reference
 tool's body frame maps onto the slave's tool frame E, so body points scale by 1/scale as well.
 
-``constraint_to_master`` maps a fixture defined in P into M (points through the inverse map,
-directions rotated by R_PM', lengths and body points times ``scale``), so one fixture definition
-serves both sides. ``wrench_to_master`` scales the slave's contact wrench back to the master:
+``master_frame`` is the one map of patient-frame geometry into M (points through the inverse map,
+directions rotated by R_PM', lengths and body points times ``scale``): a fixture type builds the
+master's fixture through it and the slave's through the identity, so one definition serves both. ``wrench_to_master`` scales the slave's contact wrench back to the master:
 forces by ``force_scale`` and torques by ``torque_scale`` (default force_scale * scale, since lever
 arms at the master are ``scale`` times longer).
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 
 import numpy as np
 
-from teleop.dynamics import constraints as C
 from teleop.dynamics.registry import FrameMap
 from teleop.errors import ConfigError
 from teleop.typed import validate
@@ -94,16 +93,6 @@ class Registration:
         """Slave tool pose in P -> reference tool pose in M (the inverse of ``target``'s pose)."""
         return self.point_to_master(p), self.X_PM_R.T @ np.asarray(R_P, float)
 
-    # -- constraints -----------------------------------------------------------------------
-    def constraint_to_master(self, c: C.Constraint) -> C.Constraint:
-        """The same constraint with its world geometry and lengths expressed in M."""
-        return _transform(c, self.point_to_master, self.X_PM_R.T, self.scale)
-
-    def constraint_to_patient(self, c: C.Constraint) -> C.Constraint:
-        """The inverse of ``constraint_to_master``."""
-        return _transform(c, self.point_to_patient, self.X_PM_R, 1.0 / self.scale)
-
-    # -- forces ------------------------------------------------------------------------------
     def wrench_to_master(self, F_P) -> np.ndarray:
         """Slave contact wrench (N, N*m; P axes) -> wrench to render at the master (M axes)."""
         F_P = np.asarray(F_P, dtype=float)
@@ -111,26 +100,3 @@ class Registration:
         out[:3] = self.force_scale * (self.X_PM_R.T @ F_P[:3])
         out[3:] = self.torque_scale * (self.X_PM_R.T @ F_P[3:])
         return out
-
-
-def _transform(c, point, Rot, length):
-    """Map constraint ``c``: world points via ``point``, world directions via ``Rot``, lengths and
-    body points times ``length``; body axes unchanged."""
-    if isinstance(c, C.PlaneHeight):
-        return replace(c, origin=point(c.origin), normal=Rot @ c.normal, height=c.height * length)
-    if isinstance(c, C.AxisInPlane):
-        return replace(c, normal=Rot @ c.normal)
-    if isinstance(c, C.RollingWithoutSlip):
-        return replace(c, radius=c.radius * length, normal=Rot @ c.normal)
-    if isinstance(c, C.SphereContact):
-        return replace(c, center=point(c.center), radius=c.radius * length)
-    if isinstance(c, C.PointDepth):
-        return replace(c, origin=point(c.origin), normal=Rot @ c.normal, depth=c.depth * length,
-                       point_B=c.point_B * length)
-    if isinstance(c, C.AxisAlong):
-        return replace(c, direction=Rot @ c.direction)
-    if isinstance(c, C.KnifeEdge):
-        return replace(c, point_B=c.point_B * length)
-    if isinstance(c, C.RemoteCenter):
-        return replace(c, center=point(c.center), point_B=c.point_B * length)
-    raise ConfigError(f"mapping.constraint: no mapping for constraint type {type(c).__name__!r}")

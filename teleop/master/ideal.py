@@ -10,22 +10,17 @@ import math
 
 import numpy as np
 
+from teleop.master.base import Master
 
-class IdealMaster:
-    """The master interface (see :mod:`teleop.loop`) for a perfect device."""
+
+class IdealMaster(Master):
+    """The master interface (:class:`teleop.master.base.Master`) for a perfect device."""
 
     def __init__(self, tool, dt_s: float):
         self.tool, self.dt_s = tool, float(dt_s)
         self.engaged = True
         self.status = "ok"
         self._zero = np.zeros(6)
-
-    def __enter__(self):
-        self.start()
-        return self
-
-    def __exit__(self, *exc):
-        self.close()
 
     def start(self) -> None:
         """Nothing to bring up."""
@@ -64,10 +59,3 @@ class IdealMaster:
     def virtual_estimate(self):
         """(p, R, v, w) of the virtual tool for the slave: here the tool itself."""
         return (*self.tool.pose(), *self.tool.twist())
-
-    def joints(self):
-        """No device, no joints."""
-        return None
-
-    def stats(self) -> dict:
-        return {}

@@ -7,13 +7,13 @@ from __future__ import annotations
 
 import numpy as np
 
-from teleop.dynamics import fixtures
 from teleop.dynamics.body import RigidBody
 from teleop.dynamics.effects import AngularDamper, Gravity, LinearDamper, Spring
 from teleop.dynamics.fixtures import Fixture
+from teleop.dynamics.registry import FrameMap
 from teleop.dynamics.tool import ReferenceTool
 from teleop.errors import ConfigError, SceneError
-from teleop.scenario.schema import FixtureSpec, Scene
+from teleop.scenario.schema import Scene
 
 
 def build_body(scene: Scene) -> RigidBody:
@@ -24,16 +24,10 @@ def build_body(scene: Scene) -> RigidBody:
         raise SceneError(scene.path, "tool", str(e)) from None
 
 
-def build_fixture(spec: FixtureSpec) -> Fixture:
-    if spec.type == "rolling_disk":
-        return fixtures.rolling_disk(spec.radius_m, spec.plane_origin_m, spec.plane_normal)
-    if spec.type == "sphere":
-        return fixtures.sphere(spec.center_m, spec.radius_m)
-    if spec.type == "scalpel" and spec.trocar_m is not None:
-        return fixtures.laparoscopic(spec.plane_origin_m, spec.plane_normal, spec.depth_m, spec.tip_m, spec.trocar_m, spec.knife_edge)
-    if spec.type == "scalpel":
-        return fixtures.scalpel(spec.plane_origin_m, spec.plane_normal, spec.depth_m, spec.tip_m, spec.knife_edge)
-    return fixtures.free(spec.euler_sequence)
+def build_fixture(spec, frame=None) -> Fixture:
+    """The fixture of a [fixture] table (a FixtureSpec or a user's CustomFixture), placed by
+    ``frame`` (a :class:`teleop.dynamics.registry.FrameMap`; None: the patient frame as written)."""
+    return spec.build(frame)
 
 
 def build_effects(scene: Scene, body: RigidBody) -> list:
@@ -58,27 +52,16 @@ def build_registration(scene: Scene):
         raise SceneError(scene.path, "mapping", str(e)) from None
 
 
-def master_fixture_spec(scene: Scene) -> FixtureSpec:
-    """The fixture as the master's reference tool sees it. With a slave, the scene's [fixture] is
-    written in the patient frame (where the tissue is) and is mapped into the master workspace by
-    the registration: points through the inverse map, normals rotated, lengths times the scale."""
-    spec = scene.fixture
-    if scene.slave is None:
-        return spec
-    from dataclasses import replace
+def master_frame(scene: Scene):
+    """Where the scene's patient-frame geometry lands at the master (identity without a slave)."""
+    return build_registration(scene).master_frame() if scene.slave is not None else FrameMap.identity()
 
-    reg = build_registration(scene)
-    Rt, k = reg.X_PM_R.T, reg.scale
-    mapped = dict(
-        plane_origin_m=tuple(reg.point_to_master(spec.plane_origin_m)),
-        plane_normal=tuple(Rt @ np.asarray(spec.plane_normal)),
-        center_m=tuple(reg.point_to_master(spec.center_m)),
-        radius_m=spec.radius_m * k, depth_m=spec.depth_m * k,
-        tip_m=tuple(k * np.asarray(spec.tip_m)),
-    )
-    if spec.trocar_m is not None:
-        mapped["trocar_m"] = tuple(reg.point_to_master(spec.trocar_m))
-    return replace(spec, **mapped)
+
+def master_fixture_spec(scene: Scene):
+    """The fixture as the master's reference tool sees it: with a slave, the scene's [fixture] is
+    written in the patient frame (where the tissue is) and placed in the master workspace by the
+    registration's one map (:meth:`teleop.control.mapping.Registration.master_frame`)."""
+    return scene.fixture.mapped(master_frame(scene))
 
 
 def build_tool(scene: Scene) -> ReferenceTool:
@@ -86,7 +69,7 @@ def build_tool(scene: Scene) -> ReferenceTool:
     body = build_body(scene)
     try:
         tool = ReferenceTool(
-            body, build_fixture(master_fixture_spec(scene)), build_effects(scene, body),
+            body, build_fixture(scene.fixture, master_frame(scene)), build_effects(scene, body),
             integrator=scene.integrator, coriolis="coriolis" in scene.effects,
         )
         tool.reset(scene.tool.q0, scene.tool.qd0)

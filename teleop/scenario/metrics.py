@@ -12,6 +12,7 @@ from abc import ABC, abstractmethod
 import numpy as np
 
 from teleop.dynamics.rotations import cross
+from teleop.dynamics.rows import RowStack
 from teleop.loop import Hook
 from teleop.scenario.schema import FixtureSpec
 
@@ -171,11 +172,41 @@ class FreeMetrics(MetricSet):
         return {"speed_max_m_s": float(self.trimmed()["speed_m_s"].max(initial=0.0))}
 
 
+class FixtureRowMetrics(MetricSet):
+    """Any fixture, a user's own included, by its own rows: the largest holonomic residual |h|
+    (m or rad) and the largest |G nu| (m/s or rad/s) of the virtual tool, every tick."""
+
+    names = ("fixture_residual", "fixture_rate")
+
+    def __init__(self, spec, n, mass_kg, constraints=()):
+        super().__init__(spec, n, mass_kg)
+        self.rows = RowStack(tuple(constraints))
+        self.mask = np.asarray(self.rows.holonomic_mask, dtype=bool)
+
+    def update(self, p, R, v, w, operator_W, constraint_W):
+        if self.rows.m == 0:
+            self.record(fixture_residual=0.0, fixture_rate=0.0)
+            return
+        G, _, h = self.rows.evaluate(np.ascontiguousarray(p, dtype=float), np.ascontiguousarray(R, dtype=float))
+        rate = G @ np.concatenate([v, w])
+        self.record(fixture_residual=float(np.abs(h[self.mask]).max(initial=0.0)),
+                    fixture_rate=float(np.abs(rate).max(initial=0.0)))
+
+    def result(self):
+        s = self.trimmed()
+        return {"fixture_residual_max": float(s["fixture_residual"].max(initial=0.0)),
+                "fixture_rate_max": float(s["fixture_rate"].max(initial=0.0))}
+
+
 METRICS = {"rolling_disk": RollingDiskMetrics, "sphere": SphereMetrics, "scalpel": ScalpelMetrics, "free": FreeMetrics}
 
 
-def make_metrics(spec: FixtureSpec, n: int, mass_kg: float) -> MetricSet:
-    return METRICS[spec.type](spec, n, mass_kg)
+def make_metrics(spec, n: int, mass_kg: float, constraints=()) -> MetricSet:
+    """The metric set of a fixture: the paper's figures' quantities for a built-in type, the rows'
+    own residual and rate for a user's type (``constraints``: its rows where the tool is)."""
+    if isinstance(spec, FixtureSpec):
+        return METRICS[spec.type](spec, n, mass_kg)
+    return FixtureRowMetrics(spec, n, mass_kg, constraints)
 
 
 def band_rms(x: np.ndarray, dt: float, lo_hz: float, hi_hz: float) -> float:
@@ -224,14 +255,20 @@ class SlaveMetrics(Hook):
     * ``contact_force_max_N`` - max |tissue force| at the blade tip;
     * ``cut_length_m`` - the tip's path while below the surface;
     * ``rcm_error_max_m`` - max distance of the shaft from the trocar (``rcm``: RemoteCenter rows).
+
+    For a user's fixture type (no cutting plane) the depth and cut length stay 0 and
+    ``fixture_residual_max`` (m or rad) is the largest |h| of its holonomic rows at the slave's tool.
     """
 
-    def __init__(self, spec: FixtureSpec, n: int, nq: int, rcm=()):
-        self.depth = spec.depth_m
-        self.normal = _unit(spec.plane_normal)
-        self.origin = np.asarray(spec.plane_origin_m, dtype=float)
+    def __init__(self, spec, n: int, nq: int, rcm=(), constraints=()):
+        plane = isinstance(spec, FixtureSpec)
+        self.depth = spec.depth_m if plane else 0.0
+        self.normal = _unit(spec.plane_normal) if plane else None
+        self.origin = np.asarray(spec.plane_origin_m if plane else (0.0, 0.0, 0.0), dtype=float)
+        self.rows = None if plane else RowStack(tuple(constraints))
         self.rcm = tuple(rcm)
-        series = ("track_m", "depth_err_m", "dir_err_rad", "contact_N") + (("rcm_m",) if self.rcm else ())
+        series = ("track_m", "depth_err_m", "dir_err_rad", "contact_N") + (("rcm_m",) if self.rcm else ()) \
+            + (("fixture_residual",) if self.rows is not None else ())
         self.series = {k: np.zeros(n) for k in series}
         self.series["q"] = np.zeros((n, nq))
         self.series["tip"] = np.zeros((n, 3))
@@ -239,7 +276,7 @@ class SlaveMetrics(Hook):
 
     def after_tick(self, i, t_s, loop) -> None:
         s, log = loop.slave.state, self.series
-        depth = -float(self.normal @ (s.tip - self.origin))
+        depth = -float(self.normal @ (s.tip - self.origin)) if self.normal is not None else 0.0
         log["track_m"][i] = float(np.linalg.norm(s.p - s.p_t))
         # error while the blade is in the tissue; a tiny floor marks "inside" for the cut length
         log["depth_err_m"][i] = max(abs(depth - self.depth), 1e-15) if depth > 0 else 0.0
@@ -247,6 +284,9 @@ class SlaveMetrics(Hook):
         log["contact_N"][i] = float(np.linalg.norm(s.contact_P[:3]))
         if self.rcm:
             log["rcm_m"][i] = max(float(np.linalg.norm(r.residual(s.p, s.R))) for r in self.rcm)
+        if self.rows is not None and self.rows.m:
+            h = self.rows.evaluate(np.ascontiguousarray(s.p), np.ascontiguousarray(s.R))[2]
+            log["fixture_residual"][i] = float(np.abs(h[np.asarray(self.rows.holonomic_mask, bool)]).max(initial=0.0))
         log["q"][i] = loop.slave.arm.q
         log["tip"][i] = s.tip
         self.n = i + 1
@@ -268,6 +308,8 @@ class SlaveMetrics(Hook):
             out["cut_length_m"] = float(steps[inside[1:] & inside[:-1]].sum())
         if self.rcm:
             out["rcm_error_max_m"] = float(log["rcm_m"][:k].max(initial=0.0))
+        if self.rows is not None:
+            out["fixture_residual_max"] = float(log["fixture_residual"][:k].max(initial=0.0))
         return out
 
 

@@ -10,6 +10,7 @@ reason. See ``scenarios/*.toml`` and ``teleop schema`` for the format as a JSON 
 from __future__ import annotations
 
 import copy
+import difflib
 import re
 import tomllib
 from dataclasses import dataclass, field
@@ -23,10 +24,11 @@ from teleop.resources import scenario_dir
 from teleop.master.config import CobotConfig
 from teleop.scenario.overrides import apply_settings
 from teleop.scenario.tables import (
-    FIXTURE_KEYS, FIXTURES, FRAMES, DampingSpec, FixtureSpec, GravitySpec, HandSpec, LinkSpec, MappingSpec,
+    FIXTURE_KEYS, FIXTURES, CustomFixture, FRAMES, DampingSpec, FixtureSpec, GravitySpec, HandSpec, LinkSpec, MappingSpec,
     OperatorSpec, Phase, SpringSpec, ToolSpec, ViewerSpec,
 )
 from teleop.slave.arm import SlaveConfig
+from teleop.dynamics.registry import FIXTURE_TYPES
 from teleop.typed import Checked, as_table, json_schema, setting, validate
 
 __all__ = [
@@ -77,7 +79,8 @@ class Scene(Checked):
                               why="unknown integrator; choose one of", doc="the reference tool's integrator")
     effects: tuple[str, ...] = setting((), check=_effects, choices=EFFECTS, doc="effects to build")
     tool: ToolSpec = setting(doc="the reference tool")
-    fixture: FixtureSpec = setting(doc="the virtual fixture (patient frame when the scene has a slave)")
+    fixture: FixtureSpec | CustomFixture = setting(doc="the virtual fixture (patient frame when the scene has a slave); "
+                                       "a registered type's name gives a CustomFixture")
     operator: OperatorSpec = setting(factory=OperatorSpec, doc="scripted wrenches and/or a virtual hand")
     damping: DampingSpec | None = setting(None, doc="needs effect 'damping'")
     gravity: GravitySpec | None = setting(None, doc="needs effect 'gravity'")
@@ -159,9 +162,32 @@ def parse_scene(data: dict, path: str = "<scene>", sets=(), pairs=()) -> Scene:
     "dotted.key=TOML value" strings, ``pairs`` as (dotted key, value)."""
     if sets or pairs:
         data = apply_settings(copy.deepcopy(data), path, sets, pairs)
-    scene = validate(Scene, data, path, given={"path": path})
+    given = {"path": path}
+    custom = _custom_fixture(data, path)
+    if custom is not None:
+        given["fixture"] = custom
+        data = {k: v for k, v in data.items() if k != "fixture"}
+    scene = validate(Scene, data, path, given=given)
     _check_tables(scene, data, path)
     return scene
+
+
+def _custom_fixture(data: dict, path: str) -> CustomFixture | None:
+    """The [fixture] table as a user's fixture type when its ``type`` is not built in (None when it
+    is): the type looked up in the registry, the other keys checked by its dataclass."""
+    table = data.get("fixture") if isinstance(data, dict) else None
+    if not isinstance(table, dict) or not isinstance(table.get("type"), str) or table["type"] in FIXTURES:
+        return None
+    name = table["type"]
+    cls = FIXTURE_TYPES.get(name)
+    if cls is None:
+        known = list(FIXTURES) + FIXTURE_TYPES.names()
+        close = difflib.get_close_matches(name, known, n=1, cutoff=0.6)
+        hint = f"did you mean {close[0]!r}?" if close else f"known types: {', '.join(known)}"
+        raise SceneError(path, "fixture.type", f"unknown fixture type {name!r}; {hint} (a type of your own: "
+                                               "teleop.dynamics.registry.register_fixture)")
+    params = validate(cls, {k: v for k, v in table.items() if k != "type"}, path, "fixture")
+    return CustomFixture(name, params)
 
 
 def _check_tables(scene: Scene, data: dict, path: str) -> None:
@@ -174,6 +200,8 @@ def _check_tables(scene: Scene, data: dict, path: str) -> None:
         if given and table not in scene.effects:
             what = "springs are given" if table == "springs" else f"a [{table}] table is given"
             raise SceneError(path, table, f"{what} but effect {table!r} is not on")
+    if isinstance(scene.fixture, CustomFixture):
+        return  # its own dataclass checked every key
     reads = FIXTURE_KEYS[scene.fixture.type]
     for key in data["fixture"]:
         if key != "type" and key not in reads:

@@ -8,14 +8,17 @@ nodes of it too (``CobotConfig`` with ``FaultSettings``, ``SlaveConfig``, ``Tiss
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, field, replace
 from typing import Literal
 
 import numpy as np
 
 from teleop.control.mapping import Registration
+from teleop.dynamics import fixtures
+from teleop.dynamics.fixtures import Fixture
+from teleop.dynamics.registry import FrameMap
 from teleop.errors import FieldError
-from teleop.typed import Checked, setting
+from teleop.typed import Checked, as_table, setting
 
 FIXTURES = ("free", "rolling_disk", "sphere", "scalpel")
 FRAMES = ("world", "tool", "task")
@@ -70,6 +73,65 @@ class FixtureSpec(Checked):
     trocar_m: Vec3 | None = setting(None, n=3, doc="remote centre of motion (laparoscopic), m")
     euler_sequence: str = setting("ZYX", check=lambda s: None if len(s) == 3 and set(s) <= set("XYZ") else
                                   f"expected three axes such as 'ZYX' (got {s!r})", doc="Euler chart of a free tool")
+
+    def mapped(self, frame: FrameMap) -> "FixtureSpec":
+        """The same fixture with its geometry placed by ``frame`` (points mapped, normals rotated,
+        lengths and the tool-frame tip scaled): the patient-frame spec as the master sees it."""
+        mapped = dict(plane_origin_m=tuple(frame.point(self.plane_origin_m)),
+                      plane_normal=tuple(frame.direction(self.plane_normal)),
+                      center_m=tuple(frame.point(self.center_m)), radius_m=frame.length(self.radius_m),
+                      depth_m=frame.length(self.depth_m), tip_m=tuple(frame.body_point(self.tip_m)))
+        if self.trocar_m is not None:
+            mapped["trocar_m"] = tuple(frame.point(self.trocar_m))
+        return replace(self, **mapped)
+
+    def build(self, frame: FrameMap | None = None) -> Fixture:
+        """The fixture's constraints, placed by ``frame`` (None: where the spec says)."""
+        spec = self if frame is None else self.mapped(frame)
+        if spec.type == "rolling_disk":
+            return fixtures.rolling_disk(spec.radius_m, spec.plane_origin_m, spec.plane_normal)
+        if spec.type == "sphere":
+            return fixtures.sphere(spec.center_m, spec.radius_m)
+        if spec.type == "scalpel" and spec.trocar_m is not None:
+            return fixtures.laparoscopic(spec.plane_origin_m, spec.plane_normal, spec.depth_m, spec.tip_m,
+                                         spec.trocar_m, spec.knife_edge)
+        if spec.type == "scalpel":
+            return fixtures.scalpel(spec.plane_origin_m, spec.plane_normal, spec.depth_m, spec.tip_m, spec.knife_edge)
+        return fixtures.free(spec.euler_sequence)
+
+
+@dataclass(frozen=True)
+class CustomFixture:
+    """A [fixture] whose ``type`` names a user's fixture type (:mod:`teleop.dynamics.registry`):
+    ``params`` the user's dataclass instance, validated from the rest of the table. Its
+    ``build(frame)`` places the fixture; ``tip_m`` is the params' own when they have one (m)."""
+
+    type: str
+    params: object = field(compare=False)
+
+    @property
+    def tip_m(self) -> tuple:
+        return tuple(getattr(self.params, "tip_m", (0.0, 0.0, 0.0)))
+
+    def mapped(self, frame: FrameMap) -> "CustomFixture":
+        return self  # a user's type places its own geometry, in build(frame)
+
+    def build(self, frame: FrameMap | None = None) -> Fixture:
+        fx = self.params.build(FrameMap.identity() if frame is None else frame)
+        if not isinstance(fx, Fixture):
+            raise FieldError("fixture", f"fixture type {self.type!r}: build(frame) returned "
+                                        f"{type(fx).__name__}, expected a teleop Fixture")
+        return fx
+
+    @staticmethod
+    def __json_schema__() -> dict:
+        return {"type": "object", "properties": {"type": {"type": "string", "description":
+                "a fixture type registered with teleop.dynamics.registry.register_fixture"}},
+                "required": ["type"], "additionalProperties": True,
+                "description": "a user's fixture type: its own keys, checked by its dataclass"}
+
+    def __table__(self) -> dict:
+        return {"type": self.type, **as_table(self.params)}
 
 
 @dataclass(frozen=True)

@@ -74,8 +74,10 @@ def test_contradictory_fixtures_are_relaxed():
 
 @pytest.mark.parametrize("fallback", ["dls", "hold"])
 def test_solver_failure_falls_back(fallback):
-    """One OSQP iteration cannot meet 1e-7: the follower falls back and says so."""
+    """One OSQP iteration cannot meet 1e-7 and the exact retry fails too (here: the same capped
+    OSQP in its place): the follower falls back and says so."""
     arm = SlaveArm(SlaveConfig.from_dict({"max_iter": 1, "fallback": fallback}, "slave"), (), 1e-3)
+    arm.qp.exact = arm.qp.solver
     p, R = arm.tool_pose()
     st = _run(arm, p + np.array([0.01, 0.0, 0.0]), R, n=50)
     assert "infeasible_fallback" in st

@@ -34,7 +34,7 @@ def test_every_shipped_scene_loads():
         (lambda s: s.replace("duration_s = 1.0", 'duration_s = "long"'), "duration_s", "finite number"),
         (lambda s: s.replace("mass_kg = 0.25", "mass_kg = 0.0"), "tool.mass_kg", "positive"),
         (lambda s: s.replace("mass_kg = 0.25", "mas_kg = 0.25"), "tool.mas_kg", "unknown key"),
-        (lambda s: s.replace('type = "sphere"', 'type = "cube"'), "fixture.type", "choose one of"),
+        (lambda s: s.replace('type = "sphere"', 'type = "cube"'), "fixture.type", "unknown fixture type 'cube'; known types: free, rolling_disk, sphere, scalpel"),
         (lambda s: s.replace("radius_m = 0.05", "radius_m = 0.0"), "fixture.radius_m", "positive"),
         (lambda s: s.replace('["damping"]', '["dampning"]'), "effects", "unknown effect"),
         (lambda s: s.replace('["damping"]', "[]"), "damping", "effect 'damping' is not on"),

@@ -28,6 +28,7 @@ import pinocchio as pin
 from teleop.can import BusTiming, Capture, compute_cycle_load_pct
 from teleop.control.admittance import AdmittanceController, AdmittanceGains, Phi
 from teleop.control.clutch import Clutch
+from teleop.master.base import Master
 from teleop.master.cobot.database import FrameDatabase
 from teleop.master.cobot.driver import CobotDriver
 from teleop.master.cobot.kernels import (advance_prediction, dls_command, gantry_zxz_pose_jacobian, host_command,
@@ -64,7 +65,7 @@ def open_simulated_device(cfg: CobotConfig, channel: str, model: CobotModel, joi
                           heartbeat_period_s=cfg.heartbeat_period_s, own_bus=True)
 
 
-class CobotMaster:
+class CobotMaster(Master):
     """The cobot behind the master interface (see the module docstring).
 
     cfg: the cobot's settings; dt_s: the period, s; rng: the run's generator (sensor noise, faults);
@@ -135,13 +136,6 @@ class CobotMaster:
         return tuple(np.concatenate([v[:3] * cfg.scale, v[3:]]))
 
     # -- life cycle ---------------------------------------------------------------------------------
-    def __enter__(self):
-        self.start()
-        return self
-
-    def __exit__(self, *exc):
-        self.close()
-
     def start(self) -> None:
         """Open the link, wait for the first feedback and tare the load cell (tare_cycles periods);
         idempotent. Without feedback the status latches "startup_timeout"."""

@@ -1,0 +1,35 @@
+"""The public Python API in one import: compose and run a teleoperation session.
+
+    from teleop.api import ReferenceTool, RigidBody, IdealMaster, SlaveArm, SlaveSide, Session, ...
+
+See the README's "Python API" section for a whole run with a constraint and a fixture type of the
+user's own. Everything here is also importable from its own module; this module only gathers them.
+"""
+
+from teleop.contact import TissueBlock
+from teleop.control.feedback import FeedbackPath
+from teleop.control.mapping import Registration
+from teleop.dynamics.body import RigidBody
+from teleop.dynamics.constraints import Constraint
+from teleop.dynamics.effects import AngularDamper, Gravity, LinearDamper, Spring
+from teleop.dynamics.fixtures import Fixture
+from teleop.dynamics.registry import FrameMap, register_fixture
+from teleop.dynamics.tool import ReferenceTool
+from teleop.link.base import LockstepLink
+from teleop.link.messages import ContactFeedback, ToolCommand
+from teleop.loop import BilateralLoop, Hook
+from teleop.master.base import Master
+from teleop.master.ideal import IdealMaster
+from teleop.runtime import run_scene
+from teleop.scenario.operators import Operator
+from teleop.scenario.schema import load_scene, parse_scene
+from teleop.session import RunResult, Session
+from teleop.slave import SlaveArm, SlaveConfig
+from teleop.slave.side import SlaveSide
+
+__all__ = [
+    "AngularDamper", "BilateralLoop", "Constraint", "ContactFeedback", "FeedbackPath", "Fixture", "FrameMap",
+    "Gravity", "Hook", "IdealMaster", "LinearDamper", "LockstepLink", "Master", "Operator", "ReferenceTool",
+    "Registration", "RigidBody", "RunResult", "Session", "SlaveArm", "SlaveConfig", "SlaveSide", "Spring",
+    "TissueBlock", "ToolCommand", "load_scene", "parse_scene", "register_fixture", "run_scene",
+]
