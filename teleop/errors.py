@@ -1,5 +1,7 @@
 """One error hierarchy. Every message names what was wrong and where."""
 
+import difflib
+
 
 class TeleopError(Exception):
     """Base of every error raised by teleop."""
@@ -44,8 +46,6 @@ def check_table(d, where: str, known, what: str = "key", hint: str = "") -> None
     The message names ``where`` (the table's dotted path) and the bad key, suggests the closest
     known key, and lists them all; ``what`` names a key ("fault", "setting"), ``hint`` what the
     table holds ("a table of fault settings")."""
-    import difflib
-
     if not isinstance(d, dict):
         raise ConfigError(f"{where}: expected {hint or 'a table'}, got {type(d).__name__}")
     for key in d:

@@ -17,7 +17,7 @@ from teleop.control.feedback import FeedbackPath
 from teleop.dynamics.constraints import RemoteCenter
 from teleop.errors import ConfigError, SceneError
 from teleop.loop import Hook
-from teleop.master.ideal import IdealMaster
+from teleop.master import CobotMaster, IdealMaster
 from teleop.scenario.build import build_fixture, build_registration, build_tool, master_fixture_spec
 from teleop.scenario.metrics import MasterMetrics, SlaveMetrics, TremorProbe, make_metrics
 from teleop.scenario.operators import make_operator
@@ -33,8 +33,6 @@ def make_master(scene: Scene, tool, rng: np.random.Generator):
     """The scene's master: the ideal one, or the cobot with only the device effects it names."""
     if scene.master != "cobot":
         return IdealMaster(tool, scene.dt_s)
-    from teleop.master import CobotMaster  # the CAN stack: loaded only for the cobot
-
     cfg = scene.cobot
     if "can_faults" not in scene.effects:
         cfg = replace(cfg, faults=type(cfg.faults)())

@@ -24,7 +24,6 @@ import numpy as np
 
 from teleop.dynamics.registry import FrameMap
 from teleop.errors import ConfigError
-from teleop.typed import validate
 
 
 def _rotation(R, name: str) -> np.ndarray:
@@ -61,14 +60,6 @@ class Registration:
             object.__setattr__(self, "torque_scale", float(self.force_scale * self.scale))
         elif not np.isfinite(self.torque_scale) or self.torque_scale <= 0:
             raise ConfigError(f"mapping.torque_scale: expected a finite positive number, got {self.torque_scale!r}")
-
-    @classmethod
-    def from_dict(cls, d: dict, where: str = "mapping") -> "Registration":
-        """A scene's [mapping] table (position_m, rpy_rad, scale, force_scale, torque_scale,
-        feedback_cutoff_hz) checked by the scene's validator; errors name ``where.key``."""
-        from teleop.scenario.tables import MappingSpec  # the scene layer imports this one, not back
-
-        return validate(MappingSpec, d, "", where).registration()
 
     # -- poses and twists -------------------------------------------------------------------
     def point_to_patient(self, x_M) -> np.ndarray:

@@ -10,6 +10,7 @@ from abc import ABC, abstractmethod
 from dataclasses import dataclass, field
 
 import numpy as np
+import pinocchio as pin
 
 from teleop.errors import ConfigError
 
@@ -84,8 +85,6 @@ class AngularDamper(Effect):
 
 def rotation_log(R: np.ndarray) -> np.ndarray:
     """Rotation vector (rad, 3) of a rotation matrix, robust near 0 and pi."""
-    import pinocchio as pin
-
     return np.asarray(pin.log3(R))
 
 

@@ -13,6 +13,7 @@ from abc import ABC, abstractmethod
 
 import numpy as np
 
+from teleop.dynamics.constraints import plane_tangents
 from teleop.dynamics.rotations import EulerChart, axis_rotation, cross
 from teleop.errors import ConfigError
 
@@ -77,8 +78,6 @@ class Identity(Parametrization):
 
 def plane_frame(normal: np.ndarray) -> np.ndarray:
     """Rotation (3, 3) whose columns are (t1, t2, n) for the plane tangents of the unit normal n."""
-    from teleop.dynamics.constraints import plane_tangents
-
     t1, t2 = plane_tangents(normal)
     return np.column_stack([t1, t2, normal])
 

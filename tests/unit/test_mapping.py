@@ -7,7 +7,8 @@ import pytest
 from teleop.control.mapping import Registration
 from teleop.dynamics import constraints as C
 from teleop.errors import ConfigError
-from teleop.scenario.tables import FixtureSpec
+from teleop.scenario.tables import FixtureSpec, MappingSpec
+from teleop.typed import validate
 
 REG = Registration([0.5, -0.1, 0.2], pin.rpy.rpyToMatrix(0.1, -0.2, 0.7), scale=3.0, force_scale=0.5)
 
@@ -75,6 +76,6 @@ def test_bad_settings_are_named():
     with pytest.raises(ConfigError, match="X_PM_R"):
         Registration([0, 0, 0], 2 * np.eye(3))
     with pytest.raises(ConfigError, match="mapping.bogus"):
-        Registration.from_dict({"bogus": 1})
-    r = Registration.from_dict({"position_m": [0.5, 0, 0.2], "rpy_rad": [0, 0, 0.5], "scale": 3})
+        validate(MappingSpec, {"bogus": 1}, "", "mapping")
+    r = validate(MappingSpec, {"position_m": [0.5, 0, 0.2], "rpy_rad": [0, 0, 0.5], "scale": 3}, "", "mapping").registration()
     assert r.scale == 3.0 and np.isclose(r.torque_scale, 3.0)
