@@ -151,6 +151,6 @@ def test_drawing_states_cover_every_side():
                  "master/device/link1", "master/arrows/operator/shaft", "slave/arrows/contact/head"):
         assert path in states, path
     assert np.allclose(states["master/handle"][:3, 3], [0.01, 0.0, 0.03])  # the cobot's handle H
-    assert set(states) <= set(d.moving)
+    assert set(states) <= set(d.moving) | set(d.followed)  # the moving parts and the followed sides
     with pytest.raises(ConfigError, match="master_q"):
         d.states(VizFrame(t=0, master_q=[0.0, 1.0]))
