@@ -171,7 +171,8 @@ class Drawing:
 
     def _arm_behind(self, pin) -> np.ndarray:
         """A turn of the slave side about the vertical that puts the arm's base behind its tissue
-        (away from the camera), so the arm reaches toward the viewer instead of across the page."""
+        and to the right (away from the master side; straight right in the side view), so the
+        arm reaches in from the far side instead of across the page."""
         arm = self.scene.slave_robot
         if arm is None or self.scene.tissue is None:
             return np.eye(3)
@@ -180,7 +181,8 @@ class Drawing:
         v = d.oMi[1].translation - np.asarray(self.scene.tissue["origin_m"], dtype=float)
         if np.hypot(v[0], v[1]) < 1e-6:
             return np.eye(3)
-        a = np.pi / 2 - np.arctan2(v[1], v[0])  # the base's direction onto layout +y
+        want = 0.0 if self.scene.view == "side" else np.pi / 2  # layout +x, or +y (behind)
+        a = want - np.arctan2(v[1], v[0])
         c, s_ = np.cos(a), np.sin(a)
         return np.array([[c, -s_, 0.0], [s_, c, 0.0], [0.0, 0.0, 1.0]])
 
@@ -189,11 +191,13 @@ class Drawing:
         (under the root, not the zoomed sides); the legend's scale arrow is SCALE_N newtons long
         at the arrows' common scale."""
         h, top = 0.1 * SIDE_M, 0.42 * SIDE_M
+        c_, s_ = np.cos(self._pitch()), np.sin(self._pitch())
+        face = pose_matrix(R=np.array([[1.0, 0.0, 0.0], [0.0, c_, s_], [0.0, -s_, c_]]))  # square to the camera
         label = COLORS["label"]
         out = []
         for side in ("master", "slave"):
             name, obj, M = text_part("sign", [(side, label)], h)
-            M = pose_matrix(self.anchor[side] + [-0.15 * SIDE_M, 0.0, top]) @ M
+            M = pose_matrix(self.anchor[side] + [-0.15 * SIDE_M, 0.0, top]) @ face @ M
             out.append((f"labels/{side}/{name}", obj, M))
         m_per_N = self.scene.force_scale_m_per_N
         rows = [("operator's hand force", COLORS["text"]), ("fixture (constraint) force", COLORS["text"]),
@@ -207,9 +211,13 @@ class Drawing:
         L = SCALE_N * m_per_N * px_per_m  # the scale arrow: SCALE_N newtons, in pixels
         arrows = {0: (COLORS["operator"], L), 1: (COLORS["constraint"], L), 2: (COLORS["contact"], L), 3: (COLORS["text"], L)}
         name, obj, M = text_part("legend", rows, row_m * len(rows) * 1.0 + 24 / px_per_m, arrows=arrows)
-        M = pose_matrix((-0.55 * SIDE_M, 0.0, -0.58 * SIDE_M)) @ M
+        M = pose_matrix((-0.55 * SIDE_M, 0.0, -0.58 * SIDE_M)) @ face @ M
         out.append((f"labels/{name}", obj, M))
         return out
+
+    def _pitch(self) -> float:
+        """How far the layout is tipped toward the camera (rad): PITCH, 0 in the side view."""
+        return PITCH if self.scene.view == "perspective" else 0.0
 
     def _root_matrix(self) -> np.ndarray:
         h = 0.5 * SIDE_M
@@ -218,8 +226,7 @@ class Drawing:
         c = np.array([0.5 * (min(xs) + max(xs)), 0.0, 0.5 * (min(zs) + max(zs))])
         s = min(0.9 * VIEW_WIDTH_M / (max(xs) - min(xs)), 0.9 * VIEW_HEIGHT_M / (max(zs) - min(zs)))
         Rz = np.array([[0.0, -1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, 1.0]])  # layout +x -> screen right
-        pitch = PITCH if self.scene.view == "perspective" else 0.0
-        c_, s_ = np.cos(pitch), np.sin(pitch)
+        c_, s_ = np.cos(self._pitch()), np.sin(self._pitch())
         Ry = np.array([[c_, 0.0, s_], [0.0, 1.0, 0.0], [-s_, 0.0, c_]])  # the far side (-x) rises
         return pose_matrix(-s * (Ry @ Rz @ c), Ry @ Rz, (s, s, s))
 
