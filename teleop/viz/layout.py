@@ -84,7 +84,7 @@ class Drawing:
         tool_r = scene.tool_radius_m or self.radius
         tip = p.get("tip_m", (0.0, 0.0, 0.0))
         ft = scene.fixture_type
-        self.size = {"rolling_disk": max(8.0 * self.radius, 0.1), "sphere": 3.0 * self.radius,
+        self.size = {"rolling_disk": max(8.0 * self.radius, 0.1), "sphere": min(3.0 * self.radius, 10.0 * tool_r),
                      "scalpel": 0.2}.get(ft, 0.15)
         self.zoom = scene.master_zoom or float(np.clip(0.6 * SIDE_M / self.size, 1.0, 10.0))
         tissue = scene.tissue
@@ -98,7 +98,7 @@ class Drawing:
         self.fixed = {side: self._side_matrix(side) for side in ("master", "slave")}
         self.n_per_m = {"master": self.zoom / scene.force_scale_m_per_N, "slave": self.slave_zoom / scene.force_scale_m_per_N}
         if ft in FIXTURE_DRAWN:
-            parts = [(f"master/fixture/{n}", o, M) for n, o, M in fixture_parts(ft, p, self.size)]
+            parts = [(f"master/fixture/{n}", o, M) for n, o, M in fixture_parts(ft, p, 2.0 * self.size)]
         else:
             parts = [(f"master/fixture/{n}", o, M) for n, o, M in custom_fixture_parts(scene.fixture_object, scene.fixture_frame)]
         for name, ghost in (("reference", False), ("virtual", True)):
@@ -151,6 +151,7 @@ class Drawing:
                     parts.append((f"slave/arm/{gobj.name}/shape", *shape))
             self.tool_fid = (self.arm.model.getFrameId(scene.slave_tool_frame)
                              if scene.slave_tool_frame is not None else None)
+        self.has_slave = self.arm is not None or tissue is not None
         parts += self._labels()
         self.parts = parts
         self.fixed["root"] = self._root_matrix()
@@ -195,23 +196,29 @@ class Drawing:
         face = pose_matrix(R=np.array([[1.0, 0.0, 0.0], [0.0, c_, s_], [0.0, -s_, c_]]))  # square to the camera
         label = COLORS["label"]
         out = []
-        for side in ("master", "slave"):
+        for side in ("master", "slave") if self.has_slave else ("master",):
             name, obj, M = text_part("sign", [(side, label)], h)
             M = pose_matrix(self.anchor[side] + [-0.15 * SIDE_M, 0.0, top]) @ face @ M
             out.append((f"labels/{side}/{name}", obj, M))
         m_per_N = self.scene.force_scale_m_per_N
-        rows = [("operator's hand force", COLORS["text"]), ("fixture (constraint) force", COLORS["text"]),
-                ("tissue contact force", COLORS["text"]),
-                (f"{SCALE_N:g} N (longest drawn: {ARROW_MAX_M / m_per_N:.0f} N)", COLORS["text"]),
-                ("blue: reference tool  cyan: virtual tool (device)", COLORS["text"]),
-                ("violet: cobot  orange: slave arm  pink: tissue", COLORS["text"])]
         px_row = 56 * 1.3
         row_m = 0.05 * SIDE_M
         px_per_m = px_row / row_m
         L = SCALE_N * m_per_N * px_per_m  # the scale arrow: SCALE_N newtons, in pixels
-        arrows = {0: (COLORS["operator"], L), 1: (COLORS["constraint"], L), 2: (COLORS["contact"], L), 3: (COLORS["text"], L)}
+        text = COLORS["text"]
+        entries = [("operator's hand force", COLORS["operator"]), ("fixture (constraint) force", COLORS["constraint"])]
+        if self.has_slave:
+            entries.append(("tissue contact force", COLORS["contact"]))
+        entries.append((f"{SCALE_N:g} N (longest drawn: {ARROW_MAX_M / m_per_N:.0f} N)", text))
+        arrows = {k: (c, L) for k, (_, c) in enumerate(entries)}
+        rows = [(t, text) for t, _ in entries] + [("blue: reference tool  cyan: virtual tool (device)", text)]
+        names = (["violet: cobot"] if self.master is not None else []) + (
+            ["orange: slave arm", "pink: tissue"] if self.has_slave else [])
+        if names:
+            rows.append(("  ".join(names), text))
         name, obj, M = text_part("legend", rows, row_m * len(rows) * 1.0 + 24 / px_per_m, arrows=arrows)
-        M = pose_matrix((-0.55 * SIDE_M, 0.0, -0.58 * SIDE_M)) @ face @ M
+        where = (-0.55, 0.0, -0.58) if self.has_slave else (0.62, 0.0, -0.15)  # bottom left, or beside
+        M = pose_matrix(np.asarray(where) * SIDE_M) @ face @ M
         out.append((f"labels/{name}", obj, M))
         return out
 
@@ -222,7 +229,8 @@ class Drawing:
     def _root_matrix(self) -> np.ndarray:
         h = 0.5 * SIDE_M
         off = np.asarray(self.scene.slave_offset_m)
-        xs, zs = [-h, off[0] + h + 0.1], [-0.75 * SIDE_M, 0.6 * SIDE_M]
+        right = off[0] + h + 0.1 if self.has_slave else 1.7 * SIDE_M  # the slave side, or the legend
+        xs, zs = [-h if self.has_slave else -1.6 * h, right], [-0.75 * SIDE_M, 0.6 * SIDE_M]
         c = np.array([0.5 * (min(xs) + max(xs)), 0.0, 0.5 * (min(zs) + max(zs))])
         s = min(0.9 * VIEW_WIDTH_M / (max(xs) - min(xs)), 0.9 * VIEW_HEIGHT_M / (max(zs) - min(zs)))
         Rz = np.array([[0.0, -1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, 1.0]])  # layout +x -> screen right
