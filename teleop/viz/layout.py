@@ -98,7 +98,7 @@ class Drawing:
         self.fixed = {side: self._side_matrix(side) for side in ("master", "slave")}
         self.n_per_m = {"master": self.zoom / scene.force_scale_m_per_N, "slave": self.slave_zoom / scene.force_scale_m_per_N}
         if ft in FIXTURE_DRAWN:
-            parts = [(f"master/fixture/{n}", o, M) for n, o, M in fixture_parts(ft, p, 2.0 * self.size)]
+            parts = [(f"master/fixture/{n}", o, M) for n, o, M in fixture_parts(ft, p, 1.3 * self.size)]
         else:
             parts = [(f"master/fixture/{n}", o, M) for n, o, M in custom_fixture_parts(scene.fixture_object, scene.fixture_frame)]
         for name, ghost in (("reference", False), ("virtual", True)):
@@ -217,7 +217,7 @@ class Drawing:
         if names:
             rows.append(("  ".join(names), text))
         name, obj, M = text_part("legend", rows, row_m * len(rows) * 1.0 + 24 / px_per_m, arrows=arrows)
-        where = (-0.55, 0.0, -0.58) if self.has_slave else (0.62, 0.0, -0.15)  # bottom left, or beside
+        where = (-0.55, 0.0, -0.62) if self.has_slave else (0.62, 0.0, -0.15)  # bottom left, or beside
         M = pose_matrix(np.asarray(where) * SIDE_M) @ face @ M
         out.append((f"labels/{name}", obj, M))
         return out
