@@ -34,3 +34,34 @@ def test_a_run_of_a_scene_file_of_ones_own_replays_with_the_slave_and_device(tmp
     assert (tmp_path / "again.html").stat().st_size > 100_000
     out = capsys.readouterr().out
     assert "replayed" in out and "of my_cut" in out
+
+
+def test_hold_keeps_the_page_served_until_ctrl_c():
+    import os
+    import signal
+    import subprocess
+    import sys
+    import time
+    import urllib.request
+
+    env = dict(os.environ, PYTHONPATH=os.pathsep.join(sys.path))
+    proc = subprocess.Popen([sys.executable, "-m", "teleop", "run", "paper_rolling_disk", "--duration", "0.2",
+                             "--viewer", "--hold"], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env)
+    try:
+        url, deadline = None, time.monotonic() + 120
+        while url is None and time.monotonic() < deadline:
+            line = proc.stderr.readline()
+            if "holds the last frame" in line:
+                url = line.split()[1]
+            assert line or proc.poll() is None, "teleop ended before holding the page"
+        assert url is not None
+        time.sleep(1.0)
+        assert proc.poll() is None  # the run is over, the page is still served
+        assert urllib.request.urlopen(url, timeout=10).status == 200
+        proc.send_signal(signal.SIGINT)
+        out, err = proc.communicate(timeout=30)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+    assert proc.returncode in (0, 1) and "Traceback" not in err
+    assert "status" in out  # the summary after Ctrl-C
