@@ -260,17 +260,3 @@ def replay_run(folder, view, fps: float = 30.0, realtime: bool = False) -> int:
         view.publish(VizFrame(**kw))
         count += 1
     return count
-
-
-def replay_log(log: dict, view, fps: float = 30.0, realtime: bool = False) -> int:
-    """Publish a recorded run (a loaded log.npz) frame by frame (see :func:`replay_run`)."""
-    from teleop.viz import VizFrame
-
-    wall0, t0, count = time.perf_counter(), None, 0
-    for kw in _frames_from_log(log, fps):
-        t0 = kw["t"] if t0 is None else t0
-        if realtime:
-            time.sleep(max(0.0, wall0 + kw["t"] - t0 - time.perf_counter()))
-        view.publish(VizFrame(**kw))
-        count += 1
-    return count

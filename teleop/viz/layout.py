@@ -4,7 +4,11 @@ transforms of the moving parts for each frame. Geometry helpers live in :mod:`te
 from __future__ import annotations
 
 import numpy as np
+import pinocchio as pin
 from meshcat import geometry as g
+from pinocchio.visualize import meshcat_visualizer as pmv
+
+from teleop.errors import ConfigError
 
 from teleop.viz.shapes import (
     VIEW_HEIGHT_M,
@@ -46,8 +50,6 @@ def _visual_parts(robot, prefix: str, color: int | None = None) -> list:
     """(part index, group path, part) of each visual of a RobotWrapper-like ``robot``, each made by
     Pinocchio's own Meshcat loader (``loadPrimitive`` / ``loadMesh``); the group is posed from
     ``GeometryData.oMg`` with the mesh scale applied, as Pinocchio's MeshcatVisualizer does."""
-    from pinocchio.visualize import meshcat_visualizer as pmv
-
     out = []
     for k, gobj in enumerate(robot.visual_model.geometryObjects):
         obj = pmv.loadPrimitive(gobj) if type(gobj.geometry).__name__ in (
@@ -76,8 +78,6 @@ class Drawing:
     """
 
     def __init__(self, scene):
-        import pinocchio as pin
-
         self.pin, self.scene = pin, scene
         p = scene.fixture_params
         self.radius = p.get("radius_m", 0.03)
@@ -247,7 +247,6 @@ class Drawing:
         if q.shape[0] == m.nq:
             return np.asarray(q, dtype=float)
         if q.shape[0] != m.nv:
-            from teleop.errors import ConfigError
             raise ConfigError(f"VizFrame.master_q: expected {m.nq} (pinocchio) or {m.nv} joint values, got {q.shape[0]}")
         out = self.pin.neutral(m)
         for j in range(1, m.njoints):
@@ -262,7 +261,6 @@ class Drawing:
     def _slave_q(self, q) -> np.ndarray:
         nq = self.arm.model.nq
         if q.shape[0] > nq:
-            from teleop.errors import ConfigError
             raise ConfigError(f"VizFrame.slave_q: the slave model has {nq} joint values, got {q.shape[0]}")
         if q.shape[0] == nq:
             return np.asarray(q, dtype=float)
@@ -284,8 +282,7 @@ class Drawing:
             out["master/virtual"] = pose_matrix(*f.virtual_pose)
         handle = f.virtual_pose if f.virtual_pose is not None else ref
         if self.device_parts and f.master_q is not None:
-            from pinocchio.visualize.meshcat_visualizer import applyScalingOnHomegeneousTransform as scaled
-
+            scaled = pmv.applyScalingOnHomegeneousTransform
             m, d, vm = self.master, self.mdata, self.scene.master_robot.visual_model
             pin.forwardKinematics(m, d, self._master_q(f.master_q))
             pin.updateGeometryPlacements(m, d, vm, self.dgdata)

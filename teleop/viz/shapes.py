@@ -8,8 +8,16 @@ scaled along y draws a segment or an arrow shaft. Lengths in m, colours 0xRRGGBB
 
 from __future__ import annotations
 
+import io
+
 import numpy as np
+import pinocchio as pin
+from matplotlib import font_manager
 from meshcat import geometry as g
+from PIL import Image, ImageDraw, ImageFont
+
+from teleop.dynamics.registry import FrameMap
+from teleop.errors import ConfigError
 
 #: colours, chosen to be told apart in a screenshot (see tests/integration/test_browser_render.py)
 COLORS = {
@@ -48,11 +56,6 @@ def text_png(lines, px: int = 56, pad: int = 12, arrows: dict | None = None) -> 
     """A transparent PNG of text ``lines`` [(text, colour)], one per row, through Pillow with
     matplotlib's DejaVu Sans; a row whose key is in ``arrows`` ({row: (colour, length px)}) starts
     with an arrow of that colour and length. Returns (PNG bytes, width / height)."""
-    import io
-
-    from matplotlib import font_manager
-    from PIL import Image, ImageDraw, ImageFont
-
     font = ImageFont.truetype(font_manager.findfont(font_manager.FontProperties(family="DejaVu Sans", weight="bold")), px)
     arrows = arrows or {}
     lead = {k: int(v[1]) + px // 2 for k, v in arrows.items()}
@@ -116,16 +119,11 @@ def pose_matrix(p=(0.0, 0.0, 0.0), R=None, scale=(1.0, 1.0, 1.0)) -> np.ndarray:
 
 
 def rotation_between(a, b) -> np.ndarray:
-    """The smallest rotation taking unit vector a onto unit vector b."""
+    """The smallest rotation taking direction a onto direction b (Eigen's
+    ``Quaternion::FromTwoVectors`` through Pinocchio; a half turn when they are opposite)."""
     a = np.asarray(a, dtype=float) / np.linalg.norm(a)
     b = np.asarray(b, dtype=float) / np.linalg.norm(b)
-    v, c = np.cross(a, b), float(a @ b)
-    if c < -1.0 + 1e-9:  # opposite: half turn about any axis perpendicular to a
-        axis = np.cross(a, [1.0, 0.0, 0.0] if abs(a[0]) < 0.9 else [0.0, 1.0, 0.0])
-        axis /= np.linalg.norm(axis)
-        return 2.0 * np.outer(axis, axis) - np.eye(3)
-    K = np.array([[0.0, -v[2], v[1]], [v[2], 0.0, -v[0]], [-v[1], v[0], 0.0]])
-    return np.eye(3) + K + K @ K / (1.0 + c)
+    return pin.Quaternion.FromTwoVectors(a, b).matrix()
 
 
 def frame_from_normal(n) -> np.ndarray:
@@ -249,8 +247,6 @@ def custom_fixture_parts(fixture, frame=None) -> list:
     if draw is None:
         return []
     if frame is None:
-        from teleop.dynamics.registry import FrameMap
-
         frame = FrameMap.identity()
     out = []
     for k, item in enumerate(draw(frame)):
@@ -258,8 +254,6 @@ def custom_fixture_parts(fixture, frame=None) -> list:
             name, obj, M = item
             M = np.asarray(M, dtype=float).reshape(4, 4)
         except (TypeError, ValueError):
-            from teleop.errors import ConfigError
-
             raise ConfigError(f"{type(fixture).__name__}.draw: item {k} is not (name, meshcat object, 4x4 transform)") from None
         out.append((str(name), obj, M))
     return out
