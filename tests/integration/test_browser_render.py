@@ -9,6 +9,7 @@ import importlib.util
 from pathlib import Path
 
 import numpy as np
+import pytest
 from PIL import Image
 
 from teleop.viz.shapes import COLORS
@@ -57,6 +58,7 @@ def test_both_sides_render_in_chromium(tmp_path):
     assert took < 30.0
 
 
+@pytest.mark.long  # about 45 s here: a cobot run, a replay and a render (CI's long stage runs it)
 def test_a_cobot_run_replayed_from_its_folder_shows_everything(tmp_path):
     """`teleop run straight_incision --master cobot --out DIR`, then `teleop replay DIR`."""
     from teleop.cli import main
