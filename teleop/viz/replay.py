@@ -1,6 +1,7 @@
 """``teleop replay RUN_DIR``: draw a run folder again from what it keeps (the scene it ran, the
 frames its view drew), into a new ``replay.html`` or live in Meshcat. The run's own files are never
-written; ``--out`` names another file, and an existing one is replaced only with ``--force``."""
+written; ``--out`` names another .html file, and an existing one (the run's recording.html
+included) is replaced only with ``--force``; the run's data files never are."""
 
 from __future__ import annotations
 
@@ -24,9 +25,11 @@ def replay_command(source, viewer: bool = False, out=None, force: bool = False, 
     target = None
     if not viewer:
         target = Path(out) if out else folder / "replay.html"
-        protected = {(folder / n).resolve() for n in ("recording.html", "log.npz", "metrics.json", "scene.toml")}
-        if target.resolve() in protected and not force:
-            raise ConfigError(f"--out {target}: that is one of the run's own files; pick another name (or --force)")
+        data = {(folder / n).resolve() for n in ("log.npz", "metrics.json", "scene.toml", "view_frames.npz")}
+        if target.resolve() in data or target.suffix.lower() != ".html":
+            raise ConfigError(f"--out {target}: expected a new .html file, not one of the run's data files")
+        if target.resolve() == (folder / "recording.html").resolve() and not force:
+            raise ConfigError(f"--out {target}: that is the run's own recording; pick another name (or --force)")
         if out and target.exists() and not force:
             raise ConfigError(f"--out {target}: exists; pick another name or add --force")
     scene = load_run_scene(folder)

@@ -69,6 +69,9 @@ def test_replay_writes_a_new_recording_and_keeps_the_runs_own(tmp_path, capsys):
     assert "replayed" in capsys.readouterr().out
     assert main(["replay", str(tmp_path / "run"), "--out", str(own)]) == 2  # not over the run's files
     assert "--force" in capsys.readouterr().err
+    log = tmp_path / "run" / "log.npz"
+    assert main(["replay", str(tmp_path / "run"), "--out", str(log), "--force"]) == 2  # data: never
+    assert log.stat().st_size > 1000
     assert hashlib.sha256(own.read_bytes()).hexdigest() == before
 
 
