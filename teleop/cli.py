@@ -173,7 +173,7 @@ def build_parser() -> argparse.ArgumentParser:
     run.set_defaults(func=cmd_run)
     ls = sub.add_parser("list", help="list the scenes")
     ls.set_defaults(func=cmd_list)
-    rp = sub.add_parser("replay", help="show a recorded run again (Meshcat, or recording.html)")
+    rp = sub.add_parser("replay", help="show a run folder again (live in Meshcat, or into replay.html)")
     rp.add_argument("log", help="a log.npz or the --out folder of a run")
     rp.add_argument("--viewer", action="store_true", help="replay live in Meshcat instead of writing HTML")
     rp.add_argument("--out", help="HTML file to write (default: replay.html in the run folder)")
