@@ -127,7 +127,6 @@ class VizScene:
     each side spans about 1).
     force_scale_m_per_N: arrow length per newton (layout m/N, the same on both sides); master_zoom: how
     much the (small) master side is magnified, None to choose from the fixture's size;
-    mesh_cell_m: the grid (m) the arm's meshes are simplified on (0 keeps them whole).
     master_robot: optional object with ``.model`` and ``.visual_model`` of the haptic device (e.g.
     the cobot's URDF through ``pin.buildModelsFromUrdf``): drawn from its visuals, posed from
     ``master_q``; replaces the stick drawing of ``master_model``. tool_radius_m: the drawn disk's
@@ -147,7 +146,6 @@ class VizScene:
     slave_offset_m: tuple = (1.15, 0.0, 0.0)
     force_scale_m_per_N: float = 0.03
     master_zoom: float | None = None
-    mesh_cell_m: float = 0.005
     master_robot: object = None
     tool_radius_m: float | None = None
     follow: bool = True
@@ -197,8 +195,6 @@ class VizScene:
         object.__setattr__(self, "force_scale_m_per_N", _positive("VizScene.force_scale_m_per_N", self.force_scale_m_per_N))
         if self.master_zoom is not None:
             object.__setattr__(self, "master_zoom", _positive("VizScene.master_zoom", self.master_zoom))
-        if not np.isfinite(self.mesh_cell_m) or self.mesh_cell_m < 0:
-            raise ConfigError(f"VizScene.mesh_cell_m: expected a size >= 0 m, got {self.mesh_cell_m}")
         if self.slave_robot is not None:
             for attr in ("model", "visual_model"):
                 if not hasattr(self.slave_robot, attr):

@@ -22,7 +22,6 @@ from teleop.viz.shapes import (
     contact_line_part,
     device_joint_part,
     fixture_parts,
-    geometry_shape,
     material,
     pose_matrix,
     scalpel_parts,
@@ -52,9 +51,14 @@ def _visual_parts(robot, prefix: str, color: int | None = None) -> list:
     ``GeometryData.oMg`` with the mesh scale applied, as Pinocchio's MeshcatVisualizer does."""
     out = []
     for k, gobj in enumerate(robot.visual_model.geometryObjects):
-        obj = pmv.loadPrimitive(gobj) if type(gobj.geometry).__name__ in (
-            "Box", "Sphere", "Cylinder", "Capsule", "Cone") else None
-        if obj is None:
+        kind = type(gobj.geometry).__name__
+        if kind in ("Box", "Sphere", "Cylinder", "Capsule", "Cone"):
+            obj = pmv.loadPrimitive(gobj)
+        elif kind.startswith("BVHModel"):
+            obj = pmv.loadMesh(gobj.geometry)
+        else:
+            obj = None
+        if obj is None or not isinstance(obj, g.Geometry):
             continue
         c = gobj.meshColor
         rgb = color if color is not None else (int(c[0] * 255) << 16) | (int(c[1] * 255) << 8) | int(c[2] * 255)
@@ -144,11 +148,9 @@ class Drawing:
         if self.arm is not None:
             self.adata = self.arm.model.createData()
             self.gdata = pin.GeometryData(self.arm.visual_model)
-            for k, gobj in enumerate(self.arm.visual_model.geometryObjects):
-                shape = geometry_shape(gobj, scene.mesh_cell_m, COLORS["arm"])
-                if shape is not None:
-                    self.arm_parts.append((k, f"slave/arm/{gobj.name}"))
-                    parts.append((f"slave/arm/{gobj.name}/shape", *shape))
+            for k, path, obj in _visual_parts(self.arm, "slave/arm", COLORS["arm"]):
+                self.arm_parts.append((k, path))
+                parts.append((f"{path}/shape", obj, np.eye(4)))
             self.tool_fid = (self.arm.model.getFrameId(scene.slave_tool_frame)
                              if scene.slave_tool_frame is not None else None)
         self.has_slave = self.arm is not None or tissue is not None
@@ -316,9 +318,10 @@ class Drawing:
             q = self._slave_q(f.slave_q)
             pin.forwardKinematics(self.arm.model, self.adata, q)
             pin.updateGeometryPlacements(self.arm.model, self.adata, self.arm.visual_model, self.gdata)
-            for k, path in self.arm_parts:
-                X = self.gdata.oMg[k]
-                out[path] = pose_matrix(X.translation, X.rotation)
+            vm = self.arm.visual_model
+            for k, path in self.arm_parts:  # as Pinocchio's MeshcatVisualizer poses them
+                out[path] = pmv.applyScalingOnHomegeneousTransform(self.gdata.oMg[k].homogeneous,
+                                                                   vm.geometryObjects[k].meshScale)
             if tool is None and self.tool_fid is not None:
                 X = pin.updateFramePlacement(self.arm.model, self.adata, self.tool_fid)
                 tool = (X.translation, X.rotation)

@@ -295,51 +295,6 @@ def polyline(points, color: int = COLORS["cut"]) -> g.Line:
     return g.Line(g.PointsGeometry(pts), g.LineBasicMaterial(color=color))
 
 
-def decimate(vertices: np.ndarray, faces: np.ndarray, cell: float):
-    """Vertex clustering on a grid of ``cell`` m: merge the vertices in each cell (their mean),
-    drop the triangles that collapse. Returns (vertices (m, 3), faces (k, 3))."""
-    if cell <= 0 or len(vertices) == 0:
-        return vertices, faces
-    key = np.floor(vertices / cell).astype(np.int64)
-    _, inv, count = np.unique(key, axis=0, return_inverse=True, return_counts=True)
-    inv = inv.reshape(-1)
-    merged = np.zeros((count.size, 3))
-    np.add.at(merged, inv, vertices)
-    merged /= count[:, None]
-    f = inv[faces]
-    keep = (f[:, 0] != f[:, 1]) & (f[:, 1] != f[:, 2]) & (f[:, 0] != f[:, 2])
-    return merged, f[keep]
-
-
-def _bvh_arrays(geom):
-    v = np.asarray(geom.vertices(), dtype=float)
-    tri = geom.tri_indices
-    f = np.array([(t[0], t[1], t[2]) for t in map(tri, range(geom.num_tris))], dtype=np.int64).reshape(-1, 3)
-    return v, f
-
-
-def geometry_shape(gobj, cell: float, color: int):
-    """(meshcat object, fixed transform) for a pinocchio GeometryObject, or None if unsupported.
-    Meshes (coal BVH models) are simplified on a ``cell`` m grid; primitives become primitives."""
-    geom = gobj.geometry
-    kind = type(geom).__name__
-    mat = material(color)
-    if kind.startswith("BVHModel"):
-        v, f = _bvh_arrays(geom)
-        v, f = decimate(v * np.asarray(gobj.meshScale, dtype=float), f, cell)
-        if len(f) == 0:
-            return None
-        return g.Mesh(g.TriangularMeshGeometry(v, f), mat), np.eye(4)
-    if kind == "Box":
-        return g.Mesh(g.Box(2.0 * np.asarray(geom.halfSide)), mat), np.eye(4)
-    if kind == "Sphere":
-        return g.Mesh(g.Sphere(geom.radius), mat), np.eye(4)
-    if kind in ("Cylinder", "Capsule"):
-        h = 2.0 * geom.halfLength + (2.0 * geom.radius if kind == "Capsule" else 0.0)
-        return g.Mesh(g.Cylinder(h, geom.radius), mat), pose_matrix(R=Y_TO_Z)
-    return None
-
-
 def joint_axis(joint) -> np.ndarray:
     """The axis (in the joint frame) of a one-axis pinocchio joint, z when not known."""
     name = joint.shortname()
