@@ -5,7 +5,7 @@
                [--set KEY=VALUE ...] [--json PATH] [--out DIR]
     teleop list
     teleop schema [--out FILE]
-    teleop replay LOG [--viewer]
+    teleop replay RUN_DIR [--viewer [--hold]] [--out FILE [--force]] [--view perspective|side]
     teleop plot LOG [--out DIR]
 """
 
@@ -54,9 +54,9 @@ def cmd_run(args) -> int:
     view = None
     if args.viewer or args.out:
         from teleop.viz import make_view
-        from teleop.viz_bridge import RunView, viz_scene_for
+        from teleop.viz_bridge import RunView, save_scene_copy, viz_scene_for
 
-        view = make_view("meshcat", viz_scene_for(scene), record=bool(args.out))
+        view = make_view("meshcat", viz_scene_for(scene, view=args.view), record=bool(args.out))
         if args.viewer:
             print(f"viewer: {view.url}", file=sys.stderr)
     try:
@@ -74,6 +74,10 @@ def cmd_run(args) -> int:
             from pathlib import Path
 
             view.save_html(Path(args.out) / "recording.html")
+            save_scene_copy(scene, args.out)  # what `teleop replay` needs: the scene and the frames
+            rv.save_frames(args.out)
+        if args.viewer and args.hold:
+            view.hold(lambda url: print(f"viewer: {url} holds the last frame; Ctrl-C ends it", file=sys.stderr))
     finally:
         if view is not None:
             view.close()  # the meshcat server never outlives the run, even on Ctrl-C
@@ -95,33 +99,12 @@ def cmd_run(args) -> int:
 
 
 def cmd_replay(args) -> int:
-    """Show a recorded run again: live in Meshcat (--viewer), or as recording.html beside the log."""
-    from pathlib import Path
+    """Show a recorded run again: live in Meshcat (--viewer), or as replay.html in the run folder
+    (the run's own recording.html is never touched)."""
+    from teleop.viz.replay import replay_command
 
-    import numpy as np
-
-    from teleop.errors import ConfigError
-    from teleop.scenario.schema import load_scene
-    from teleop.viz import make_view
-    from teleop.viz_bridge import replay_log, viz_scene_for
-
-    log_path = Path(args.log)
-    if log_path.is_dir():
-        log_path = log_path / "log.npz"
-    if not log_path.exists():
-        raise ConfigError(f"{args.log}: no run log here (expected a log.npz written by 'teleop run --out')")
-    log = dict(np.load(log_path))
-    summary = json.loads(str(log.pop("summary")))
-    scene = load_scene(summary["scenario"])
-    with make_view("meshcat", viz_scene_for(scene), record=not args.viewer) as view:
-        if args.viewer:
-            print(f"viewer: {view.url}  (replaying {summary['scenario']} in real time)", file=sys.stderr)
-        frames = replay_log(log, view, realtime=args.viewer)
-        if not args.viewer:
-            out = view.save_html(log_path.parent / "recording.html")
-            print(out)
-    print(f"replayed {frames} frames of {summary['scenario']}")
-    return 0
+    return replay_command(args.log, viewer=args.viewer, out=args.out, force=args.force, view=args.view,
+                          hold=args.hold)
 
 
 def cmd_list(args) -> int:
@@ -182,14 +165,21 @@ def build_parser() -> argparse.ArgumentParser:
     run.add_argument("--dt", type=float, help="control period in s (overrides the scene)")
     run.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
                      help="set any scene key, VALUE as TOML (e.g. --set slave.solver=daqp --set tool.mass_kg=0.3)")
+    run.add_argument("--view", choices=["perspective", "side"], default="perspective",
+                     help="viewer camera: perspective from above, or side (level, orthographic)")
+    run.add_argument("--hold", action="store_true", help="with --viewer: keep the page served after the run until Ctrl-C")
     run.add_argument("--json", help="write the run summary as JSON here")
     run.add_argument("--out", help="write metrics.json, log.npz and PNG plots into this folder")
     run.set_defaults(func=cmd_run)
     ls = sub.add_parser("list", help="list the scenes")
     ls.set_defaults(func=cmd_list)
-    rp = sub.add_parser("replay", help="show a recorded run again (Meshcat, or recording.html)")
+    rp = sub.add_parser("replay", help="show a run folder again (live in Meshcat, or into replay.html)")
     rp.add_argument("log", help="a log.npz or the --out folder of a run")
     rp.add_argument("--viewer", action="store_true", help="replay live in Meshcat instead of writing HTML")
+    rp.add_argument("--out", help="HTML file to write (default: replay.html in the run folder)")
+    rp.add_argument("--force", action="store_true", help="allow --out to overwrite an existing file")
+    rp.add_argument("--view", choices=["perspective", "side"], default="perspective", help="viewer camera")
+    rp.add_argument("--hold", action="store_true", help="with --viewer: keep the page served until Ctrl-C")
     rp.set_defaults(func=cmd_replay)
     pl = sub.add_parser("plot", help="paper-style PNG figures of a run log")
     pl.add_argument("log", help="a log.npz or the --out folder of a run")

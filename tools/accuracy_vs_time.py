@@ -242,7 +242,9 @@ def write_outputs(rows, out: Path) -> None:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    fig, axes = plt.subplots(2, len(SCENES) + 1, figsize=(17, 8.5))
+    import matplotlib.ticker  # noqa: F401 (matplotlib.ticker below)
+
+    fig, axes = plt.subplots(2, len(SCENES) + 1, figsize=(20, 8.5))
     markers = dict(zip(INTEGRATORS, "osD^v*"))
     rows_spec = (("traj_err_m", "trajectory error vs RK4 @ 0.1 ms [m]"), ("pos_residual_max", "constraint drift max |h| [m]"))
     for col, name in enumerate(SCENES):
@@ -262,22 +264,37 @@ def write_outputs(rows, out: Path) -> None:
             ax.set_title(f"{name} (periods 0.1-2 ms; floor 1e-17 = exact)", fontsize=9)
             ax.grid(alpha=0.3, which="both")
     inc = [r for r in rows if r["scene"] == INCISION]
+    groups: dict = {}  # one legend entry per kind of point (no labels on the points: they overlap)
+    for r in inc:
+        if r["every_tick"]:
+            key = f"{r['solver']} QP every tick" + ("" if r["eps"] != r["eps"] else f" (eps {r['eps']:.0e})")
+        elif r["period_ms"] != DEFAULT[1]:
+            key = f"{r['integrator']}, period {r['period_ms']:g} ms"
+        else:
+            key = f"{r['integrator']}, {DEFAULT[1]:g} ms"
+        groups.setdefault(key, []).append(r)
+    colors = plt.get_cmap("tab20").colors
     for row, (key, label) in enumerate((("traj_err_m", "slave tip tracking RMS [m]"), ("pos_residual_max", "slave cut depth error max [m]"))):
         ax = axes[row][len(SCENES)]
-        for r in inc:
-            tag = r["integrator"] if not r["every_tick"] else f"{r['solver']} {'' if r['eps'] != r['eps'] else format(r['eps'], '.0e')}/tick"
-            tag += f" {r['period_ms']:g}ms" if r["period_ms"] != DEFAULT[1] else ""
-            ax.plot(r["cpu_load_pct"], max(r[key], 1e-17), "s" if r["every_tick"] else "o", ms=5)
-            ax.annotate(tag, (r["cpu_load_pct"], max(r[key], 1e-17)), fontsize=6)
-            if r["default"]:
-                ax.plot(r["cpu_load_pct"], max(r[key], 1e-17), "o", ms=16, mfc="none", mec="red")
+        for k, (name, sub) in enumerate(groups.items()):
+            every = sub[0]["every_tick"]
+            marker = "s" if every else ("x" if "period" in name else markers.get(sub[0]["integrator"], "o"))
+            ax.plot([r["cpu_load_pct"] for r in sub], [max(r[key], 1e-17) for r in sub], marker, ms=6,
+                    color=colors[k % len(colors)], label=name, mew=1.5)
+        d = [r for r in inc if r["default"]]
+        if d:
+            ax.plot(d[0]["cpu_load_pct"], max(d[0][key], 1e-17), "o", ms=16, mfc="none", mec="red", label="default")
         ax.axvline(100.0, color="k", lw=0.6, ls="--")
         ax.set_xscale("log")
         ax.set_yscale("log")
+        ax.xaxis.set_major_formatter(matplotlib.ticker.FormatStrFormatter("%g"))
+        ax.xaxis.set_minor_locator(matplotlib.ticker.LogLocator(base=10.0, subs=(2.0, 5.0)))
+        ax.xaxis.set_minor_formatter(matplotlib.ticker.FormatStrFormatter("%g"))
         ax.set_xlabel("CPU load, % of real time (whole tick / period)")
         ax.set_ylabel(label, fontsize=8)
         ax.set_title(f"{INCISION}: integrators, periods, QP solvers", fontsize=9)
         ax.grid(alpha=0.3, which="both")
+    axes[0][len(SCENES)].legend(fontsize=7, loc="upper left", bbox_to_anchor=(1.02, 1.0), borderaxespad=0.0)
     axes[0][0].legend(fontsize=7)
     fig.tight_layout()
     fig.savefig(out / "pareto.png", dpi=110)

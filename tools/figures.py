@@ -1,7 +1,11 @@
 """Figure 8- and Figure 10-style PNGs of any run.
 
     python tools/figures.py LOG.npz [--out DIR]          # a log written by `teleop run --out`
-    python tools/figures.py SCENE [--out DIR] [--master ideal|cobot] [--duration S]   # run, then plot
+    python tools/figures.py SCENE [--out DIR] [--master cobot|ideal] [--duration S]   # run, then plot
+
+A scene is run on the cobot master by default: the figures then show device data (what the
+encoders measure), as the paper's Figures 8 and 10 do. ``--master ideal`` plots the ideal master's
+reference tool, which keeps the fixture exactly (round-off only).
 """
 
 from __future__ import annotations
@@ -17,7 +21,8 @@ def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("source", help="a log.npz, or a scene name/path to run first")
     ap.add_argument("--out", default="figures", help="output folder (default: figures)")
-    ap.add_argument("--master", choices=["ideal", "cobot"])
+    ap.add_argument("--master", choices=["cobot", "ideal"], default="cobot",
+                    help="the master a scene is run on (default: cobot, device data as in the paper)")
     ap.add_argument("--duration", type=float)
     args = ap.parse_args(argv)
     src = Path(args.source)

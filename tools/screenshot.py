@@ -105,13 +105,18 @@ def demo_recording(path, duration_s: float = 1.0, dt_s: float = 0.002, fixture: 
               "size_m": (0.2, 0.3), "thickness_m": 0.05}
     params = ({"radius_m": 0.05, "center_m": (0.0, 0.0, 0.0)} if fixture == "sphere"
               else {"plane_origin_m": (0.0, 0.0, 0.0), "plane_normal": (0.0, 0.0, 1.0), "depth_m": 0.005})
-    cobot = None
+    cobot = device_robot = None
     if device:
         from teleop.master.cobot import CobotModel
 
         cobot = CobotModel()
+
+        class Device:  # the cobot's model and the visuals of its URDF, as the runs draw it
+            model, _, visual_model = pin.buildModelsFromUrdf(str(cobot.urdf_path))
+
+        device_robot = Device()
     scene = VizScene(fixture, params, "scalpel", slave_robot=panda, slave_tool_frame="panda_hand_tcp",
-                     tissue=tissue, master_model=cobot.model if cobot else None)
+                     tissue=tissue, master_robot=device_robot)
     trace = []
     with make_view("meshcat", scene, record=True) as view:
         for k in range(int(round(duration_s / dt_s)) + 1):

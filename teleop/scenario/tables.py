@@ -231,6 +231,8 @@ class ViewerSpec(Checked):
     """What the Meshcat view draws beyond the scene's geometry."""
 
     tissue_size_m: tuple[float, ...] = setting((0.12, 0.08), n=2, gt=0.0, doc="drawn tissue block, m")
+    tool_radius_m: float | None = setting(None, gt=0.0, why="must be positive",
+                                          doc="drawn disk radius, m (default: the fixture's; a fifth of a sphere's)")
 
 
 @dataclass(frozen=True)

@@ -13,8 +13,12 @@ import numpy as np
 
 from teleop.errors import ConfigError
 
-#: fixture types the viewer knows how to draw (the scene schema's FIXTURES)
+#: fixture types the viewer draws itself (the scene schema's FIXTURES); a user's own type is drawn
+#: by its ``draw(frame)`` method or generically (see :func:`teleop.viz.shapes.custom_fixture_parts`)
 FIXTURE_TYPES = ("free", "rolling_disk", "sphere", "scalpel")
+#: camera views: a perspective from slightly above, or level and orthographic (a vertical blade
+#: looks vertical)
+VIEW_KINDS = ("perspective", "side")
 #: tool shapes: an upright disk (axle = body z), a scalpel (blade along body z), a plain box
 TOOL_SHAPES = ("disk", "scalpel", "box")
 FIXTURE_KEYS = ("radius_m", "center_m", "plane_origin_m", "plane_normal", "depth_m", "tip_m",
@@ -119,10 +123,17 @@ class VizScene:
     master_model: optional pinocchio Model of the haptic device (drawn as rails and joint markers).
     slave_robot: optional object with ``.model`` and ``.visual_model`` (e.g. a RobotWrapper) whose
     forward kinematics give poses in W. tissue: optional {"origin_m", "normal", "size_m" [lx, ly],
-    "thickness_m"} (m). slave_offset_m: where the slave side is drawn beside the master side (m).
-    force_scale_m_per_N: arrow length per newton (m/N, before the master zoom); master_zoom: how
+    "thickness_m"} (m). slave_offset_m: where the slave side is drawn beside the master side (layout m;
+    each side spans about 1).
+    force_scale_m_per_N: arrow length per newton (layout m/N, the same on both sides); master_zoom: how
     much the (small) master side is magnified, None to choose from the fixture's size;
-    mesh_cell_m: the grid (m) the arm's meshes are simplified on (0 keeps them whole).
+    master_robot: optional object with ``.model`` and ``.visual_model`` of the haptic device (e.g.
+    the cobot's URDF through ``pin.buildModelsFromUrdf``): drawn from its visuals, posed from
+    ``master_q``; replaces the stick drawing of ``master_model``. tool_radius_m: the drawn disk's
+    radius (m; None: the fixture's radius_m). follow: each side's aim follows its tool. view: one
+    of VIEW_KINDS. fixture_object / fixture_frame: a user's fixture (an instance of a type named by
+    ``fixture_type``, registered with ``teleop.dynamics.registry.register_fixture``) and the
+    FrameMap into the master workspace, for its ``draw(frame)``.
     """
 
     fixture_type: str
@@ -132,21 +143,35 @@ class VizScene:
     slave_robot: object = None
     slave_tool_frame: str | None = None
     tissue: dict | None = None
-    slave_offset_m: tuple = (0.8, 0.0, 0.0)
-    force_scale_m_per_N: float = 0.01
+    slave_offset_m: tuple = (1.15, 0.0, 0.0)
+    force_scale_m_per_N: float = 0.03
     master_zoom: float | None = None
-    mesh_cell_m: float = 0.005
+    master_robot: object = None
+    tool_radius_m: float | None = None
+    follow: bool = True
+    view: str = "perspective"
+    fixture_object: object = None
+    fixture_frame: object = None
 
     def __post_init__(self):
-        if self.fixture_type not in FIXTURE_TYPES:
-            raise ConfigError(f"VizScene.fixture_type: unknown {self.fixture_type!r}; choose one of {FIXTURE_TYPES}")
+        if self.fixture_type not in FIXTURE_TYPES and self.fixture_object is None:
+            raise ConfigError(f"VizScene.fixture_type: unknown {self.fixture_type!r}; choose one of {FIXTURE_TYPES}"
+                              " or give the user fixture as fixture_object")
+        if self.view not in VIEW_KINDS:
+            raise ConfigError(f"VizScene.view: unknown {self.view!r}; choose one of {VIEW_KINDS}")
+        if self.tool_radius_m is not None:
+            object.__setattr__(self, "tool_radius_m", _positive("VizScene.tool_radius_m", self.tool_radius_m))
+        if self.master_robot is not None:
+            for attr in ("model", "visual_model"):
+                if not hasattr(self.master_robot, attr):
+                    raise ConfigError(f"VizScene.master_robot: has no .{attr} (give a RobotWrapper-like object)")
         if self.tool_shape not in TOOL_SHAPES:
             raise ConfigError(f"VizScene.tool_shape: unknown {self.tool_shape!r}; choose one of {TOOL_SHAPES}")
         if not isinstance(self.fixture_params, dict):
             raise ConfigError("VizScene.fixture_params: expected a dict of FixtureSpec fields")
         params = {k: v for k, v in self.fixture_params.items() if v is not None}
         for k in params:
-            if k not in FIXTURE_KEYS:
+            if k not in FIXTURE_KEYS and self.fixture_object is None:
                 raise ConfigError(f"VizScene.fixture_params: unknown key {k!r}; known: {FIXTURE_KEYS}")
         for k in ("center_m", "plane_origin_m", "tip_m"):
             if k in params:
@@ -170,8 +195,6 @@ class VizScene:
         object.__setattr__(self, "force_scale_m_per_N", _positive("VizScene.force_scale_m_per_N", self.force_scale_m_per_N))
         if self.master_zoom is not None:
             object.__setattr__(self, "master_zoom", _positive("VizScene.master_zoom", self.master_zoom))
-        if not np.isfinite(self.mesh_cell_m) or self.mesh_cell_m < 0:
-            raise ConfigError(f"VizScene.mesh_cell_m: expected a size >= 0 m, got {self.mesh_cell_m}")
         if self.slave_robot is not None:
             for attr in ("model", "visual_model"):
                 if not hasattr(self.slave_robot, attr):

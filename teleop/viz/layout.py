@@ -4,7 +4,11 @@ transforms of the moving parts for each frame. Geometry helpers live in :mod:`te
 from __future__ import annotations
 
 import numpy as np
+import pinocchio as pin
 from meshcat import geometry as g
+from pinocchio.visualize import meshcat_visualizer as pmv
+
+from teleop.errors import ConfigError
 
 from teleop.viz.shapes import (
     VIEW_HEIGHT_M,
@@ -18,56 +22,115 @@ from teleop.viz.shapes import (
     contact_line_part,
     device_joint_part,
     fixture_parts,
-    geometry_shape,
     material,
     pose_matrix,
     scalpel_parts,
     segment_matrix,
     tissue_parts,
+    text_part,
     tool_parts,
+    triad_parts,
+    custom_fixture_parts,
+    FIXTURE_DRAWN,
 )
 
 PITCH = np.radians(20.0)
+#: layout metres between the two sides' anchors; each side's content is scaled to about SIDE_M
+SIDE_M = 1.0
+#: how far each frame moves a side's aim toward its tool (1: locked on the tool, 0: fixed)
+FOLLOW = 0.15
+#: newtons of the legend's scale arrow
+SCALE_N = 5.0
+#: the longest arrow drawn (layout m); a longer force is drawn this long (the legend says so)
+ARROW_MAX_M = 0.6
+
+
+def _visual_parts(robot, prefix: str, color: int | None = None) -> list:
+    """(part index, group path, part) of each visual of a RobotWrapper-like ``robot``, each made by
+    Pinocchio's own Meshcat loader (``loadPrimitive`` / ``loadMesh``); the group is posed from
+    ``GeometryData.oMg`` with the mesh scale applied, as Pinocchio's MeshcatVisualizer does."""
+    out = []
+    for k, gobj in enumerate(robot.visual_model.geometryObjects):
+        kind = type(gobj.geometry).__name__
+        if kind in ("Box", "Sphere", "Cylinder", "Capsule", "Cone"):
+            obj = pmv.loadPrimitive(gobj)
+        elif kind.startswith("BVHModel"):
+            obj = pmv.loadMesh(gobj.geometry)
+        else:
+            obj = None
+        if obj is None or not isinstance(obj, g.Geometry):
+            continue
+        c = gobj.meshColor
+        rgb = color if color is not None else (int(c[0] * 255) << 16) | (int(c[1] * 255) << 8) | int(c[2] * 255)
+        out.append((k, f"{prefix}/{gobj.name}", g.Mesh(obj, material(rgb))))
+    return out
 
 
 class Drawing:
     """The scene's geometry and layout (owns pinocchio Data workspaces for the device and arm).
 
-    Paths are relative to the scene root. The handle H is drawn with the device (at its "handle"
-    frame, else its last joint); without a device the virtual tool is where the hand is. The master side sits around the layout origin,
-    magnified by ``zoom`` about its fixture's centre; the slave side is translated by
-    ``slave_offset_m``. The root turns the layout so +x runs left to right on the default camera,
-    scales it to fill the view and centres it (we aim by moving the root: meshcat 0.3.2 has no
-    camera-target call).
+    Paths are relative to the scene root. The master side is magnified by ``zoom`` and the slave
+    side by ``slave_zoom`` so each fills about SIDE_M layout metres; the master side is anchored at
+    the layout origin, the slave side at ``slave_offset_m`` (layout m). Each side aims at its tool
+    and follows it (``scene.follow``: each frame moves the aim FOLLOW of the way to the tool), so a
+    moving tool stays in the middle of its side. Force arrows have the same length per newton on
+    both sides (``force_scale_m_per_N`` layout metres, whatever the zooms). The root turns the
+    layout so +x runs left to right on the camera (``view="perspective"`` tips it toward the
+    camera by PITCH; ``"side"`` looks level, with an orthographic camera set by the view).
+    The handle H is drawn with the device (at its "handle" frame, else its last joint); without a
+    device the virtual tool is where the hand is.
     """
 
     def __init__(self, scene):
-        import pinocchio as pin
-
         self.pin, self.scene = pin, scene
         p = scene.fixture_params
         self.radius = p.get("radius_m", 0.03)
+        tool_r = scene.tool_radius_m or self.radius
         tip = p.get("tip_m", (0.0, 0.0, 0.0))
         ft = scene.fixture_type
-        self.size = {"rolling_disk": max(8.0 * self.radius, 0.1), "sphere": 3.0 * self.radius,
-                     "scalpel": 0.12}.get(ft, 0.15)
-        self.zoom = scene.master_zoom or float(np.clip(0.6 / self.size, 1.0, 10.0))
-        centre = np.asarray(p.get("center_m" if ft == "sphere" else "plane_origin_m", (0.0, 0.0, 0.0)))
-        self.fixed = {"master": pose_matrix(-self.zoom * centre, None, (self.zoom,) * 3),
-                      "slave": pose_matrix(scene.slave_offset_m)}
-        parts = [(f"master/fixture/{n}", o, M) for n, o, M in fixture_parts(ft, p, self.size)]
+        self.size = {"rolling_disk": max(8.0 * self.radius, 0.1), "sphere": min(3.0 * self.radius, 10.0 * tool_r),
+                     "scalpel": 0.2}.get(ft, 0.15)
+        self.zoom = scene.master_zoom or float(np.clip(0.6 * SIDE_M / self.size, 1.0, 10.0))
+        tissue = scene.tissue
+        self.slave_size = max(tissue["size_m"]) if tissue is not None else 0.6
+        self.slave_zoom = float(np.clip(0.6 * SIDE_M / self.slave_size, 0.5, 3.0))
+        centre = np.asarray(p.get("center_m" if ft == "sphere" else "plane_origin_m", (0.0, 0.0, 0.0)), dtype=float)
+        self.aim = {"master": centre.copy(),
+                    "slave": np.asarray(tissue["origin_m"], dtype=float) if tissue is not None else np.zeros(3)}
+        self.anchor = {"master": np.zeros(3), "slave": np.asarray(scene.slave_offset_m, dtype=float)}
+        self.turn = {"master": np.eye(3), "slave": self._arm_behind(pin)}
+        self.fixed = {side: self._side_matrix(side) for side in ("master", "slave")}
+        self.n_per_m = {"master": self.zoom / scene.force_scale_m_per_N, "slave": self.slave_zoom / scene.force_scale_m_per_N}
+        if ft in FIXTURE_DRAWN:
+            parts = [(f"master/fixture/{n}", o, M) for n, o, M in fixture_parts(ft, p, 1.3 * self.size)]
+        else:
+            parts = [(f"master/fixture/{n}", o, M) for n, o, M in custom_fixture_parts(scene.fixture_object, scene.fixture_frame)]
         for name, ghost in (("reference", False), ("virtual", True)):
-            parts += [(f"master/{name}/{n}", o, M) for n, o, M in tool_parts(scene.tool_shape, self.radius, tip, ghost)]
+            parts += [(f"master/{name}/{n}", o, M) for n, o, M in tool_parts(scene.tool_shape, tool_r, tip, ghost)]
+        self.generic = ft not in FIXTURE_DRAWN and not hasattr(scene.fixture_object, "draw")
+        if self.generic:  # a user's fixture without a drawing: the tool's frame triad (and a trace)
+            parts += [(f"master/reference/triad/{n}", o, M) for n, o, M in triad_parts(0.4 * self.size)]
+        self.trace_master = [] if self.generic else None
         if ft == "rolling_disk":
             parts += [(f"master/contact/{n}", o, M) for n, o, M in contact_line_part(self.radius)]
-        r_m = 0.0015
-        for name, r, where in (("operator", r_m, "master"), ("constraint", r_m, "master"), ("contact", 0.004, "slave")):
+        r_m = 0.0015 * 5.0 / self.zoom
+        for name, r, where in (("operator", r_m, "master"), ("constraint", r_m, "master"),
+                               ("contact", 0.0075 / self.slave_zoom, "slave")):
             parts += [(f"{where}/arrows/{name}/{n}", o, M) for n, o, M in arrow_parts(r, COLORS[name])]
         parts += [(f"slave/tool/{n}", o, M) for n, o, M in scalpel_parts((0, 0, 0), 1.0, COLORS["tool"])]
-        if scene.tissue is not None:
-            parts += [(f"slave/tissue/{n}", o, M) for n, o, M in tissue_parts(scene.tissue)]
+        if tissue is not None:
+            parts += [(f"slave/tissue/{n}", o, M) for n, o, M in tissue_parts(tissue)]
         self.master = scene.master_model
-        if self.master is not None:
+        self.device_parts = []
+        if scene.master_robot is not None:
+            self.master = scene.master_robot.model
+            self.mdata = self.master.createData()
+            self.dgdata = pin.GeometryData(scene.master_robot.visual_model)
+            for k, path, obj in _visual_parts(scene.master_robot, "master/device/visuals", COLORS["device"]):
+                self.device_parts.append((k, path))
+                parts.append((f"{path}/shape", obj, np.eye(4)))
+            self.handle_fid = self.master.getFrameId("handle") if self.master.existFrame("handle") else None
+        elif self.master is not None:
             m = self.master
             self.mdata = m.createData()
             self.handle_fid = m.getFrameId("handle") if m.existFrame("handle") else None
@@ -76,6 +139,7 @@ class Drawing:
                 o, M = device_joint_part(j, m.joints[j])
                 parts.append((f"master/device/joint{j}/marker", o, M))
             parts.append(("master/device/link_handle", g.Mesh(g.Cylinder(1.0, 0.004), material(COLORS["device"])), np.eye(4)))
+        if self.master is not None:
             knob, grip = g.Sphere(0.006), g.Cylinder(0.05, 0.004)  # the handle H: knob at H, grip along -z
             parts += [("master/handle/knob", g.Mesh(knob, material(COLORS["handle"])), np.eye(4)),
                       ("master/handle/grip", g.Mesh(grip, material(COLORS["handle"])), pose_matrix((0, 0, -0.025), Y_TO_Z))]
@@ -84,38 +148,95 @@ class Drawing:
         if self.arm is not None:
             self.adata = self.arm.model.createData()
             self.gdata = pin.GeometryData(self.arm.visual_model)
-            for k, gobj in enumerate(self.arm.visual_model.geometryObjects):
-                shape = geometry_shape(gobj, scene.mesh_cell_m, COLORS["arm"])
-                if shape is not None:
-                    self.arm_parts.append((k, f"slave/arm/{gobj.name}"))
-                    parts.append((f"slave/arm/{gobj.name}/shape", *shape))
+            for k, path, obj in _visual_parts(self.arm, "slave/arm", COLORS["arm"]):
+                self.arm_parts.append((k, path))
+                parts.append((f"{path}/shape", obj, np.eye(4)))
             self.tool_fid = (self.arm.model.getFrameId(scene.slave_tool_frame)
                              if scene.slave_tool_frame is not None else None)
+        self.has_slave = self.arm is not None or tissue is not None
+        parts += self._labels()
         self.parts = parts
         self.fixed["root"] = self._root_matrix()
         # nodes that move: hidden until a frame places them
         groups = {p.rsplit("/", 1)[0] for p, _, _ in parts}
         self.moving = sorted(p for p, _, _ in parts if "/arrows/" in p)
-        self.moving += sorted(p for p in groups if p.split("/")[1] in ("reference", "virtual", "contact", "handle", "tool")
-                              or p.startswith("slave/arm/"))
+        self.moving += sorted(p for p in groups if p.count("/") == 1 and p.split("/")[1] in (
+            "reference", "virtual", "contact", "handle", "tool") or p.startswith(("slave/arm/", "master/device/visuals/")))
         self.moving += sorted(p for p, _, _ in parts if p.startswith("master/device/link"))
         self.moving += sorted(p for p in groups if p.startswith("master/device/joint"))
+        self.followed = ("master", "slave") if scene.follow else ()
+
+    def _side_matrix(self, side: str) -> np.ndarray:
+        """Layout transform of a side: anchor + zoom * (x - aim)."""
+        z = self.zoom if side == "master" else self.slave_zoom
+        R = self.turn[side]
+        return pose_matrix(self.anchor[side] - z * (R @ self.aim[side]), R, (z, z, z))
+
+    def _arm_behind(self, pin) -> np.ndarray:
+        """A turn of the slave side about the vertical that puts the arm's base behind its tissue
+        and to the right (away from the master side; straight right in the side view), so the
+        arm reaches in from the far side instead of across the page."""
+        arm = self.scene.slave_robot
+        if arm is None or self.scene.tissue is None:
+            return np.eye(3)
+        d = arm.model.createData()
+        pin.forwardKinematics(arm.model, d, pin.neutral(arm.model))
+        v = d.oMi[1].translation - np.asarray(self.scene.tissue["origin_m"], dtype=float)
+        if np.hypot(v[0], v[1]) < 1e-6:
+            return np.eye(3)
+        want = 0.0 if self.scene.view == "side" else np.pi / 2  # layout +x, or +y (behind)
+        a = want - np.arctan2(v[1], v[0])
+        c, s_ = np.cos(a), np.sin(a)
+        return np.array([[c, -s_, 0.0], [s_, c, 0.0], [0.0, 0.0, 1.0]])
+
+    def _labels(self) -> list:
+        """The "master" / "slave" signs above each side and the legend (bottom left), in layout m
+        (under the root, not the zoomed sides); the legend's scale arrow is SCALE_N newtons long
+        at the arrows' common scale."""
+        h, top = 0.1 * SIDE_M, 0.42 * SIDE_M
+        c_, s_ = np.cos(self._pitch()), np.sin(self._pitch())
+        face = pose_matrix(R=np.array([[1.0, 0.0, 0.0], [0.0, c_, s_], [0.0, -s_, c_]]))  # square to the camera
+        label = COLORS["label"]
+        out = []
+        for side in ("master", "slave") if self.has_slave else ("master",):
+            name, obj, M = text_part("sign", [(side, label)], h)
+            M = pose_matrix(self.anchor[side] + [-0.15 * SIDE_M, 0.0, top]) @ face @ M
+            out.append((f"labels/{side}/{name}", obj, M))
+        m_per_N = self.scene.force_scale_m_per_N
+        px_row = 56 * 1.3
+        row_m = 0.05 * SIDE_M
+        px_per_m = px_row / row_m
+        L = SCALE_N * m_per_N * px_per_m  # the scale arrow: SCALE_N newtons, in pixels
+        text = COLORS["text"]
+        entries = [("operator's hand force", COLORS["operator"]), ("fixture (constraint) force", COLORS["constraint"])]
+        if self.has_slave:
+            entries.append(("tissue contact force", COLORS["contact"]))
+        entries.append((f"{SCALE_N:g} N (longest drawn: {ARROW_MAX_M / m_per_N:.0f} N)", text))
+        arrows = {k: (c, L) for k, (_, c) in enumerate(entries)}
+        rows = [(t, text) for t, _ in entries] + [("blue: reference tool  cyan: virtual tool (device)", text)]
+        names = (["violet: cobot"] if self.master is not None else []) + (
+            ["orange: slave arm", "pink: tissue"] if self.has_slave else [])
+        if names:
+            rows.append(("  ".join(names), text))
+        name, obj, M = text_part("legend", rows, row_m * len(rows) * 1.0 + 24 / px_per_m, arrows=arrows)
+        where = (-0.55, 0.0, -0.62) if self.has_slave else (0.62, 0.0, -0.15)  # bottom left, or beside
+        M = pose_matrix(np.asarray(where) * SIDE_M) @ face @ M
+        out.append((f"labels/{name}", obj, M))
+        return out
+
+    def _pitch(self) -> float:
+        """How far the layout is tipped toward the camera (rad): PITCH, 0 in the side view."""
+        return PITCH if self.scene.view == "perspective" else 0.0
 
     def _root_matrix(self) -> np.ndarray:
-        h = 0.5 * self.zoom * self.size
-        xs, zs = [-h, h], [-h, h]
+        h = 0.5 * SIDE_M
         off = np.asarray(self.scene.slave_offset_m)
-        if self.arm is not None:
-            xs += [off[0] - 0.3, off[0] + 0.9]
-            zs += [off[2], off[2] + 1.0]
-        if self.scene.tissue is not None:
-            o, half = off + self.scene.tissue["origin_m"], 0.5 * max(self.scene.tissue["size_m"])
-            xs += [o[0] - half, o[0] + half]
-            zs += [o[2] - half, o[2] + half]
+        right = off[0] + h + 0.1 if self.has_slave else 1.7 * SIDE_M  # the slave side, or the legend
+        xs, zs = [-h if self.has_slave else -1.6 * h, right], [-0.75 * SIDE_M, 0.6 * SIDE_M]
         c = np.array([0.5 * (min(xs) + max(xs)), 0.0, 0.5 * (min(zs) + max(zs))])
-        s = min(0.8 * VIEW_WIDTH_M / (max(xs) - min(xs)), 0.75 * VIEW_HEIGHT_M / (max(zs) - min(zs)))
+        s = min(0.9 * VIEW_WIDTH_M / (max(xs) - min(xs)), 0.9 * VIEW_HEIGHT_M / (max(zs) - min(zs)))
         Rz = np.array([[0.0, -1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, 1.0]])  # layout +x -> screen right
-        c_, s_ = np.cos(PITCH), np.sin(PITCH)
+        c_, s_ = np.cos(self._pitch()), np.sin(self._pitch())
         Ry = np.array([[c_, 0.0, s_], [0.0, 1.0, 0.0], [-s_, 0.0, c_]])  # the far side (-x) rises
         return pose_matrix(-s * (Ry @ Rz @ c), Ry @ Rz, (s, s, s))
 
@@ -128,7 +249,6 @@ class Drawing:
         if q.shape[0] == m.nq:
             return np.asarray(q, dtype=float)
         if q.shape[0] != m.nv:
-            from teleop.errors import ConfigError
             raise ConfigError(f"VizFrame.master_q: expected {m.nq} (pinocchio) or {m.nv} joint values, got {q.shape[0]}")
         out = self.pin.neutral(m)
         for j in range(1, m.njoints):
@@ -143,7 +263,6 @@ class Drawing:
     def _slave_q(self, q) -> np.ndarray:
         nq = self.arm.model.nq
         if q.shape[0] > nq:
-            from teleop.errors import ConfigError
             raise ConfigError(f"VizFrame.slave_q: the slave model has {nq} joint values, got {q.shape[0]}")
         if q.shape[0] == nq:
             return np.asarray(q, dtype=float)
@@ -164,7 +283,17 @@ class Drawing:
         if f.virtual_pose is not None:
             out["master/virtual"] = pose_matrix(*f.virtual_pose)
         handle = f.virtual_pose if f.virtual_pose is not None else ref
-        if self.master is not None and f.master_q is not None:
+        if self.device_parts and f.master_q is not None:
+            scaled = pmv.applyScalingOnHomegeneousTransform
+            m, d, vm = self.master, self.mdata, self.scene.master_robot.visual_model
+            pin.forwardKinematics(m, d, self._master_q(f.master_q))
+            pin.updateGeometryPlacements(m, d, vm, self.dgdata)
+            for k, path in self.device_parts:
+                out[path] = scaled(self.dgdata.oMg[k].homogeneous, vm.geometryObjects[k].meshScale)
+            X = pin.updateFramePlacement(m, d, self.handle_fid) if self.handle_fid is not None else d.oMi[m.njoints - 1]
+            handle = (X.translation, X.rotation)
+            out["master/handle"] = pose_matrix(*handle)
+        elif self.master is not None and f.master_q is not None:
             m, d = self.master, self.mdata
             pin.forwardKinematics(m, d, self._master_q(f.master_q))
             for j in range(1, m.njoints):
@@ -177,24 +306,40 @@ class Drawing:
             out["master/device/link_handle"] = segment_matrix(d.oMi[m.njoints - 1].translation, X.translation)
             handle = (X.translation, X.rotation)
             out["master/handle"] = pose_matrix(*handle)
-        s, head = self.scene.force_scale_m_per_N, 0.009
+        s = self.scene.force_scale_m_per_N / self.zoom  # m per N on the master side, before the zoom
+        head = 0.045 / self.zoom
         for name, w, at in (("operator", f.operator_wrench, handle), ("constraint", f.constraint_wrench, ref)):
             if at is not None:
-                shaft, tip = arrow_matrices(at[0], w[:3] if w is not None else np.zeros(3), s, head, 0.5 * self.size)
+                shaft, tip = arrow_matrices(at[0], w[:3] if w is not None else np.zeros(3), s, head,
+                                            ARROW_MAX_M / self.zoom)
                 out[f"master/arrows/{name}/shaft"], out[f"master/arrows/{name}/head"] = shaft, tip
         tool = f.slave_tool_pose
         if self.arm is not None and f.slave_q is not None:
             q = self._slave_q(f.slave_q)
             pin.forwardKinematics(self.arm.model, self.adata, q)
             pin.updateGeometryPlacements(self.arm.model, self.adata, self.arm.visual_model, self.gdata)
-            for k, path in self.arm_parts:
-                X = self.gdata.oMg[k]
-                out[path] = pose_matrix(X.translation, X.rotation)
+            vm = self.arm.visual_model
+            for k, path in self.arm_parts:  # as Pinocchio's MeshcatVisualizer poses them
+                out[path] = pmv.applyScalingOnHomegeneousTransform(self.gdata.oMg[k].homogeneous,
+                                                                   vm.geometryObjects[k].meshScale)
             if tool is None and self.tool_fid is not None:
                 X = pin.updateFramePlacement(self.arm.model, self.adata, self.tool_fid)
                 tool = (X.translation, X.rotation)
         if tool is not None:
             out["slave/tool"] = pose_matrix(*tool)
             w = f.contact_wrench[:3] if f.contact_wrench is not None else np.zeros(3)
-            out["slave/arrows/contact/shaft"], out["slave/arrows/contact/head"] = arrow_matrices(tool[0], w, s, 0.024)
+            s_s = self.scene.force_scale_m_per_N / self.slave_zoom
+            out["slave/arrows/contact/shaft"], out["slave/arrows/contact/head"] = arrow_matrices(
+                tool[0], w, s_s, 0.045 / self.slave_zoom, ARROW_MAX_M / self.slave_zoom)
+        self._follow(out, ref, tool)
+        if self.trace_master is not None and ref is not None:
+            self.trace_master.append(np.asarray(ref[0], dtype=float).copy())
         return out
+
+    def _follow(self, out: dict, ref, tool) -> None:
+        """Move each followed side's aim FOLLOW of the way toward its tool; puts the sides'
+        transforms in ``out``."""
+        for side, at in (("master", ref), ("slave", tool)):
+            if side in self.followed and at is not None:
+                self.aim[side] = self.aim[side] + FOLLOW * (np.asarray(at[0], dtype=float) - self.aim[side])
+                out[side] = self._side_matrix(side)

@@ -15,12 +15,14 @@ import queue
 import subprocess
 import sys
 import threading
+import time
 import weakref
 from pathlib import Path
 
 import numpy as np
 import zmq
 from meshcat import Visualizer
+from meshcat import geometry as g
 from meshcat import transformations as tf
 from meshcat.animation import Animation
 from meshcat.visualizer import ViewerWindow
@@ -28,7 +30,7 @@ from meshcat.visualizer import ViewerWindow
 from teleop.errors import ConfigError, TeleopError
 from teleop.viz.frames import VizFrame, VizScene
 from teleop.viz.layout import Drawing
-from teleop.viz.shapes import polyline
+from teleop.viz.shapes import COLORS, VIEW_HEIGHT_M, VIEW_WIDTH_M, polyline
 
 log = logging.getLogger(__name__)
 
@@ -173,6 +175,10 @@ class MeshcatView:
                     node.set_transform(M)
             for path, M in self.drawing.hidden().items():
                 self._node(path).set_transform(M)
+            if self.scene.view == "side":  # level and orthographic: verticals stay vertical
+                w, h = 0.5 * VIEW_WIDTH_M, 0.5 * VIEW_HEIGHT_M
+                self.vis["/Cameras/default/rotated"].set_object(g.OrthographicCamera(-w, w, h, -h, -100.0, 100.0))
+                self.vis["/Cameras/default/rotated/<object>"].set_property("position", [3.0, 0.0, 0.0])
 
     # -- publishing -----------------------------------------------------------------------------
     def publish(self, frame: VizFrame) -> bool:
@@ -233,6 +239,9 @@ class MeshcatView:
                 else:
                     self._node("slave/cut/live").delete()
                 self._sent_cut = len(trace)
+            mt = self.drawing.trace_master
+            if mt is not None and len(mt) >= 2 and len(mt) % 10 == 0:  # a user fixture's tool path
+                self._node("master/trace").set_object(polyline(mt, COLORS["trace"]))
 
     def flush(self, timeout_s: float = 10.0) -> None:
         """Accept the newest dropped frame, then wait until the server has everything."""
@@ -268,6 +277,9 @@ class MeshcatView:
             self._node("slave/cut").delete()
             for name, pts in chunks:
                 self._node(f"slave/cut/{name}").set_object(polyline(pts))
+            mt = self.drawing.trace_master
+            if mt is not None and len(mt) >= 2:
+                self._node("master/trace").set_object(polyline(mt, COLORS["trace"]))
             self.vis.set_animation(anim, play=bool(autoplay), repetitions=1)
             html = self.vis.static_html()
             self.vis.set_animation(Animation(), play=False)  # live browsers go back to live frames
@@ -304,6 +316,17 @@ class MeshcatView:
         return chunks
 
     # -- lifetime -------------------------------------------------------------------------------
+    def hold(self, say=None) -> None:
+        """Keep the page served (its last frame) until Ctrl-C; ``say(url)`` is told where."""
+        self.flush()
+        if say is not None:
+            say(self.url)
+        try:
+            while self.server_process.poll() is None:
+                time.sleep(0.25)
+        except KeyboardInterrupt:
+            pass
+
     @property
     def server_process(self):
         """The meshcat server's ``subprocess.Popen`` (for tests and diagnostics)."""

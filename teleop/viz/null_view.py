@@ -32,6 +32,9 @@ class NullView:
             raise ConfigError("save_html: this view does not record; make it with record=True")
         return None
 
+    def hold(self, say=None) -> None:
+        """Nothing is served: returns at once."""
+
     def close(self) -> None:
         self.closed = True
 

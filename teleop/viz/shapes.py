@@ -8,8 +8,16 @@ scaled along y draws a segment or an arrow shaft. Lengths in m, colours 0xRRGGBB
 
 from __future__ import annotations
 
+import io
+
 import numpy as np
+import pinocchio as pin
+from matplotlib import font_manager
 from meshcat import geometry as g
+from PIL import Image, ImageDraw, ImageFont
+
+from teleop.dynamics.registry import FrameMap
+from teleop.errors import ConfigError
 
 #: colours, chosen to be told apart in a screenshot (see tests/integration/test_browser_render.py)
 COLORS = {
@@ -17,7 +25,7 @@ COLORS = {
     "ghost": 0x33CCFF,       # the virtual tool, translucent cyan
     "marker": 0xFFD400,      # the disk's spoke, so rolling shows
     "handle": 0x404040,
-    "device": 0x7A7A7A,
+    "device": 0x6A4FC8,      # the cobot master device, violet
     "plane": 0x9A9AA0,
     "depth": 0xE0B030,
     "sphere": 0x50B070,
@@ -29,6 +37,9 @@ COLORS = {
     "blade": 0xC8C8D0,
     "tissue": 0xF04890,      # the tissue block, pink
     "cut": 0x600000,
+    "label": 0x00A070,       # the "master" / "slave" labels, sea green
+    "trace": 0x3050A0,       # the generic drawing's trace of the tool
+    "text": 0x202020,        # legend text
 }
 #: a scale that hides a part without deleting it (arrows with no force, zero-length links)
 TINY = 1e-6
@@ -39,6 +50,62 @@ def material(color: int, opacity: float = 1.0, **kw) -> g.MeshLambertMaterial:
     if opacity < 1.0:
         kw.setdefault("depthWrite", False)
     return g.MeshLambertMaterial(color=color, opacity=opacity, transparent=opacity < 1.0, **kw)
+
+
+def text_png(lines, px: int = 56, pad: int = 12, arrows: dict | None = None) -> tuple[bytes, float]:
+    """A transparent PNG of text ``lines`` [(text, colour)], one per row, through Pillow with
+    matplotlib's DejaVu Sans; a row whose key is in ``arrows`` ({row: (colour, length px)}) starts
+    with an arrow of that colour and length. Returns (PNG bytes, width / height)."""
+    font = ImageFont.truetype(font_manager.findfont(font_manager.FontProperties(family="DejaVu Sans", weight="bold")), px)
+    arrows = arrows or {}
+    lead = {k: int(v[1]) + px // 2 for k, v in arrows.items()}
+    widths = [font.getbbox(t)[2] + lead.get(k, 0) for k, (t, _) in enumerate(lines)]
+    row = int(px * 1.3)
+    img = Image.new("RGBA", (max(widths) + 2 * pad, row * len(lines) + 2 * pad), (255, 255, 255, 0))
+    d = ImageDraw.Draw(img)
+    for k, (text, color) in enumerate(lines):
+        y = pad + k * row
+        x = pad
+        if k in arrows:
+            c, L = arrows[k]
+            rgb = ((c >> 16) & 255, (c >> 8) & 255, c & 255, 255)
+            yc = y + row // 2
+            d.line([(x, yc), (x + L - px // 3, yc)], fill=rgb, width=max(4, px // 4))
+            d.polygon([(x + L, yc), (x + L - px // 3, yc - px // 5), (x + L - px // 3, yc + px // 5)], fill=rgb)
+            x += lead[k]
+        d.text((x, y), text, font=font, fill=((color >> 16) & 255, (color >> 8) & 255, color & 255, 255))
+    buf = io.BytesIO()
+    img.save(buf, format="PNG")
+    return buf.getvalue(), img.width / img.height
+
+
+def text_part(name: str, lines, height_m: float, arrows: dict | None = None) -> tuple:
+    """A flat, camera-facing (layout x right, z up; seen from layout -y) sign of ``lines`` of
+    text ``height_m`` tall (layout m): (name, meshcat object, fixed transform). Anchored at its
+    left edge, vertically centred."""
+    png, aspect = text_png(lines, arrows=arrows)
+    w = height_m * aspect
+    tex = g.ImageTexture(g.PngImage(png))
+    # front faces only (meshcat's default is both: the mirrored back face would show through);
+    # no depth test, so the text stays readable in front of the arm or the device
+    mat = g.MeshBasicMaterial(map=tex, transparent=True, side=0, depthTest=False)
+    obj = g.Mesh(g.Box((w, height_m, 1e-5)), mat)
+    # box x, y, z -> layout -x, z, y: the camera (at layout -y) sees the box's -z face, whose
+    # texture three.js lays right to left along box x, so the text reads left to right
+    R = np.array([[-1.0, 0.0, 0.0], [0.0, 0.0, 1.0], [0.0, 1.0, 0.0]])
+    return (name, obj, pose_matrix((0.5 * w, 0.0, 0.0), R))
+
+
+def triad_parts(length: float) -> list:
+    """A frame triad: x red, y green, z blue unit-ish axes of ``length`` m (the generic drawing of
+    a tool whose fixture has no drawing of its own)."""
+    r = 0.04 * length
+    out = []
+    for k, (axis, c) in enumerate((((1.0, 0.0, 0.0), 0xE02020), ((0.0, 1.0, 0.0), 0x20A020),
+                                   ((0.0, 0.0, 1.0), 0x2040E0))):
+        out.append((f"axis{k}", g.Mesh(g.Cylinder(1.0, r), material(c)),
+                    segment_matrix((0.0, 0.0, 0.0), np.asarray(axis) * length)))
+    return out
 
 
 def pose_matrix(p=(0.0, 0.0, 0.0), R=None, scale=(1.0, 1.0, 1.0)) -> np.ndarray:
@@ -52,16 +119,11 @@ def pose_matrix(p=(0.0, 0.0, 0.0), R=None, scale=(1.0, 1.0, 1.0)) -> np.ndarray:
 
 
 def rotation_between(a, b) -> np.ndarray:
-    """The smallest rotation taking unit vector a onto unit vector b."""
+    """The smallest rotation taking direction a onto direction b (Eigen's
+    ``Quaternion::FromTwoVectors`` through Pinocchio; a half turn when they are opposite)."""
     a = np.asarray(a, dtype=float) / np.linalg.norm(a)
     b = np.asarray(b, dtype=float) / np.linalg.norm(b)
-    v, c = np.cross(a, b), float(a @ b)
-    if c < -1.0 + 1e-9:  # opposite: half turn about any axis perpendicular to a
-        axis = np.cross(a, [1.0, 0.0, 0.0] if abs(a[0]) < 0.9 else [0.0, 1.0, 0.0])
-        axis /= np.linalg.norm(axis)
-        return 2.0 * np.outer(axis, axis) - np.eye(3)
-    K = np.array([[0.0, -v[2], v[1]], [v[2], 0.0, -v[0]], [-v[1], v[0], 0.0]])
-    return np.eye(3) + K + K @ K / (1.0 + c)
+    return pin.Quaternion.FromTwoVectors(a, b).matrix()
 
 
 def frame_from_normal(n) -> np.ndarray:
@@ -170,6 +232,33 @@ def fixture_parts(fixture_type: str, params: dict, size: float) -> list:
     return []
 
 
+#: fixture types drawn by :func:`fixture_parts`; any other is a user's (see custom_fixture_parts)
+FIXTURE_DRAWN = ("free", "rolling_disk", "sphere", "scalpel")
+
+
+def custom_fixture_parts(fixture, frame=None) -> list:
+    """A user's fixture type's own drawing, the one small protocol the viewer asks of it: a
+    method ``draw(frame)`` returning an iterable of ``(name, meshcat object, 4x4 transform)``
+    (m, in the frame ``frame`` maps the patient frame into: a
+    :class:`teleop.dynamics.registry.FrameMap`, the master workspace for the master side), the
+    same map its ``build(frame)`` uses. A fixture without ``draw`` gets nothing here: the view
+    then draws the tool's frame triad and the trace of its path instead."""
+    draw = getattr(fixture, "draw", None)
+    if draw is None:
+        return []
+    if frame is None:
+        frame = FrameMap.identity()
+    out = []
+    for k, item in enumerate(draw(frame)):
+        try:
+            name, obj, M = item
+            M = np.asarray(M, dtype=float).reshape(4, 4)
+        except (TypeError, ValueError):
+            raise ConfigError(f"{type(fixture).__name__}.draw: item {k} is not (name, meshcat object, 4x4 transform)") from None
+        out.append((str(name), obj, M))
+    return out
+
+
 def contact_line_part(radius: float) -> tuple:
     """The rolling disk's contact line: a segment along local x through the contact point."""
     pts = np.array([[-1.5 * radius, 0.0, 0.0], [1.5 * radius, 0.0, 0.0]], dtype=np.float32).T
@@ -204,51 +293,6 @@ def polyline(points, color: int = COLORS["cut"]) -> g.Line:
     """A line strip through (n, 3) points (m)."""
     pts = np.ascontiguousarray(np.asarray(points, dtype=np.float32).T)
     return g.Line(g.PointsGeometry(pts), g.LineBasicMaterial(color=color))
-
-
-def decimate(vertices: np.ndarray, faces: np.ndarray, cell: float):
-    """Vertex clustering on a grid of ``cell`` m: merge the vertices in each cell (their mean),
-    drop the triangles that collapse. Returns (vertices (m, 3), faces (k, 3))."""
-    if cell <= 0 or len(vertices) == 0:
-        return vertices, faces
-    key = np.floor(vertices / cell).astype(np.int64)
-    _, inv, count = np.unique(key, axis=0, return_inverse=True, return_counts=True)
-    inv = inv.reshape(-1)
-    merged = np.zeros((count.size, 3))
-    np.add.at(merged, inv, vertices)
-    merged /= count[:, None]
-    f = inv[faces]
-    keep = (f[:, 0] != f[:, 1]) & (f[:, 1] != f[:, 2]) & (f[:, 0] != f[:, 2])
-    return merged, f[keep]
-
-
-def _bvh_arrays(geom):
-    v = np.asarray(geom.vertices(), dtype=float)
-    tri = geom.tri_indices
-    f = np.array([(t[0], t[1], t[2]) for t in map(tri, range(geom.num_tris))], dtype=np.int64).reshape(-1, 3)
-    return v, f
-
-
-def geometry_shape(gobj, cell: float, color: int):
-    """(meshcat object, fixed transform) for a pinocchio GeometryObject, or None if unsupported.
-    Meshes (coal BVH models) are simplified on a ``cell`` m grid; primitives become primitives."""
-    geom = gobj.geometry
-    kind = type(geom).__name__
-    mat = material(color)
-    if kind.startswith("BVHModel"):
-        v, f = _bvh_arrays(geom)
-        v, f = decimate(v * np.asarray(gobj.meshScale, dtype=float), f, cell)
-        if len(f) == 0:
-            return None
-        return g.Mesh(g.TriangularMeshGeometry(v, f), mat), np.eye(4)
-    if kind == "Box":
-        return g.Mesh(g.Box(2.0 * np.asarray(geom.halfSide)), mat), np.eye(4)
-    if kind == "Sphere":
-        return g.Mesh(g.Sphere(geom.radius), mat), np.eye(4)
-    if kind in ("Cylinder", "Capsule"):
-        h = 2.0 * geom.halfLength + (2.0 * geom.radius if kind == "Capsule" else 0.0)
-        return g.Mesh(g.Cylinder(h, geom.radius), mat), pose_matrix(R=Y_TO_Z)
-    return None
 
 
 def joint_axis(joint) -> np.ndarray:

@@ -57,12 +57,22 @@ def test_plot_without_a_log_is_a_clear_error(tmp_path, capsys):
     assert "no run log" in capsys.readouterr().err
 
 
-def test_replay_writes_a_recording_of_a_logged_run(tmp_path, capsys):
+def test_replay_writes_a_new_recording_and_keeps_the_runs_own(tmp_path, capsys):
+    import hashlib
+
     assert main(["run", "straight_incision", "--duration", "0.3", "--out", str(tmp_path / "run")]) == 0
-    (tmp_path / "run" / "recording.html").unlink()
+    own = tmp_path / "run" / "recording.html"
+    before = hashlib.sha256(own.read_bytes()).hexdigest()
     assert main(["replay", str(tmp_path / "run")]) == 0
-    assert (tmp_path / "run" / "recording.html").stat().st_size > 100_000
+    assert hashlib.sha256(own.read_bytes()).hexdigest() == before  # the run's own file untouched
+    assert (tmp_path / "run" / "replay.html").stat().st_size > 100_000
     assert "replayed" in capsys.readouterr().out
+    assert main(["replay", str(tmp_path / "run"), "--out", str(own)]) == 2  # not over the run's files
+    assert "--force" in capsys.readouterr().err
+    log = tmp_path / "run" / "log.npz"
+    assert main(["replay", str(tmp_path / "run"), "--out", str(log), "--force"]) == 2  # data: never
+    assert log.stat().st_size > 1000
+    assert hashlib.sha256(own.read_bytes()).hexdigest() == before
 
 
 def test_an_incision_run_plots_the_slave_and_its_contact_force(tmp_path):

@@ -124,3 +124,33 @@ def test_server_dies_with_a_killed_parent():
     finally:
         if child.poll() is None:
             child.kill()
+
+
+def test_the_side_view_is_level_and_orthographic(tmp_path):
+    """--view side: the layout is not tipped (a vertical stays world-vertical) and the page's
+    camera is orthographic, looking level along the world x axis; the default is a perspective
+    from above."""
+    from teleop.viz.layout import Drawing
+
+    kw = dict(tissue={"origin_m": (0.5, 0.0, 0.1), "size_m": (0.2, 0.2), "thickness_m": 0.03})
+    up_side = Drawing(VizScene("scalpel", {}, "scalpel", view="side", **kw)).fixed["root"][:3, :3] @ [0, 0, 1.0]
+    up_persp = Drawing(VizScene("scalpel", {}, "scalpel", **kw)).fixed["root"][:3, :3] @ [0, 0, 1.0]
+    assert np.allclose(up_side[:2], 0.0) and up_side[2] > 0  # a vertical blade draws vertical
+    assert abs(up_persp[0]) > 0.1 * np.linalg.norm(up_persp)  # tipped toward the camera
+    with make_view("meshcat", VizScene("scalpel", {}, "scalpel", view="side", **kw), record=True) as view:
+        view.publish(_frame(0))
+        html = view.save_html(tmp_path / "side.html").read_text()
+    cams = [c for c in _commands(html) if c.get("type") == "set_object" and "Cameras" in c.get("path", "")]
+    assert any(c["object"]["object"]["type"] == "OrthographicCamera" for c in cams)
+    pos = [c for c in _commands(html) if c.get("type") == "set_property" and c.get("property") == "position"
+           and "Cameras" in c.get("path", "")]
+    assert pos and pos[-1]["value"][1] == 0.0  # level: no height above the target
+
+
+def test_the_page_labels_both_sides_and_carries_a_legend(scene, tmp_path):
+    with make_view("meshcat", scene, record=True) as view:
+        view.publish(_frame(0))
+        html = view.save_html(tmp_path / "labels.html").read_text()
+    paths = {c.get("path", "") for c in _commands(html) if c.get("type") == "set_object"}
+    for part in ("labels/master/sign", "labels/slave/sign", "labels/legend"):
+        assert any(p.endswith(part) for p in paths), part
