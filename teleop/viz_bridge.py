@@ -18,8 +18,9 @@ import numpy as np
 import tomli_w
 
 from teleop.errors import ConfigError
-from teleop.scenario.build import master_fixture_spec
+from teleop.scenario.build import master_fixture_spec, master_frame
 from teleop.scenario.schema import Scene, load_scene
+from teleop.scenario.tables import CustomFixture
 from teleop.typed import as_table
 
 #: the files a run folder holds for the viewer
@@ -98,10 +99,12 @@ def viz_scene_for(scene, view: str = "perspective", follow: bool = True):
     from teleop.viz import VizScene
 
     spec = master_fixture_spec(scene)
-    params = {k: v for k, v in asdict(spec).items() if k not in ("type", "euler_sequence", "knife_edge", "trocar_m")}
+    custom = isinstance(spec, CustomFixture)
+    params = {} if custom else {k: v for k, v in asdict(spec).items()
+                                if k not in ("type", "euler_sequence", "knife_edge", "trocar_m")}
     shape = {"rolling_disk": "disk", "sphere": "disk", "scalpel": "scalpel"}.get(spec.type, "box")
     tissue = None
-    if scene.tissue is not None or scene.slave is not None:
+    if scene.tissue is not None or (scene.slave is not None and not custom):
         t = scene.tissue
         tissue = {
             "origin_m": list(t.origin_m if t is not None else scene.fixture.plane_origin_m),
@@ -116,6 +119,7 @@ def viz_scene_for(scene, view: str = "perspective", follow: bool = True):
         fixture_type=spec.type, fixture_params=params, tool_shape=shape,
         slave_robot=slave_robot_for(scene), tissue=tissue, tool_radius_m=radius,
         master_robot=master_robot_for(scene), view=view, follow=follow,
+        fixture_object=spec.params if custom else None, fixture_frame=master_frame(scene) if custom else None,
     )
 
 
