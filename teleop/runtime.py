@@ -109,9 +109,10 @@ class _ViewHook(Hook):
         self.view.publish_tick(t_s, loop)
 
 
-def run_scene(scene: Scene, progress=None, realtime: bool = False, operator=None, view=None) -> RunResult:
+def run_scene(scene: Scene, progress=None, realtime: bool = False, operator=None, view=None, hooks=()) -> RunResult:
     """Run a scene. ``operator`` replaces the scene's (e.g. a keyboard); ``view`` gets every tick
-    and throttles itself; ``progress(i, n)`` is called every 1000 ticks."""
+    and throttles itself; ``progress(i, n)`` is called every 1000 ticks; ``hooks`` more
+    :class:`~teleop.loop.Hook` s, after the scene's own."""
     rng = np.random.default_rng(scene.seed)
     tool = build_tool(scene)
     spec_M = master_fixture_spec(scene)
@@ -119,7 +120,7 @@ def run_scene(scene: Scene, progress=None, realtime: bool = False, operator=None
         operator = make_operator(scene.operator, spec_M, scene.effects, rng)
     n = int(round(scene.duration_s / scene.dt_s))
     master_metrics = MasterMetrics(make_metrics(spec_M, n, tool.body.mass_kg))
-    hooks: list = [master_metrics]
+    extra_hooks, hooks = hooks, [master_metrics]
     reg = build_registration(scene)
     constraints_P = build_fixture(scene.fixture).constraints  # the fixture where the patient is
     slave = make_slave(scene, reg, constraints_P)
@@ -135,6 +136,7 @@ def run_scene(scene: Scene, progress=None, realtime: bool = False, operator=None
             hooks.append(tremor)
     if view is not None:
         hooks.append(_ViewHook(view))
+    hooks += list(extra_hooks)
     master = make_master(scene, tool, rng)
     link = make_link(scene, rng) if slave is not None else None
     guard = make_guard(scene, reg, n)
