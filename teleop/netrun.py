@@ -53,6 +53,7 @@ from teleop.session import GuardRecorder, MasterRecorder, SlaveCounter, _pace
 
 GRACE_S = 2.0          # the slave's run beyond the scene's duration when the master is gone (s)
 CONNECT_TIMEOUT_S = 120.0  # the first message must come within this (s): a loaded machine is slow
+RESUME_WINDOW = 100  # ticks after a resume in which the position steps are watched
 _Z6 = np.zeros(6)
 _Z3 = np.zeros(3)
 
@@ -65,6 +66,10 @@ class HeartbeatState:
         self.lost = False
         self.events = self.ticks_lost = self.resumed = 0
         self.latency_s: list[float] = []  # last message heard -> safe state, per event (s)
+        self.speed_lost_max = self.speed_lost_last = 0.0  # the side's speed while lost (m/s or rad/s)
+        self.jump_after_resume_m = self.step_max_m = 0.0  # position step per tick (m)
+        self._prev = None
+        self._since_resume = 10**9
 
     def update(self) -> bool:
         """Check the heartbeat; True while the link is lost."""
@@ -79,10 +84,26 @@ class HeartbeatState:
         self.ticks_lost += self.lost
         return self.lost
 
+    def motion(self, p, speed: float) -> None:
+        """After the tick: the side's position ``p`` (3,) m and speed, for the safe-state and
+        no-jump figures (the largest step within ``RESUME_WINDOW`` ticks of a resume)."""
+        if self.lost:
+            self.speed_lost_max, self.speed_lost_last = max(self.speed_lost_max, speed), speed
+            self._since_resume = -1
+        if self._prev is not None:
+            step = float(np.linalg.norm(p - self._prev))
+            self.step_max_m = max(self.step_max_m, step)
+            if 0 <= self._since_resume < RESUME_WINDOW:
+                self.jump_after_resume_m = max(self.jump_after_resume_m, step)
+        self._since_resume += 1
+        self._prev = np.array(p, dtype=float)
+
     def summary(self) -> dict:
         return {"lost_events": self.events, "lost_ticks": self.ticks_lost, "resumed": self.resumed,
                 "detect_latency_max_s": max(self.latency_s, default=0.0), "lost_at_end": self.lost,
-                "heartbeat_s": self.timeout_s}
+                "heartbeat_s": self.timeout_s, "speed_while_lost_max": self.speed_lost_max,
+                "speed_while_lost_last": self.speed_lost_last, "step_max_m": self.step_max_m,
+                "step_after_resume_max_m": self.jump_after_resume_m}
 
 
 class MasterHalf:
@@ -131,6 +152,7 @@ class MasterHalf:
             if self.master_guard is not None:
                 self.feedback_W = self.master_guard.feedback(self.feedback_W, np.concatenate(tool.twist()), msg, t)
         self.tick_ns = time.perf_counter_ns() - t0
+        self.heart.motion(tool.pose()[0], float(np.linalg.norm(tool.qd)))
         for h in self.hooks:
             h.after_tick(i, t, self)
         self.status = st if st != "ok" else st_m
@@ -162,7 +184,7 @@ class SlaveHalf:
         if cmd is not None:
             self.last_seq = cmd.seq
         sg = self.slave_guard
-        reply = self.slave.follow(cmd if sg is None else sg.command(cmd, t), t)
+        reply = self.slave.follow(cmd if sg is None else sg.command(cmd, t), t, hold=lost)
         if sg is not None:
             reply = sg.reply(reply)
         if lost:
@@ -170,6 +192,7 @@ class SlaveHalf:
             reply = ContactFeedback(reply.seq, reply.t_s, reply.wrench_P, "link_lost", reply.command_seq, reply.energy_J)
         self.link.send_feedback(reply)
         self.tick_ns = time.perf_counter_ns() - t0
+        self.heart.motion(self.slave.state.p, float(np.linalg.norm(self.slave.arm.qd)))
         for h in self.hooks:
             h.after_tick(i, t, self)
 
@@ -220,6 +243,7 @@ def run_master(scene, connect: str | None, listen: str | None = None, session: s
     status, late = "ok", 0
     with link, master:
         _hello(scene, master, link, timeout_s)
+        print("master: running", flush=True)
         wall0 = time.perf_counter()
         for i in range(n):
             status = half.tick(i)
@@ -250,6 +274,8 @@ def run_slave(scene, listen: str | None, connect: str | None = None, session: st
     constraints_P = build_fixture(scene.fixture).constraints
     slave = make_slave(scene, reg, constraints_P)
     slave.reset(*tool.pose())
+    for _ in range(3):  # warm up (first calls compile and allocate): holding still, no metrics
+        slave.follow(None, 0.0)
     n = int(round(scene.duration_s / scene.dt_s))
     cap = n + int(round(GRACE_S / scene.dt_s)) + 1
     guard = make_guard(scene, reg, n)
@@ -269,6 +295,7 @@ def run_slave(scene, listen: str | None, connect: str | None = None, session: st
             cmd = link.receive_command(0.0)
             if cmd is not None and cmd.t_s >= 0:
                 first = half.pending = cmd
+                print("slave: running", flush=True)
                 break
             if link.last_receive_s is not None:
                 link.send_feedback(ContactFeedback(0, -1.0, _Z6, "hold", -1))
