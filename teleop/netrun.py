@@ -49,7 +49,7 @@ from teleop.runtime import make_guard, make_master, make_slave
 from teleop.scenario.build import build_fixture, build_registration, build_tool, master_fixture_spec
 from teleop.scenario.metrics import MasterMetrics, SlaveMetrics, make_metrics
 from teleop.scenario.operators import make_operator
-from teleop.session import GuardRecorder, MasterRecorder, SlaveCounter, _pace
+from teleop.session import GuardRecorder, MasterRecorder, SlaveCounter, _pace, run_status
 
 GRACE_S = 2.0          # the slave's run beyond the scene's duration when the master is gone (s)
 CONNECT_TIMEOUT_S = 120.0  # the first message must come within this (s): a loaded machine is slow
@@ -66,6 +66,8 @@ class HeartbeatState:
         self.lost = False
         self.events = self.ticks_lost = self.resumed = 0
         self.latency_s: list[float] = []  # last message heard -> safe state, per event (s)
+        self.late_at_detect_s: list[float] = []  # how late the detecting tick itself ran (s)
+        self.tick_late_s = 0.0  # set by the run loop before each tick: its lateness (s)
         self.speed_lost_max = self.speed_lost_last = 0.0  # the side's speed while lost (m/s or rad/s)
         self.jump_after_resume_m = self.step_max_m = 0.0  # position step per tick (m)
         self._prev = None
@@ -79,6 +81,7 @@ class HeartbeatState:
             self.lost, self.events = True, self.events + 1
             last = self.link.last_receive_s
             self.latency_s.append(now - last if last is not None else float("inf"))
+            self.late_at_detect_s.append(self.tick_late_s)
         elif alive and self.lost:
             self.lost, self.resumed = False, self.resumed + 1
         self.ticks_lost += self.lost
@@ -101,6 +104,7 @@ class HeartbeatState:
     def summary(self) -> dict:
         return {"lost_events": self.events, "lost_ticks": self.ticks_lost, "resumed": self.resumed,
                 "detect_latency_max_s": max(self.latency_s, default=0.0), "lost_at_end": self.lost,
+                "detect_latency_s": self.latency_s[:20], "detect_tick_late_s": self.late_at_detect_s[:20],
                 "heartbeat_s": self.timeout_s, "speed_while_lost_max": self.speed_lost_max,
                 "speed_while_lost_last": self.speed_lost_last, "step_max_m": self.step_max_m,
                 "step_after_resume_max_m": self.jump_after_resume_m}
@@ -246,6 +250,7 @@ def run_master(scene, connect: str | None, listen: str | None = None, session: s
         print("master: running", flush=True)
         wall0 = time.perf_counter()
         for i in range(n):
+            half.heart.tick_late_s = max(0.0, time.perf_counter() - (wall0 + i * scene.dt_s))
             status = half.tick(i)
             if status != "ok":
                 break
@@ -302,6 +307,7 @@ def run_slave(scene, listen: str | None, connect: str | None = None, session: st
             time.sleep(0.001)
         wall0 = time.perf_counter()
         for i in range(cap):
+            half.heart.tick_late_s = max(0.0, time.perf_counter() - (wall0 + i * scene.dt_s))
             half.tick(i)
             tick_ns.append(half.tick_ns)
             steps = i + 1
@@ -311,11 +317,9 @@ def run_slave(scene, listen: str | None, connect: str | None = None, session: st
         link_stats = link.stats()
     heart = half.heart.summary()
     counts = counter.counts
-    from teleop.session import run_status
-
     status = run_status("ok", steps, counts)
-    if heart["lost_ticks"] and status == "ok":
-        status = "link_lost"
+    if heart["lost_ticks"] and status in ("ok", "slave_link_lost", "slave_hold"):
+        status = "link_lost"  # this side's own word for it (the lost ticks were counted as such)
     out = {"side": "slave", "status": status, "steps": steps, "late_ticks": late,
            "followed_last_command": half.last_seq >= n, "slave_statuses": counts, "heartbeat": heart,
            "zenoh": link_stats, "tick_us": {"median": float(np.median(tick_ns)) * 1e-3 if tick_ns else 0.0,
