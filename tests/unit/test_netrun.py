@@ -131,3 +131,14 @@ def test_merged_status_is_ok_only_when_both_sides_are():
     assert merge_summaries({**m, "status": "link_lost"}, s, "tcp/x")["status"] == "link_lost"
     assert merge_summaries(m, {**s, "followed_last_command": False}, "tcp/x")["status"] == "link_lost"
     assert merge_summaries(m, s, "tcp/x")["metrics"] == {"a": 1.0, "b": 2.0}
+
+
+def test_cli_bad_input_is_one_line_and_exit_2(capsys):
+    from teleop.cli import main
+
+    assert main(["slave", "paper_rolling_disk", "--listen", "tcp/127.0.0.1:1"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "no [slave] table" in err[0]
+    assert main(["run", "straight_incision", "--link", "zenoh", "--set", "link.loss=2"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "link.loss" in err[0]
