@@ -18,6 +18,8 @@ def add_subcommands(sub) -> None:
         p.add_argument("--session", default="default", help="key expression name shared by the pair (default: default)")
         p.add_argument("--timeout", type=float, default=120.0, help="seconds to wait for the other side (default 120)")
         p.add_argument("--set", action="append", default=[], metavar="KEY=VALUE", help="set any scene key (as 'run')")
+        p.add_argument("--zenoh-config", metavar="FILE.json",
+                       help='extra Zenoh settings, a JSON object {"path/to/key": "json5 value"} (e.g. TLS)')
         p.add_argument("--json", help="write this side's summary as JSON here")
         p.set_defaults(func=cmd_side, role=role)
 
@@ -34,10 +36,11 @@ def cmd_side(args) -> int:
     from teleop.scenario.schema import load_scene
 
     scene = load_scene(args.scene, sets=args.set)
+    extra = _zenoh_config(args.zenoh_config) if args.zenoh_config else None
     if args.role == "slave":
-        out = run_slave(scene, listen=args.endpoint, session=args.session, timeout_s=args.timeout)
+        out = run_slave(scene, listen=args.endpoint, session=args.session, timeout_s=args.timeout, config_json5=extra)
     else:
-        out = run_master(scene, connect=args.endpoint, session=args.session, timeout_s=args.timeout)
+        out = run_master(scene, connect=args.endpoint, session=args.session, timeout_s=args.timeout, config_json5=extra)
     out = {"scenario": scene.name, **out}
     if args.json:
         Path(args.json).parent.mkdir(parents=True, exist_ok=True)
@@ -46,6 +49,19 @@ def cmd_side(args) -> int:
     print(f"{args.role}: {out['status']}  steps={out['steps']}  late={out['late_ticks']}  "
           f"link lost {hb['lost_events']}x ({hb['lost_ticks']} ticks, detected within {hb['detect_latency_max_s'] * 1e3:.1f} ms)")
     return 0 if out["status"] == "ok" else 1
+
+
+def _zenoh_config(path: str) -> dict:
+    """The --zenoh-config file: a JSON object of Zenoh configuration keys to json5 values."""
+    from teleop.errors import ConfigError
+
+    try:
+        data = json.loads(Path(path).read_text(encoding="utf-8"))
+    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as e:
+        raise ConfigError(f"--zenoh-config {path}: cannot read a JSON object: {e}".splitlines()[0]) from None
+    if not isinstance(data, dict) or not all(isinstance(k, str) and isinstance(v, str) for k, v in data.items()):
+        raise ConfigError(f'--zenoh-config {path}: expected {{"path/to/key": "json5 value", ...}} (strings)')
+    return data
 
 
 def cmd_run_zenoh(args) -> int:

@@ -201,13 +201,13 @@ class SlaveHalf:
             h.after_tick(i, t, self)
 
 
-def _open_link(role: str, session: str, listen, connect, timeout_s: float):
+def _open_link(role: str, session: str, listen, connect, timeout_s: float, config_json5=None):
     from teleop.link.zenoh_link import LinkError, ZenohLink
 
     end = time.monotonic() + timeout_s
     while True:
         try:
-            return ZenohLink(role, session=session, listen=listen, connect=connect)
+            return ZenohLink(role, session=session, listen=listen, connect=connect, config_json5=config_json5)
         except LinkError:
             if time.monotonic() > end:
                 raise
@@ -227,8 +227,9 @@ def _hello(scene, master, link, timeout_s: float) -> None:
 
 
 def run_master(scene, connect: str | None, listen: str | None = None, session: str = "default",
-               timeout_s: float = CONNECT_TIMEOUT_S) -> dict:
-    """The master process: returns its summary (also the master's metrics)."""
+               timeout_s: float = CONNECT_TIMEOUT_S, config_json5: dict | None = None) -> dict:
+    """The master process: returns its summary (also the master's metrics). ``config_json5``:
+    extra Zenoh settings (TLS, see :mod:`teleop.link.zenoh_link`)."""
     rng = np.random.default_rng(scene.seed)
     tool = build_tool(scene)
     spec_M = master_fixture_spec(scene)
@@ -241,7 +242,7 @@ def run_master(scene, connect: str | None, listen: str | None = None, session: s
     recorder = MasterRecorder(tool, n)
     hooks = [recorder, metrics] + ([_GuardLog(n, 0)] if guard else [])
     master = make_master(scene, tool, rng)
-    link = _open_link("master", session, listen, connect, timeout_s)
+    link = _open_link("master", session, listen, connect, timeout_s, config_json5)
     half = MasterHalf(tool, master, operator, scene.dt_s, link, feedback, guard[0] if guard else None, hooks,
                       scene.link.heartbeat_ms * 1e-3)
     status, late = "ok", 0
@@ -270,7 +271,7 @@ def run_master(scene, connect: str | None, listen: str | None = None, session: s
 
 
 def run_slave(scene, listen: str | None, connect: str | None = None, session: str = "default",
-              timeout_s: float = CONNECT_TIMEOUT_S) -> dict:
+              timeout_s: float = CONNECT_TIMEOUT_S, config_json5: dict | None = None) -> dict:
     """The slave process: returns its summary (the slave's metrics)."""
     if scene.slave is None:
         raise TeleopError(f"{scene.path}: slave: the scene has no [slave] table: nothing to run on this side")
@@ -287,7 +288,7 @@ def run_slave(scene, listen: str | None, connect: str | None = None, session: st
     rcm = [c for c in constraints_P if isinstance(c, RemoteCenter)]
     metrics, counter = SlaveMetrics(scene.fixture, cap, slave.arm.nv, rcm), SlaveCounter()
     hooks = [metrics, counter] + ([_GuardLog(cap, 1)] if guard else [])
-    link = _open_link("slave", session, listen, connect, timeout_s)
+    link = _open_link("slave", session, listen, connect, timeout_s, config_json5)
     half = SlaveHalf(slave, link, guard[1] if guard else None, hooks, scene.link.heartbeat_ms * 1e-3, scene.dt_s)
     late = steps = 0
     tick_ns = []

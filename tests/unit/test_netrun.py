@@ -142,3 +142,14 @@ def test_cli_bad_input_is_one_line_and_exit_2(capsys):
     assert main(["run", "straight_incision", "--link", "zenoh", "--set", "link.loss=2"]) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "link.loss" in err[0]
+
+
+def test_zenoh_config_file_is_checked(tmp_path, capsys):
+    from teleop.cli import main
+
+    bad = tmp_path / "tls.json"
+    bad.write_text('["not", "an object"]')
+    assert main(["master", "straight_incision", "--zenoh-config", str(bad)]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "--zenoh-config" in err[0]
+    assert main(["master", "straight_incision", "--zenoh-config", str(tmp_path / "none.json")]) == 2
