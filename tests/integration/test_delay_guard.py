@@ -4,6 +4,7 @@ and stays stable guarded at 200 ms; the cut keeps its depth at 1 s round trip wi
 import numpy as np
 import pytest
 
+from teleop.plots import plot_log
 from teleop.runtime import run_scene
 from teleop.scenario.metrics import band_rms
 from teleop.scenario.schema import load_scene
@@ -31,7 +32,7 @@ def test_stiff_contact_unguarded_at_100ms_is_unstable():
     assert F_off.max() > 10 * NOMINAL_N  # the energy the delayed loop makes: a force blow-up
 
 
-def test_stiff_contact_guarded_at_200ms_is_stable():
+def test_stiff_contact_guarded_at_200ms_is_stable(tmp_path):
     r_on, osc_on, F_on = _stiff(200, "tdpa")
     s = r_on.summary
     assert s["status"] == "ok" and not s["nan"]
@@ -40,6 +41,8 @@ def test_stiff_contact_guarded_at_200ms_is_stable():
     assert p["dissipated_master_J"] + p["dissipated_slave_J"] > 0  # the guard did the work
     # the per-tick log: both observers, dissipation and drift, one row a tick
     assert r_on.log["tdpa_W_master_J"].shape == (3000, 6) and r_on.log["tdpa_drift_M"].shape == (3000, 6)
+    r_on.write_log(tmp_path / "log.npz")
+    assert (tmp_path / "passivity.png") in plot_log(tmp_path / "log.npz", tmp_path)
 
 
 @pytest.mark.long
