@@ -214,7 +214,7 @@ def _open_link(role: str, session: str, listen, connect, timeout_s: float, confi
             time.sleep(0.2)
 
 
-def _hello(scene, master, link, timeout_s: float) -> None:
+def _hello(master, link, timeout_s: float) -> None:
     """Master: hello commands until the slave answers."""
     end = time.monotonic() + timeout_s
     p, R, _, _ = master.virtual_estimate()
@@ -247,7 +247,7 @@ def run_master(scene, connect: str | None, listen: str | None = None, session: s
                       scene.link.heartbeat_ms * 1e-3)
     status, late = "ok", 0
     with link, master:
-        _hello(scene, master, link, timeout_s)
+        _hello(master, link, timeout_s)
         print("master: running", flush=True)
         wall0 = time.perf_counter()
         for i in range(n):
@@ -294,13 +294,12 @@ def run_slave(scene, listen: str | None, connect: str | None = None, session: st
     tick_ns = []
     with link:
         end = time.monotonic() + timeout_s
-        first = None
-        while first is None:  # answer hellos until the first real command
+        while half.pending is None:  # answer hellos until the first real command
             if time.monotonic() > end:
                 raise TeleopError(f"slave: no command from a master within {timeout_s:g} s")
             cmd = link.receive_command(0.0)
             if cmd is not None and cmd.t_s >= 0:
-                first = half.pending = cmd
+                half.pending = cmd
                 print("slave: running", flush=True)
                 break
             if link.last_receive_s is not None:
