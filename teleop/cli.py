@@ -17,6 +17,7 @@ import sys
 
 from teleop import __version__
 from teleop.errors import TeleopError
+from teleop.netcli import add_run_flags, add_subcommands, cmd_run_zenoh
 
 DEFAULT_SCENE = "straight_incision"
 
@@ -43,6 +44,8 @@ def _summary_text(s: dict) -> str:
 
 
 def cmd_run(args) -> int:
+    if args.link == "zenoh":
+        return cmd_run_zenoh(args)
     from teleop.runtime import run_scene
     from teleop.scenario.schema import load_scene
 
@@ -170,7 +173,9 @@ def build_parser() -> argparse.ArgumentParser:
     run.add_argument("--hold", action="store_true", help="with --viewer: keep the page served after the run until Ctrl-C")
     run.add_argument("--json", help="write the run summary as JSON here")
     run.add_argument("--out", help="write metrics.json, log.npz and PNG plots into this folder")
+    add_run_flags(run)
     run.set_defaults(func=cmd_run)
+    add_subcommands(sub)
     ls = sub.add_parser("list", help="list the scenes")
     ls.set_defaults(func=cmd_list)
     rp = sub.add_parser("replay", help="show a run folder again (live in Meshcat, or into replay.html)")

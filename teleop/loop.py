@@ -38,16 +38,19 @@ class Hook:
 class BilateralLoop:
     """``tool`` a ReferenceTool, ``master`` a master (ideal or cobot), ``operator`` with
     ``wrench(t, p, R, v, w)`` and ``clutch_engaged``; with a ``slave`` (a SlaveSide), a ``link``
-    (lockstep by default) and a ``feedback`` path (FeedbackPath) to the master."""
+    (lockstep by default) and a ``feedback`` path (FeedbackPath) to the master; ``guard`` a
+    (MasterGuard, SlaveGuard) pair (:mod:`teleop.link.guard`) puts the passivity guard at the two
+    ends of the link."""
 
     def __init__(self, tool, master, operator, dt_s: float, slave=None, link: Link | None = None,
-                 feedback=None, hooks=()):
+                 feedback=None, hooks=(), guard=None):
         self.tool, self.master, self.operator, self.dt = tool, master, operator, float(dt_s)
         if slave is not None and feedback is None:
             raise ConfigError("BilateralLoop: a slave needs a feedback path to the master, e.g. "
                               "feedback=FeedbackPath(registration, cutoff_hz=20.0, dt_s=dt_s)")
         self.slave, self.feedback, self.hooks = slave, feedback, tuple(hooks)
         self.link = link if link is not None else LockstepLink()
+        self.master_guard, self.slave_guard = guard if guard is not None else (None, None)
         self.hand_W = np.zeros(6)      # what the hand pushed with this tick (N, N*m)
         self.feedback_W = np.zeros(6)  # the slave's force, applied at the next tool step
         self.status = "ok"
@@ -69,9 +72,13 @@ class BilateralLoop:
         st_m = master.command(p_r, R_r, np.concatenate((v_r, w_r)), tool.acceleration_W)  # 18-19
         if self.slave is not None:
             self._send_command(i, t)                                # master side ends here
-            reply = self.slave.follow(self.link.receive_command(t), t)          # slave side
-            self.link.send_feedback(reply)
-            self.feedback_W = self.feedback.update(self.link.receive_feedback(t))  # master again
+            cmd, sg = self.link.receive_command(t), self.slave_guard           # slave side
+            reply = self.slave.follow(cmd if sg is None else sg.command(cmd, t), t)
+            self.link.send_feedback(reply if sg is None else sg.reply(reply))
+            msg = self.link.receive_feedback(t)                                # master again
+            self.feedback_W = self.feedback.update(msg)
+            if self.master_guard is not None:                       # TDPA: damp what it felt
+                self.feedback_W = self.master_guard.feedback(self.feedback_W, np.concatenate(tool.twist()), msg, t)
         self.tick_ns = perf_counter_ns() - t0
         for h in self.hooks:
             h.after_tick(i, t, self)
@@ -82,7 +89,8 @@ class BilateralLoop:
         """The virtual tool (the observer's estimate) to the slave; a master whose estimate is not
         finite sends nothing (the slave holds) and reports it."""
         try:
+            energy = None if self.master_guard is None else self.master_guard.energy_J
             self.link.send_command(ToolCommand(i, t, *self.master.virtual_estimate(),
-                                               self.operator.clutch_engaged))
+                                               self.operator.clutch_engaged, energy))
         except MessageError:
             self.command_errors += 1

@@ -128,6 +128,8 @@ def plot_log(log_path, out_dir) -> list[Path]:
         written.append(path)
     if "slave_contact_N" in log:
         written.append(_plot_slave(plt, log, summary, out_dir / "incision.png"))
+    if "tdpa_W_master_J" in log:
+        written.append(plot_passivity(plt, log, f"{summary['scenario']}: passivity guard", out_dir / "passivity.png"))
     fig, ax = plt.subplots(figsize=(7.5, 2.4))
     ax.plot(log["t"], log["tick_us"], lw=0.5, label="whole bilateral tick (master and slave)")
     ax.set_xlabel("time [s]")
@@ -151,6 +153,30 @@ def _plot_slave(plt, log, summary, path: Path) -> Path:
         _panel(ax, t, log[key], label, unit, "slave arm's tool (patient frame)")
     axes[-1].set_xlabel("time [s]")
     _finish(fig, axes, f"{summary['scenario']}: SLAVE side\nthe arm's tool in the tissue ({summary['master']} master)")
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    return path
+
+
+def plot_passivity(plt, log, title: str, path: Path) -> Path:
+    """The passivity guard of a run: both observers (J, summed over the six axes), the energy each
+    controller dissipated (J, cumulative), and the slave's position drift (mm, in M)."""
+    t = log["t"][: len(log["tdpa_W_master_J"])]
+    fig, axes = plt.subplots(3, 1, figsize=(7, 5.4), sharex=True)
+    axes[0].plot(t, log["tdpa_W_master_J"].sum(axis=1) * 1e3, lw=0.8, label="master observer W_m")
+    axes[0].plot(t, log["tdpa_W_slave_J"].sum(axis=1) * 1e3, lw=0.8, label="slave observer W_s")
+    axes[0].set_ylabel("observer [mJ]", fontsize=8)
+    axes[1].plot(t, log["tdpa_diss_master_J"].sum(axis=1) * 1e3, lw=0.8, label="master damping")
+    axes[1].plot(t, log["tdpa_diss_slave_J"].sum(axis=1) * 1e3, lw=0.8, label="slave velocity correction")
+    axes[1].set_ylabel("dissipated [mJ]", fontsize=8)
+    axes[2].plot(t, np.linalg.norm(log["tdpa_drift_M"][:, :3], axis=1) * 1e3, lw=0.8, label="|drift|")
+    axes[2].set_ylabel("drift [mm, M]", fontsize=8)
+    for ax in axes:
+        ax.grid(alpha=0.3)
+        ax.legend(fontsize=7)
+    axes[-1].set_xlabel("time [s]")
+    fig.suptitle(title, fontsize=9)
+    fig.tight_layout()
     fig.savefig(path, dpi=110)
     plt.close(fig)
     return path

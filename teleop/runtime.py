@@ -16,6 +16,8 @@ from teleop.contact.cutting import CuttingModel
 from teleop.control.feedback import FeedbackPath
 from teleop.dynamics.constraints import RemoteCenter
 from teleop.errors import ConfigError, SceneError
+from teleop.link import ChannelSpec, LockstepLink, SimulatedChannel
+from teleop.link.guard import MasterGuard, SlaveGuard, tdpa_params
 from teleop.loop import Hook
 from teleop.master import CobotMaster, IdealMaster
 from teleop.scenario.build import build_fixture, build_registration, build_tool, master_fixture_spec
@@ -26,7 +28,7 @@ from teleop.session import RunResult, Session
 from teleop.slave import SlaveArm
 from teleop.slave.side import SlaveSide
 
-__all__ = ["run_scene", "make_master", "RunResult"]
+__all__ = ["run_scene", "make_master", "make_link", "make_guard", "RunResult"]
 
 
 def make_master(scene: Scene, tool, rng: np.random.Generator):
@@ -63,6 +65,38 @@ def make_slave(scene: Scene, registration, constraints_P):
     return SlaveSide(arm, registration, tissue, scene.fixture.tip_m)
 
 
+def channel_spec(scene: Scene) -> ChannelSpec:
+    """The scene's [link] table as a ChannelSpec (the same both ways)."""
+    ln = scene.link
+    return ChannelSpec(round_trip_ms=ln.round_trip_ms, jitter_ms=ln.jitter_ms, loss=ln.loss,
+                       burst_enter=ln.burst_enter, burst_exit=ln.burst_exit, burst_loss=ln.burst_loss,
+                       bandwidth_Bps=ln.bandwidth_kBps * 1e3 if ln.bandwidth_kBps > 0 else float("inf"))
+
+
+def make_link(scene: Scene, rng: np.random.Generator, simulated: bool | None = None):
+    """The scene's link: the simulated channel of its [link] table in lockstep simulated time, or
+    the in-process lockstep link when the table asks for nothing (``simulated`` forces either).
+    The channel's draws come from children spawned from ``rng``: the run's own stream is not
+    advanced, so a zero-delay channel reproduces the lockstep run."""
+    if not (scene.link.simulated if simulated is None else simulated):
+        return LockstepLink()
+    return SimulatedChannel(channel_spec(scene), rng)
+
+
+def make_guard(scene: Scene, registration, n_ticks: int):
+    """(MasterGuard, SlaveGuard) for ``passivity = "tdpa"`` (None otherwise)."""
+    if scene.link.passivity != "tdpa" or scene.slave is None:
+        return None
+    t = scene.tool
+    params = tdpa_params(scene.link, scene.dt_s, t.mass_kg, _inertia(t.inertia_kgm2), enabled=True)
+    return MasterGuard(params), SlaveGuard(params, registration)
+
+
+def _inertia(v) -> np.ndarray:
+    a = np.asarray(v, dtype=float)
+    return a.reshape(3, 3) if a.size == 9 else a
+
+
 class _ViewHook(Hook):
     """Hands each tick to a view (which throttles itself)."""
 
@@ -73,9 +107,10 @@ class _ViewHook(Hook):
         self.view.publish_tick(t_s, loop)
 
 
-def run_scene(scene: Scene, progress=None, realtime: bool = False, operator=None, view=None) -> RunResult:
+def run_scene(scene: Scene, progress=None, realtime: bool = False, operator=None, view=None, hooks=()) -> RunResult:
     """Run a scene. ``operator`` replaces the scene's (e.g. a keyboard); ``view`` gets every tick
-    and throttles itself; ``progress(i, n)`` is called every 1000 ticks."""
+    and throttles itself; ``progress(i, n)`` is called every 1000 ticks; ``hooks`` more
+    :class:`~teleop.loop.Hook` s, after the scene's own."""
     rng = np.random.default_rng(scene.seed)
     tool = build_tool(scene)
     spec_M = master_fixture_spec(scene)
@@ -83,7 +118,7 @@ def run_scene(scene: Scene, progress=None, realtime: bool = False, operator=None
         operator = make_operator(scene.operator, spec_M, scene.effects, rng)
     n = int(round(scene.duration_s / scene.dt_s))
     master_metrics = MasterMetrics(make_metrics(spec_M, n, tool.body.mass_kg, tool.fixture.constraints))
-    hooks: list = [master_metrics]
+    extra_hooks, hooks = hooks, [master_metrics]
     reg = build_registration(scene)
     constraints_P = build_fixture(scene.fixture).constraints  # the fixture where the patient is
     slave = make_slave(scene, reg, constraints_P)
@@ -99,11 +134,17 @@ def run_scene(scene: Scene, progress=None, realtime: bool = False, operator=None
             hooks.append(tremor)
     if view is not None:
         hooks.append(_ViewHook(view))
+    hooks += list(extra_hooks)
     master = make_master(scene, tool, rng)
+    link = make_link(scene, rng) if slave is not None else None
+    guard = make_guard(scene, reg, n)
     session = Session(tool, master, operator, scene.dt_s, scene.duration_s, slave=slave, feedback=feedback,
-                      hooks=hooks, realtime=realtime, progress=progress)
+                      hooks=hooks, realtime=realtime, progress=progress, link=link, guard=guard)
     result = session.run()
     metrics = master_metrics.result()
+    if guard is not None and "passivity" in result.summary:  # the drift at the slave's scale (m)
+        metrics["link_drift_max_m"] = result.summary["passivity"]["drift_max_M_m"] / reg.scale
+        metrics["link_drift_final_m"] = result.summary["passivity"]["drift_final_M_m"] / reg.scale
     result.log.update(master_metrics.log())
     if slave_metrics is not None:
         metrics.update(slave_metrics.result())

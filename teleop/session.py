@@ -95,6 +95,37 @@ class MasterRecorder(Hook):
         self.n = i + 1
 
 
+class GuardRecorder(Hook):
+    """The passivity guard's per-tick log: both observers ``tdpa_W_master_J``/``tdpa_W_slave_J``,
+    the dissipated energies ``tdpa_diss_master_J``/``tdpa_diss_slave_J`` (n, 6) J cumulative, the
+    master's damping ``tdpa_alpha`` (n, 6) and the slave's pose offset ``tdpa_drift_M`` (n, 6: m,
+    rad in M)."""
+
+    def __init__(self, n: int):
+        self.log = {k: np.zeros((n, 6)) for k in ("tdpa_W_master_J", "tdpa_W_slave_J", "tdpa_diss_master_J",
+                                                  "tdpa_diss_slave_J", "tdpa_alpha", "tdpa_drift_M")}
+        self.n = 0
+
+    def after_tick(self, i, t_s, loop) -> None:
+        m, s, log = loop.master_guard.port, loop.slave_guard.port, self.log
+        log["tdpa_W_master_J"][i], log["tdpa_W_slave_J"][i] = m.W, s.W
+        log["tdpa_diss_master_J"][i], log["tdpa_diss_slave_J"][i] = m.E_diss, s.E_diss
+        log["tdpa_alpha"][i], log["tdpa_drift_M"][i] = m.action, s.offset
+        self.n = i + 1
+
+    def summary(self) -> dict:
+        """Totals: energies dissipated (J), the observers' lowest sums (J), the drift (m in M)."""
+        n, log = self.n, self.log
+        if n == 0:
+            return {}
+        drift = np.linalg.norm(log["tdpa_drift_M"][:n, :3], axis=1)
+        return {"dissipated_master_J": float(log["tdpa_diss_master_J"][n - 1].sum()),
+                "dissipated_slave_J": float(log["tdpa_diss_slave_J"][n - 1].sum()),
+                "W_master_min_J": float(log["tdpa_W_master_J"][:n].sum(axis=1).min()),
+                "W_slave_min_J": float(log["tdpa_W_slave_J"][:n].sum(axis=1).min()),
+                "drift_max_M_m": float(drift.max()), "drift_final_M_m": float(drift[-1])}
+
+
 class SlaveCounter(Hook):
     """How many ticks the slave spent in each status."""
 
@@ -124,15 +155,18 @@ class Session:
     ``progress(i, n)`` is called every 1000 ticks."""
 
     def __init__(self, tool, master, operator, dt_s: float, duration_s: float, slave=None, link=None,
-                 feedback=None, hooks=(), realtime: bool = False, progress=None):
+                 feedback=None, hooks=(), realtime: bool = False, progress=None, guard=None):
         if not (dt_s > 0 and duration_s >= 0):
             raise ValueError(f"dt_s must be > 0 and duration_s >= 0, got {dt_s!r}, {duration_s!r}")
         self.n = int(round(duration_s / dt_s))
         self.recorder = MasterRecorder(tool, self.n)
         self.slave_counter = SlaveCounter() if slave is not None else None
         own = [self.recorder] + ([self.slave_counter] if slave is not None else [])
+        self.guard_recorder = GuardRecorder(self.n) if guard is not None and slave is not None else None
+        if self.guard_recorder is not None:
+            own.append(self.guard_recorder)
         self.loop = BilateralLoop(tool, master, operator, dt_s, slave=slave, link=link, feedback=feedback,
-                                  hooks=own + list(hooks))
+                                  hooks=own + list(hooks), guard=guard)
         self.realtime, self.progress = realtime, progress
 
     def run(self) -> RunResult:
@@ -152,12 +186,16 @@ class Session:
                 if self.realtime:
                     late += _pace(wall0 + (i + 1) * loop.dt)
             stats = master.stats()
-            stats.update(loop.link.stats())
+            link_stats = loop.link.stats()
+            if link_stats:
+                stats["link"] = link_stats
         return self._result(status, late, stats)
 
     def _result(self, status: str, late: int, stats: dict) -> RunResult:
         steps, rec = self.recorder.n, self.recorder
         log = {k: v[:steps] for k, v in rec.log.items()}
+        if self.guard_recorder is not None:
+            log.update({k: v[:steps] for k, v in self.guard_recorder.log.items()})
         ticks = log["tick_us"]
         counts = self.slave_counter.counts if self.slave_counter is not None else None
         summary = {
@@ -181,5 +219,7 @@ class Session:
             summary.update(self.loop.slave.stats())
         if self.realtime:
             summary["late_ticks"] = late
+        if self.guard_recorder is not None:
+            summary["passivity"] = self.guard_recorder.summary()
         summary.update({k: v for k, v in stats.items() if k != "master_status"})
         return RunResult(summary, log)

@@ -33,7 +33,8 @@ it was given; the controller at that port dissipates exactly ``-W``, no more:
 The slave's correction accumulates into a position offset ``offset`` (the drift): the slave's
 position target is the master's delayed position plus ``offset``. Drift compensation (Artigas
 et al. 2010) spends only surplus energy: when ``W_s > 0``, a correction ``-drift_gain * offset``
-is added, cut so that its energy cost does not exceed ``drift_share * W_s``; ``E_diss`` counts it
+is added, cut so that its energy cost does not exceed ``drift_share * W_s`` (so it is free, and
+taken in full, while no force acts on the slave); ``E_diss`` counts it
 negatively (energy given back), so the observer stays non-negative.
 
 A port with ``enabled=False`` observes and logs but never acts ("off").
@@ -61,8 +62,8 @@ class TdpaParams:
 
     dt_s: tick (s), > 0.
     enabled: act (True) or only observe (False, ``passivity = "off"``).
-    alpha_max: master damping cap (N*s/m on force axes, N*m*s/rad on torque axes), > 0; SAI caps
-        it at 0.9 of what the device can render.
+    alpha_max: master damping cap (N*s/m on force axes, N*m*s/rad on torque axes), > 0: one number
+        or six (per axis); SAI caps it at 0.9 of what the device can render.
     v_floor: master velocities below this (m/s or rad/s) get no damping (alpha would blow up).
     f_floor: slave forces below this (N or N*m) get no velocity correction.
     dv_max: slave velocity correction cap (m/s or rad/s), > 0.
@@ -73,7 +74,7 @@ class TdpaParams:
 
     dt_s: float
     enabled: bool = True
-    alpha_max: float = 500.0
+    alpha_max: float | tuple = 500.0
     v_floor: float = 1e-4
     f_floor: float = 1e-3
     dv_max: float = 0.5
@@ -81,7 +82,14 @@ class TdpaParams:
     drift_share: float = 0.5
 
     def __post_init__(self):
+        a = self.alpha_max
+        if isinstance(a, (tuple, list, np.ndarray)):
+            if len(a) != 6 or not all(isinstance(x, (int, float, np.floating)) and math.isfinite(x) and x > 0 for x in a):
+                raise ConfigError(f"TdpaParams.alpha_max: expected one or six finite numbers > 0, got {a!r}")
+            object.__setattr__(self, "alpha_max", tuple(float(x) for x in a))
         for name, lo in (("dt_s", 0.0), ("alpha_max", 0.0), ("v_floor", 0.0), ("f_floor", 0.0), ("dv_max", 0.0)):
+            if name == "alpha_max" and isinstance(self.alpha_max, tuple):
+                continue
             v = getattr(self, name)
             if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v) or v <= lo:
                 raise ConfigError(f"TdpaParams.{name}: expected a finite number > {lo}, got {v!r}")
@@ -166,7 +174,7 @@ class MasterPassivity(_Port):
         alpha = np.zeros(6)
         if p.enabled:
             act = (W < 0.0) & (np.abs(v_m) > p.v_floor)
-            alpha[act] = np.minimum(-W[act] / (dt * v_m[act] ** 2), p.alpha_max)
+            alpha[act] = np.minimum(-W[act] / (dt * v_m[act] ** 2), np.broadcast_to(p.alpha_max, 6)[act])
         diss = alpha * v_m * v_m * dt
         self.E_in = self.E_in + np.maximum(-p_out, 0.0) * dt
         self.E_out, self.E_diss, self.action = E_out, self.E_diss + diss, alpha
@@ -205,7 +213,7 @@ class SlavePassivity(_Port):
                 cost = np.maximum(-f_s * dc * dt, 0.0)  # energy the correction would put out
                 budget = np.maximum(p.drift_share * W_after, 0.0)
                 scale = np.where(cost > budget, budget / np.maximum(cost, 1e-300), 1.0)
-                dc = np.where(W_after > 0.0, dc * scale, 0.0)
+                dc = np.where(W_after >= 0.0, dc * scale, 0.0)  # free (cost 0) when no force acts
                 dv = dv + dc
                 diss = diss + f_s * dc * dt
         else:

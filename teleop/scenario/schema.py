@@ -91,7 +91,7 @@ class Scene(Checked):
     mapping: MappingSpec = setting(factory=MappingSpec, doc="master-to-patient registration and feedback")
     tissue: TissueBlock | None = setting(None, doc="the tissue block (effect 'tissue'; defaults when absent)")
     viewer: ViewerSpec = setting(factory=ViewerSpec, doc="what the viewer draws")
-    link: LinkSpec = setting(factory=LinkSpec, doc="the master-slave link (not used yet)")
+    link: LinkSpec = setting(factory=LinkSpec, doc="the master-slave link: delay, loss, passivity guard")
     damping_linear_Ns_per_m: float = field(init=False, default=0.0)
     damping_angular_Nms_per_rad: float = field(init=False, default=0.0)
     gravity_m_s2: tuple = field(init=False, default=(0.0, 0.0, -9.81))

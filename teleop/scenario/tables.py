@@ -237,13 +237,30 @@ class ViewerSpec(Checked):
 
 @dataclass(frozen=True)
 class LinkSpec(Checked):
-    """The master-slave link (parsed and validated; the in-process lockstep link ignores it yet):
-    round trip (ms), jitter (ms), message loss (a fraction), passivity guard."""
+    """The master-slave link: a simulated channel in lockstep simulated time
+    (:class:`teleop.link.channel.SimulatedChannel`) and the passivity guard
+    (:mod:`teleop.link.passivity`). All defaults: the in-process lockstep link, at no cost."""
 
-    round_trip_ms: float = setting(0.0, ge=0.0, le=10_000.0, doc="round-trip delay, ms")
-    jitter_ms: float = setting(0.0, ge=0.0, le=10_000.0, doc="uniform extra delay, ms")
-    loss: float = setting(0.0, ge=0.0, lt=1.0, doc="fraction of messages lost, in [0, 1)")
-    passivity: Literal["off", "tdpa"] = setting("off", doc="passivity guard: off or time-domain passivity")
+    round_trip_ms: float = setting(0.0, ge=0.0, le=10_000.0, doc="constant round-trip delay, ms (half each way)")
+    jitter_ms: float = setting(0.0, ge=0.0, le=10_000.0, doc="mean of the exponential extra one-way delay, ms")
+    loss: float = setting(0.0, ge=0.0, lt=1.0, doc="fraction of messages lost (good state), in [0, 1)")
+    burst_enter: float = setting(0.0, ge=0.0, le=1.0, doc="Gilbert-Elliott good->bad probability per message (0: no bursts)")
+    burst_exit: float = setting(0.5, gt=0.0, le=1.0, doc="bad->good probability per message (mean burst 1/burst_exit)")
+    burst_loss: float = setting(1.0, ge=0.0, le=1.0, doc="loss probability in the bad state")
+    bandwidth_kBps: float = setting(0.0, ge=0.0, doc="wire rate each way, kB/s (0: no limit)")
+    passivity: Literal["off", "tdpa"] = setting("off", doc="passivity guard: off or time-domain passivity (TDPA)")
+    alpha_max: float = setting(0.5, gt=0.0, le=1.0,
+                               doc="master damping cap as a fraction of what the tool's explicit step takes (mass/dt)")
+    dv_max_m_s: float = setting(0.5, gt=0.0, doc="slave velocity correction cap, m/s (rad/s on rotation axes)")
+    drift_gain: float = setting(2.0, ge=0.0, doc="position drift compensation rate, 1/s (0: off)")
+    heartbeat_ms: float = setting(20.0, gt=0.0, le=10_000.0,
+                                  doc="over Zenoh: a side that hears nothing for this long goes to its safe state, ms")
+
+    @property
+    def simulated(self) -> bool:
+        """True when the link does anything the in-process lockstep link does not."""
+        return (self.round_trip_ms > 0 or self.jitter_ms > 0 or self.loss > 0 or self.burst_enter > 0
+                or self.bandwidth_kBps > 0 or self.passivity != "off")
 
 
 def rpy_matrix(r: float, p: float, y: float) -> np.ndarray:

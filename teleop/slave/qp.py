@@ -164,6 +164,13 @@ class SlaveArm:
         self.status = status
         return status
 
+    def hold(self, F_tip_W=None) -> str:
+        """The safe state for one tick: zero joint velocity commanded (through the servo lag), no
+        QP solved, so the joints stop where they are. Returns "hold"."""
+        self._advance(np.zeros(self.nv), F_tip_W)
+        self.status = "hold"
+        return self.status
+
     def _advance(self, qd_cmd, F_tip_W):
         """Command the joint velocity qd_cmd (rad/s) through the servo lag for one tick; update
         the state, the kinematics and the joint torques."""

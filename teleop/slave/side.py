@@ -63,10 +63,14 @@ class SlaveSide:
         (:func:`teleop.slave.projection.project_onto_fixture`)."""
         return project_onto_fixture(self._rows, p, R, v, w)
 
-    def follow(self, cmd: ToolCommand | None, t_s: float) -> ContactFeedback:
-        """One tick toward the newest command (see the module docstring)."""
+    def follow(self, cmd: ToolCommand | None, t_s: float, hold: bool = False) -> ContactFeedback:
+        """One tick toward the newest command (see the module docstring); ``hold``: the safe
+        state instead (the joints stop where they are, no command followed; a lost link)."""
         s = self.state
-        if cmd is not None and cmd.clutch:
+        if hold:
+            p, R = self.arm.tool_pose()
+            self._target = (p, R, np.zeros(3), np.zeros(3))
+        elif cmd is not None and cmd.clutch:
             self._target = self.project(*self.reg.target(cmd.p_m, cmd.R, cmd.v_m_s, cmd.w_rad_s))
         elif cmd is not None or self._target is None:  # clutch out, or nothing yet: hold still
             p, R = self.arm.tool_pose()
@@ -74,7 +78,8 @@ class SlaveSide:
         elif self._target[2].any() or self._target[3].any():  # a lost message: hold the last pose
             self._target = (self._target[0], self._target[1], np.zeros(3), np.zeros(3))
         p_t, R_t, v_t, w_t = self._target
-        s.status = self.arm.step(p_t, R_t, v_t, w_t, s.contact_P if s.ticks else None)
+        F = s.contact_P if s.ticks else None
+        s.status = self.arm.hold(F) if hold else self.arm.step(p_t, R_t, v_t, w_t, F)
         p, R = self.arm.tool_pose()
         v, w = self.arm.tool_twist()
         d = R @ self.tip_B

@@ -1,0 +1,90 @@
+"""The passivity guard (TDPA) at the two ends of the link, in the master's frame M.
+
+:class:`MasterGuard` sits on the master side between the feedback path and the reference tool:
+it observes the energy the channel puts out at the master port (the felt force times the tool's
+velocity) and damps the felt force when the observer goes negative. The damped force is still the
+force fed to the reference tool (eq. 4), so the tool's own fixture rows keep it on the fixture.
+It stamps the master port's input energy into every outgoing command.
+
+:class:`SlaveGuard` sits on the slave side between the link and the slave: it observes the energy
+the channel puts out at the slave port (the contact wrench times the commanded velocity), corrects
+the commanded velocity when the observer goes negative and adds the accumulated correction (the
+position drift) to the commanded pose before the slave maps it; drift compensation pulls the offset
+back with surplus energy only. The slave's fixture projection and QP rows act after the guard, so a
+correction can never take the blade past the fixture. It stamps the slave port's input energy into
+every reply.
+
+Both ports work in M units: the slave maps its contact wrench with the registration's
+``wrench_to_master`` (force_scale, torque_scale), so power at both ports is counted alike. See
+:mod:`teleop.link.passivity` for the observers and controllers and their sources.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from teleop.dynamics.kernels.so3 import exp3
+from teleop.link.messages import ContactFeedback, ToolCommand
+from teleop.link.passivity import MasterPassivity, SlavePassivity, TdpaParams
+
+_ZERO6 = np.zeros(6)
+
+
+class MasterGuard:
+    """The master port: ``feedback(wrench_M, twist_M, msg, t_s)`` -> the wrench to render."""
+
+    def __init__(self, params: TdpaParams, log_capacity: int = 0):
+        self.port = MasterPassivity(params, log_capacity)
+
+    @property
+    def energy_J(self) -> np.ndarray:
+        """(6,) J: the master port's input energy, for the outgoing command."""
+        return self.port.energy_J
+
+    def feedback(self, wrench_M, twist_M, msg: ContactFeedback | None, t_s: float) -> np.ndarray:
+        """The felt wrench (6,: N, N*m, M) after damping, from the filtered feedback ``wrench_M``,
+        the reference tool's ``twist_M`` (6,: m/s, rad/s) and the newest feedback ``msg`` (its
+        ``energy_J``; None: hold the last)."""
+        return self.port.step(wrench_M, twist_M, None if msg is None else msg.energy_J, t_s)
+
+
+class SlaveGuard:
+    """The slave port: ``command(cmd, t_s)`` before the slave follows, ``reply(fb)`` after."""
+
+    def __init__(self, params: TdpaParams, registration, log_capacity: int = 0):
+        self.port = SlavePassivity(params, log_capacity)
+        self.reg = registration
+        self.f_M = np.zeros(6)  # the newest contact wrench, in M (N, N*m)
+
+    @property
+    def drift_M(self) -> np.ndarray:
+        """(6,) the offset added to the master's pose (m, rad in M)."""
+        return self.port.offset
+
+    def command(self, cmd: ToolCommand | None, t_s: float) -> ToolCommand | None:
+        """The command the slave follows: ``cmd`` with its twist corrected and its pose offset by
+        the drift (None stays None: the slave holds, the observer still counts the tick)."""
+        live = cmd is not None and cmd.clutch
+        v_des = np.concatenate((cmd.v_m_s, cmd.w_rad_s)) if live else _ZERO6
+        v = self.port.step(v_des, self.f_M, None if cmd is None else cmd.energy_J, t_s)
+        if not live:
+            return cmd
+        off = self.port.offset
+        return ToolCommand(cmd.seq, cmd.t_s, cmd.p_m + off[:3], exp3(off[3:]) @ cmd.R, v[:3], v[3:],
+                           cmd.clutch, cmd.energy_J)
+
+    def reply(self, fb: ContactFeedback) -> ContactFeedback:
+        """``fb`` with the slave port's input energy; remembers its wrench for the next tick."""
+        self.f_M = self.reg.wrench_to_master(fb.wrench_P)
+        return ContactFeedback(fb.seq, fb.t_s, fb.wrench_P, fb.status, fb.command_seq, self.port.energy_J)
+
+
+def tdpa_params(link, dt_s: float, mass_kg: float, inertia_kgm2, enabled: bool) -> TdpaParams:
+    """TdpaParams from a scene's [link] table: the master damping cap ``link.alpha_max`` times what
+    the tool's explicit step takes (mass/dt on force axes, the smallest principal inertia/dt on
+    torque axes), so the damping can never destabilise the tool itself."""
+    J = np.asarray(inertia_kgm2, dtype=float)
+    j_min = float(np.min(np.linalg.eigvalsh(J))) if J.ndim == 2 else float(np.min(J))
+    cap = (mass_kg / dt_s,) * 3 + (j_min / dt_s,) * 3
+    return TdpaParams(dt_s=dt_s, enabled=enabled, alpha_max=tuple(link.alpha_max * c for c in cap),
+                      dv_max=link.dv_max_m_s, drift_gain=link.drift_gain)

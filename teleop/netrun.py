@@ -1,0 +1,399 @@
+"""Master and slave as two processes over Eclipse Zenoh, on the wall clock at the scene's rate.
+
+    teleop slave SCENE --listen tcp/127.0.0.1:7447 [--json OUT]
+    teleop master SCENE --connect tcp/127.0.0.1:7447 [--json OUT]
+    teleop run SCENE --link zenoh [--json OUT]      # both on a free loopback port, one summary
+
+Each process runs its half of :class:`teleop.loop.BilateralLoop`'s tick (the same calls in the
+same order) and the two halves meet only in :class:`~teleop.link.zenoh_link.ZenohLink`. The
+passivity guard of the scene's [link] table runs at both ends, as in the simulated run.
+
+Start-up: the master sends hello commands (``t_s = -1``, clutch out) until a reply comes; the slave
+answers every hello. Both then run on their own clocks; the master ticks ``duration_s / dt_s``
+times, the slave until it has followed the master's last command (or, if the master is gone, for
+as long again plus ``GRACE_S``).
+
+Heartbeat: every tick each side sends a message, so silence means a lost link. A side that has
+heard nothing for ``link.heartbeat_ms`` (20 ms by default) goes to its **safe state** at once:
+
+* master: the reference tool holds still (zero velocity, no step), the remote force is dropped
+  (the feedback filter emptied); the device is commanded to hold the tool's pose;
+* slave: no command is followed, the arm holds its pose with zero velocity (the QP under the
+  fixture rows), its replies say ``link_lost``.
+
+When messages come again, each side resumes from where it held: the master's tool from rest, the
+force feedback from zero through its low-pass; the slave from its held pose toward the next
+command. Each side counts lost-link events, lost ticks and the detection latency (time from the
+last message heard to the safe state, s) in its summary; a run with any lost tick is
+``link_lost``, not "ok".
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import socket
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+from teleop.control.feedback import FeedbackPath
+from teleop.dynamics.constraints import RemoteCenter
+from teleop.errors import TeleopError
+from teleop.link.messages import ContactFeedback, MessageError, ToolCommand
+from teleop.runtime import make_guard, make_master, make_slave
+from teleop.scenario.build import build_fixture, build_registration, build_tool, master_fixture_spec
+from teleop.scenario.metrics import MasterMetrics, SlaveMetrics, make_metrics
+from teleop.scenario.operators import make_operator
+from teleop.session import GuardRecorder, MasterRecorder, SlaveCounter, _pace, run_status
+
+GRACE_S = 2.0          # the slave's run beyond the scene's duration when the master is gone (s)
+CONNECT_TIMEOUT_S = 120.0  # the first message must come within this (s): a loaded machine is slow
+RESUME_WINDOW = 100  # ticks after a resume in which the position steps are watched
+_Z6 = np.zeros(6)
+_Z3 = np.zeros(3)
+
+
+class HeartbeatState:
+    """One side's view of the link: lost or not, with counts for the summary."""
+
+    def __init__(self, link, timeout_s: float):
+        self.link, self.timeout_s = link, timeout_s
+        self.lost = False
+        self.events = self.ticks_lost = self.resumed = 0
+        self.latency_s: list[float] = []  # last message heard -> safe state, per event (s)
+        self.late_at_detect_s: list[float] = []  # how late the detecting tick itself ran (s)
+        self.tick_late_s = 0.0  # set by the run loop before each tick: its lateness (s)
+        self.speed_lost_max = self.speed_lost_last = 0.0  # the side's speed while lost (m/s or rad/s)
+        self.jump_after_resume_m = self.step_max_m = 0.0  # position step per tick (m)
+        self._prev = None
+        self._since_resume = 10**9
+
+    def update(self) -> bool:
+        """Check the heartbeat; True while the link is lost."""
+        now = self.link.clock()
+        alive = self.link.alive(now, self.timeout_s)
+        if not alive and not self.lost:
+            self.lost, self.events = True, self.events + 1
+            last = self.link.last_receive_s
+            self.latency_s.append(now - last if last is not None else float("inf"))
+            self.late_at_detect_s.append(self.tick_late_s)
+        elif alive and self.lost:
+            self.lost, self.resumed = False, self.resumed + 1
+        self.ticks_lost += self.lost
+        return self.lost
+
+    def motion(self, p, speed: float) -> None:
+        """After the tick: the side's position ``p`` (3,) m and speed, for the safe-state and
+        no-jump figures (the largest step within ``RESUME_WINDOW`` ticks of a resume)."""
+        if self.lost:
+            self.speed_lost_max, self.speed_lost_last = max(self.speed_lost_max, speed), speed
+            self._since_resume = -1
+        if self._prev is not None:
+            step = float(np.linalg.norm(p - self._prev))
+            self.step_max_m = max(self.step_max_m, step)
+            if 0 <= self._since_resume < RESUME_WINDOW:
+                self.jump_after_resume_m = max(self.jump_after_resume_m, step)
+        self._since_resume += 1
+        self._prev = np.array(p, dtype=float)
+
+    def summary(self) -> dict:
+        return {"lost_events": self.events, "lost_ticks": self.ticks_lost, "resumed": self.resumed,
+                "detect_latency_max_s": max(self.latency_s, default=0.0), "lost_at_end": self.lost,
+                "detect_latency_s": self.latency_s[:20], "detect_tick_late_s": self.late_at_detect_s[:20],
+                "heartbeat_s": self.timeout_s, "speed_while_lost_max": self.speed_lost_max,
+                "speed_while_lost_last": self.speed_lost_last, "step_max_m": self.step_max_m,
+                "step_after_resume_max_m": self.jump_after_resume_m}
+
+
+class MasterHalf:
+    """The master's half of the tick (operator, sense, tool step, command, send; feedback in),
+    with the safe state on a lost link. Attributes as :class:`BilateralLoop` for the hooks."""
+
+    def __init__(self, tool, master, operator, dt_s, link, feedback, guard, hooks, heartbeat_s):
+        self.tool, self.master, self.operator, self.dt = tool, master, operator, dt_s
+        self.link, self.feedback, self.master_guard, self.hooks = link, feedback, guard, hooks
+        self.slave = self.slave_guard = None
+        self.heart = HeartbeatState(link, heartbeat_s)
+        self.hand_W, self.feedback_W = np.zeros(6), np.zeros(6)
+        self.tick_ns, self.status, self.command_errors = 0, "ok", 0
+        self.slave_status: dict[str, int] = {}
+
+    def tick(self, i: int) -> str:
+        t, master, tool = i * self.dt, self.master, self.tool
+        for h in self.hooks:
+            h.before_tick(i, t, self)
+        t0 = time.perf_counter_ns()
+        lost = self.heart.update()
+        self.hand_W = self.operator.wrench(t, *master.hand_state())
+        master.set_clutch(self.operator.clutch_engaged)
+        f_v = master.sense(self.hand_W)
+        p_r, R_r = tool.pose()
+        if lost:                                   # safe state: the tool holds, no remote force
+            tool.state.qd = np.zeros(6)
+            self.feedback.wrench_M, self.feedback._target = np.zeros(6), np.zeros(6)
+            self.feedback_W = np.zeros(6)
+            st, st_m = "ok", master.command(p_r, R_r, _Z6, _Z6)
+        else:
+            v_r, w_r = tool.twist()
+            st = tool.step(self.dt, f_v + self.feedback_W)
+            st_m = master.command(p_r, R_r, np.concatenate((v_r, w_r)), tool.acceleration_W)
+        energy = None if self.master_guard is None else self.master_guard.energy_J
+        try:  # sent even when lost: the heartbeat the slave listens for
+            self.link.send_command(ToolCommand(i + 1, t, *master.virtual_estimate(),
+                                               self.operator.clutch_engaged and not lost, energy))
+        except MessageError:
+            self.command_errors += 1
+        msg = self.link.receive_feedback(t)
+        if msg is not None and msg.t_s >= 0:
+            self.slave_status[msg.status] = self.slave_status.get(msg.status, 0) + 1
+        if not lost:
+            self.feedback_W = self.feedback.update(msg)
+            if self.master_guard is not None:
+                self.feedback_W = self.master_guard.feedback(self.feedback_W, np.concatenate(tool.twist()), msg, t)
+        self.tick_ns = time.perf_counter_ns() - t0
+        self.heart.motion(tool.pose()[0], float(np.linalg.norm(tool.qd)))
+        for h in self.hooks:
+            h.after_tick(i, t, self)
+        self.status = st if st != "ok" else st_m
+        return self.status
+
+
+class SlaveHalf:
+    """The slave's half of the tick (receive, guard, follow, reply), with the safe state."""
+
+    def __init__(self, slave, link, guard, hooks, heartbeat_s, dt_s):
+        self.slave, self.link, self.slave_guard, self.hooks = slave, link, guard, hooks
+        self.master_guard = None
+        self.heart = HeartbeatState(link, heartbeat_s)
+        self.dt, self.tick_ns, self.last_seq = dt_s, 0, 0
+        self.pending = None  # the first command, taken while answering hellos
+
+    def tick(self, i: int) -> None:
+        t = i * self.dt
+        t0 = time.perf_counter_ns()
+        lost = self.heart.update()
+        cmd = self.link.receive_command(t)
+        if cmd is None and self.pending is not None:
+            cmd = self.pending
+        self.pending = None
+        if cmd is not None and cmd.t_s < 0:
+            cmd = None  # a hello
+        if lost:
+            cmd = None                              # safe state: hold the pose, zero velocity
+        if cmd is not None:
+            self.last_seq = cmd.seq
+        sg = self.slave_guard
+        reply = self.slave.follow(cmd if sg is None else sg.command(cmd, t), t, hold=lost)
+        if sg is not None:
+            reply = sg.reply(reply)
+        if lost:
+            self.slave.state.status = "link_lost"
+            reply = ContactFeedback(reply.seq, reply.t_s, reply.wrench_P, "link_lost", reply.command_seq, reply.energy_J)
+        self.link.send_feedback(reply)
+        self.tick_ns = time.perf_counter_ns() - t0
+        self.heart.motion(self.slave.state.p, float(np.linalg.norm(self.slave.arm.qd)))
+        for h in self.hooks:
+            h.after_tick(i, t, self)
+
+
+def _open_link(role: str, session: str, listen, connect, timeout_s: float, config_json5=None):
+    from teleop.link.zenoh_link import LinkError, ZenohLink
+
+    end = time.monotonic() + timeout_s
+    while True:
+        try:
+            return ZenohLink(role, session=session, listen=listen, connect=connect, config_json5=config_json5)
+        except LinkError:
+            if time.monotonic() > end:
+                raise
+            time.sleep(0.2)
+
+
+def _hello(master, link, timeout_s: float) -> None:
+    """Master: hello commands until the slave answers."""
+    end = time.monotonic() + timeout_s
+    p, R, _, _ = master.virtual_estimate()
+    while link.last_receive_s is None:
+        if time.monotonic() > end:
+            raise TeleopError(f"master: no answer from the slave within {timeout_s:g} s "
+                              f"(is 'teleop slave' running on {link.connect}?)")
+        link.send_command(ToolCommand(0, -1.0, p, R, _Z3, _Z3, False))
+        time.sleep(0.005)
+
+
+def run_master(scene, connect: str | None, listen: str | None = None, session: str = "default",
+               timeout_s: float = CONNECT_TIMEOUT_S, config_json5: dict | None = None) -> dict:
+    """The master process: returns its summary (also the master's metrics). ``config_json5``:
+    extra Zenoh settings (TLS, see :mod:`teleop.link.zenoh_link`)."""
+    rng = np.random.default_rng(scene.seed)
+    tool = build_tool(scene)
+    spec_M = master_fixture_spec(scene)
+    operator = make_operator(scene.operator, spec_M, scene.effects, rng)
+    n = int(round(scene.duration_s / scene.dt_s))
+    reg = build_registration(scene)
+    feedback = FeedbackPath(reg, scene.mapping.feedback_cutoff_hz, scene.dt_s)
+    guard = make_guard(scene, reg, n)
+    metrics = MasterMetrics(make_metrics(spec_M, n, tool.body.mass_kg))
+    recorder = MasterRecorder(tool, n)
+    hooks = [recorder, metrics] + ([_GuardLog(n, 0)] if guard else [])
+    master = make_master(scene, tool, rng)
+    link = _open_link("master", session, listen, connect, timeout_s, config_json5)
+    half = MasterHalf(tool, master, operator, scene.dt_s, link, feedback, guard[0] if guard else None, hooks,
+                      scene.link.heartbeat_ms * 1e-3)
+    status, late = "ok", 0
+    with link, master:
+        _hello(master, link, timeout_s)
+        print("master: running", flush=True)
+        wall0 = time.perf_counter()
+        for i in range(n):
+            half.heart.tick_late_s = max(0.0, time.perf_counter() - (wall0 + i * scene.dt_s))
+            status = half.tick(i)
+            if status != "ok":
+                break
+            late += _pace(wall0 + (i + 1) * scene.dt_s)
+        link_stats = link.stats()
+    ticks = recorder.log["tick_us"][: recorder.n]
+    heart = half.heart.summary()
+    out = {"side": "master", "status": status if status != "ok" else ("link_lost" if heart["lost_ticks"] else "ok"),
+           "steps": recorder.n, "late_ticks": late, "nan": bool(recorder.nan),
+           "tick_us": {"median": float(np.median(ticks)) if len(ticks) else 0.0,
+                       "p99": float(np.percentile(ticks, 99)) if len(ticks) else 0.0},
+           "heartbeat": heart, "zenoh": link_stats, "slave_statuses_heard": half.slave_status,
+           "command_errors": half.command_errors, "metrics": metrics.result()}
+    if guard:
+        out["passivity_master"] = hooks[-1].summary()
+    return out
+
+
+def run_slave(scene, listen: str | None, connect: str | None = None, session: str = "default",
+              timeout_s: float = CONNECT_TIMEOUT_S, config_json5: dict | None = None) -> dict:
+    """The slave process: returns its summary (the slave's metrics)."""
+    if scene.slave is None:
+        raise TeleopError(f"{scene.path}: slave: the scene has no [slave] table: nothing to run on this side")
+    tool = build_tool(scene)  # only for the initial pose, as in the simulated run
+    reg = build_registration(scene)
+    constraints_P = build_fixture(scene.fixture).constraints
+    slave = make_slave(scene, reg, constraints_P)
+    slave.reset(*tool.pose())
+    for _ in range(3):  # warm up (first calls compile and allocate): holding still, no metrics
+        slave.follow(None, 0.0)
+    n = int(round(scene.duration_s / scene.dt_s))
+    cap = n + int(round(GRACE_S / scene.dt_s)) + 1
+    guard = make_guard(scene, reg, n)
+    rcm = [c for c in constraints_P if isinstance(c, RemoteCenter)]
+    metrics, counter = SlaveMetrics(scene.fixture, cap, slave.arm.nv, rcm), SlaveCounter()
+    hooks = [metrics, counter] + ([_GuardLog(cap, 1)] if guard else [])
+    link = _open_link("slave", session, listen, connect, timeout_s, config_json5)
+    half = SlaveHalf(slave, link, guard[1] if guard else None, hooks, scene.link.heartbeat_ms * 1e-3, scene.dt_s)
+    late = steps = 0
+    tick_ns = []
+    with link:
+        end = time.monotonic() + timeout_s
+        while half.pending is None:  # answer hellos until the first real command
+            if time.monotonic() > end:
+                raise TeleopError(f"slave: no command from a master within {timeout_s:g} s")
+            cmd = link.receive_command(0.0)
+            if cmd is not None and cmd.t_s >= 0:
+                half.pending = cmd
+                print("slave: running", flush=True)
+                break
+            if link.last_receive_s is not None:
+                link.send_feedback(ContactFeedback(0, -1.0, _Z6, "hold", -1))
+            time.sleep(0.001)
+        wall0 = time.perf_counter()
+        for i in range(cap):
+            half.heart.tick_late_s = max(0.0, time.perf_counter() - (wall0 + i * scene.dt_s))
+            half.tick(i)
+            tick_ns.append(half.tick_ns)
+            steps = i + 1
+            if half.last_seq >= n:
+                break
+            late += _pace(wall0 + (i + 1) * scene.dt_s)
+        link_stats = link.stats()
+    heart = half.heart.summary()
+    counts = counter.counts
+    status = run_status("ok", steps, counts)
+    if heart["lost_ticks"] and status in ("ok", "slave_link_lost", "slave_hold"):
+        status = "link_lost"  # this side's own word for it (the lost ticks were counted as such)
+    out = {"side": "slave", "status": status, "steps": steps, "late_ticks": late,
+           "followed_last_command": half.last_seq >= n, "slave_statuses": counts, "heartbeat": heart,
+           "zenoh": link_stats, "tick_us": {"median": float(np.median(tick_ns)) * 1e-3 if tick_ns else 0.0,
+                                           "p99": float(np.percentile(tick_ns, 99)) * 1e-3 if tick_ns else 0.0},
+           "metrics": metrics.result()}
+    if guard:
+        out["passivity_slave"] = hooks[-1].summary()
+    return out
+
+
+class _GuardLog:
+    """One port's totals in a two-process run (the port's own log)."""
+
+    def __init__(self, n: int, side: int):
+        self.side, self.rec = side, GuardRecorder(n)
+
+    def before_tick(self, i, t_s, loop) -> None:
+        pass
+
+    def after_tick(self, i, t_s, loop) -> None:
+        g = loop.master_guard if self.side == 0 else loop.slave_guard
+        key = "master" if self.side == 0 else "slave"
+        log = self.rec.log
+        log[f"tdpa_W_{key}_J"][i], log[f"tdpa_diss_{key}_J"][i] = g.port.W, g.port.E_diss
+        if self.side == 1:
+            log["tdpa_drift_M"][i] = g.port.offset
+        else:
+            log["tdpa_alpha"][i] = g.port.action
+        self.rec.n = i + 1
+
+    def summary(self) -> dict:
+        key = "master" if self.side == 0 else "slave"
+        s = self.rec.summary()
+        return {k: v for k, v in s.items() if key in k or (self.side == 1 and k.startswith("drift"))}
+
+
+def free_endpoint() -> str:
+    """A free TCP port on loopback, as a Zenoh endpoint."""
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return f"tcp/127.0.0.1:{s.getsockname()[1]}"
+
+
+def run_pair(scene_arg: str, sets=(), timeout_s: float = CONNECT_TIMEOUT_S + 60.0) -> dict:
+    """``teleop run --link zenoh``: the slave and the master as two child processes on a free
+    loopback port; their two summaries merged into one."""
+    ep = free_endpoint()
+    extra = [a for s in sets for a in ("--set", s)]
+    with tempfile.TemporaryDirectory() as tmp:
+        js, jm = Path(tmp) / "slave.json", Path(tmp) / "master.json"
+        py = [sys.executable, "-m", "teleop"]
+        env = dict(os.environ)
+        slave = subprocess.Popen(py + ["slave", scene_arg, "--listen", ep, "--json", str(js)] + extra, env=env)
+        master = subprocess.Popen(py + ["master", scene_arg, "--connect", ep, "--json", str(jm)] + extra, env=env)
+        try:
+            rc_m = master.wait(timeout=timeout_s)
+            rc_s = slave.wait(timeout=timeout_s)
+        finally:
+            for p in (master, slave):
+                if p.poll() is None:
+                    p.kill()
+                    p.wait()
+        sides = {}
+        for name, path, rc in (("master", jm, rc_m), ("slave", js, rc_s)):
+            if not path.exists():
+                raise TeleopError(f"teleop run --link zenoh: the {name} process wrote no summary (exit {rc})")
+            sides[name] = json.loads(path.read_text())
+    return merge_summaries(sides["master"], sides["slave"], ep)
+
+
+def merge_summaries(m: dict, s: dict, endpoint: str) -> dict:
+    """One run summary from the two sides' (status "ok" only when both are)."""
+    status = m["status"] if m["status"] != "ok" else (s["status"] if s["status"] != "ok" else "ok")
+    if status == "ok" and not s.get("followed_last_command", False):
+        status = "link_lost"
+    return {"status": status, "link": "zenoh", "endpoint": endpoint, "nan": m["nan"],
+            "metrics": {**m["metrics"], **s["metrics"]}, "master": m, "slave": s}

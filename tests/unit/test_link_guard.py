@@ -1,0 +1,89 @@
+"""The [link] table in a run: the link it builds, the guard's two ends against hand-computed
+energies and offsets, and the damping cap from the tool's mass."""
+
+import numpy as np
+import pytest
+
+from teleop.control.mapping import Registration
+from teleop.errors import SceneError
+from teleop.link import ContactFeedback, LockstepLink, SimulatedChannel, ToolCommand
+from teleop.link.guard import MasterGuard, SlaveGuard, tdpa_params
+from teleop.link.passivity import TdpaParams
+from teleop.runtime import make_guard, make_link
+from teleop.scenario.schema import load_scene
+
+DT = 1e-3
+
+
+def test_no_link_table_is_the_lockstep_link():
+    scene = load_scene("straight_incision")
+    assert not scene.link.simulated
+    assert type(make_link(scene, np.random.default_rng(0))) is LockstepLink
+    assert make_guard(scene, scene.mapping.registration(), 10) is None
+
+
+def test_link_table_from_the_command_line_builds_the_channel():
+    scene = load_scene("straight_incision", sets=["link.round_trip_ms=40", "link.loss=0.1",
+                                                  "link.burst_enter=0.01", "link.bandwidth_kBps=100"])
+    link = make_link(scene, np.random.default_rng(0))
+    assert isinstance(link, SimulatedChannel)
+    spec = link.spec
+    assert spec.round_trip_ms == 40.0 and spec.loss == (0.1, 0.1) and spec.burst_enter == (0.01, 0.01)
+    assert spec.bandwidth_Bps == (1e5, 1e5) and spec.delay_s(0) == pytest.approx(0.02)
+
+
+@pytest.mark.parametrize("setting, key", [("link.loss=1.0", "link.loss"), ("link.round_trip_ms=-1", "link.round_trip_ms"),
+                                          ('link.passivity="on"', "link.passivity"), ("link.delay_ms=5", "link.delay_ms")])
+def test_bad_link_settings_name_the_key(setting, key):
+    with pytest.raises(SceneError, match=key.replace(".", r"\.")):
+        load_scene("straight_incision", sets=[setting])
+
+
+def test_damping_cap_follows_the_tool():
+    scene = load_scene("straight_incision", sets=['link.passivity="tdpa"', "link.alpha_max=0.5"])
+    p = tdpa_params(scene.link, 1e-3, 0.1, [0.0004, 0.0004, 0.00002], enabled=True)
+    # 0.5 * m / dt on force axes, 0.5 * J_min / dt on torque axes (by hand)
+    assert p.alpha_max == pytest.approx((50.0, 50.0, 50.0, 0.01, 0.01, 0.01))
+    J = np.diag([3e-4, 2e-4, 5e-4])
+    assert tdpa_params(scene.link, 1e-3, 1.0, J, True).alpha_max[3] == pytest.approx(0.5 * 2e-4 / 1e-3)
+
+
+def test_master_guard_damps_the_deficit_and_stamps_energy():
+    g = MasterGuard(TdpaParams(dt_s=DT, alpha_max=(1e6,) * 6))
+    # channel pushes the master along its motion: f v = 2 * 0.1 = 0.2 W out, nothing from the slave
+    out = g.feedback([2.0, 0, 0, 0, 0, 0], [0.1, 0, 0, 0, 0, 0], None, 0.0)
+    W = -0.2 * DT  # observer before the controller
+    alpha = -W / (DT * 0.1**2)
+    assert out[0] == pytest.approx(2.0 - alpha * 0.1) and out[0] == pytest.approx(0.0)
+    assert g.port.W[0] == pytest.approx(0.0, abs=1e-15) and g.energy_J[0] == 0.0
+    # now the master pushes against the force: energy enters the channel, stamped in the command
+    g.feedback([-1.0, 0, 0, 0, 0, 0], [0.5, 0, 0, 0, 0, 0], None, DT)
+    assert g.energy_J[0] == pytest.approx(0.5 * DT)
+
+
+def test_slave_guard_corrects_velocity_and_offsets_the_pose():
+    reg = Registration(np.zeros(3), np.eye(3), 1.0, 1.0)
+    g = SlaveGuard(TdpaParams(dt_s=DT, dv_max=10.0), reg)
+    fb = g.reply(ContactFeedback(1, 0.0, [-4.0, 0, 0, 0, 0, 0], "ok", 0))  # resisting force 4 N
+    assert fb.energy_J[0] == 0.0 and g.f_M[0] == -4.0
+    cmd = ToolCommand(1, 0.0, [0.1, 0, 0], np.eye(3), [0.05, 0, 0], np.zeros(3), True)
+    out = g.command(cmd, DT)
+    # the channel gives 4 * 0.05 = 0.2 W to the slave's environment with nothing from the master:
+    # W = -0.2 dt; dv = -W / (dt f) = -0.05 (stops the slave); the offset -0.05 dt
+    assert out.v_m_s[0] == pytest.approx(0.0, abs=1e-12)
+    assert out.p_m[0] == pytest.approx(0.1 - 0.05 * DT)
+    assert g.drift_M[0] == pytest.approx(-0.05 * DT)
+    np.testing.assert_allclose(out.R, np.eye(3))
+    assert g.command(None, 2 * DT) is None  # nothing to follow: the slave holds
+
+
+def test_zero_delay_channel_is_the_lockstep_link():
+    """The same run through the channel model at zero delay and through the lockstep link."""
+    from teleop.runtime import run_scene
+
+    base = load_scene("straight_incision", sets=["duration_s=0.6"])
+    via = base.with_overrides(["link.bandwidth_kBps=1e12"])  # builds the channel; 1e-13 s per message
+    a, b = run_scene(base), run_scene(via)
+    assert "link" in b.summary and "link" not in a.summary
+    assert a.summary["metrics"] == b.summary["metrics"]
+    np.testing.assert_array_equal(a.log["slave_tip"], b.log["slave_tip"])

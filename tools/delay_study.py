@@ -1,0 +1,194 @@
+"""What delay does to bilateral teleoperation, and what the passivity guard (TDPA) buys back.
+
+    python tools/delay_study.py [--out docs/delay] [--delays 0 10 50 100 200 500 1000]
+                                [--losses 0 0.05] [--scenes straight_incision stiff_contact]
+
+For each scene, round-trip delay (ms), message loss and guard (off / tdpa) it runs the scene in
+simulated time through the [link] channel (``--set link.*``, the same path as the command line)
+and records:
+
+* ``stable``: no NaN, no fault (master or slave tracking), contact force below 10x the
+  undelayed run's peak and no oscillation: the tool's 2-50 Hz motion in the last second below
+  ``OSC_LIMIT_M`` (energy that keeps growing shows as both);
+* ``osc_mm``: that 2-50 Hz RMS of the reference tool's position over the last second (mm);
+* ``track_mm``: RMS distance of the slave's tip from the master's tip mapped to the patient
+  frame, at the same instant (delay, drift and all; mm);
+* ``follow_um``: RMS distance of the slave from its own (delayed, corrected) target (µm);
+* ``depth_um``: the cut depth error, max while in tissue (µm; scalpel scenes);
+* ``F_tissue`` / ``F_felt``: RMS contact force at the slave / RMS force felt at the master (N);
+* ``diss_mJ``: energy the guard dissipated, both ports (mJ); ``drift_mm``: the slave's largest
+  position offset from the guard (mm at the slave);
+* ``tick_us``: CPU per tick, median (µs).
+
+Writes ``delay.csv``, ``delay.md`` (the table), ``delay.png`` (the panels against delay) and
+``passivity.png`` (observers, dissipation and drift of the stiff scene at 200 ms, guarded).
+"""
+
+from __future__ import annotations
+
+import argparse
+import csv
+import math
+import time
+from pathlib import Path
+
+import numpy as np
+
+from teleop.loop import Hook
+from teleop.plots import plot_passivity
+from teleop.runtime import run_scene
+from teleop.scenario.metrics import band_rms
+from teleop.scenario.schema import load_scene
+
+DELAYS_MS = (0, 10, 50, 100, 200, 500, 1000)
+LOSSES = (0.0, 0.05)
+SCENES = ("straight_incision", "stiff_contact")
+OSC_LIMIT_M = 1e-3  # 2-50 Hz motion of the master's tool beyond this in the last second: oscillating
+
+
+class FeltForce(Hook):
+    """The force felt at the master each tick (after the guard), N."""
+
+    def __init__(self, n: int):
+        self.F = np.zeros(n)
+
+    def after_tick(self, i, t_s, loop) -> None:
+        self.F[i] = float(np.linalg.norm(loop.feedback_W[:3]))
+
+
+def run_point(name: str, delay_ms: float, loss: float, guard: bool, seconds: float | None) -> tuple[dict, dict]:
+    sets = [f"link.round_trip_ms={delay_ms}", f"link.loss={loss}",
+            f'link.passivity="{"tdpa" if guard else "off"}"']
+    if seconds:
+        sets.append(f"duration_s={seconds}")
+    scene = load_scene(name, sets=sets)
+    n = int(round(scene.duration_s / scene.dt_s))
+    felt = FeltForce(n)
+    t0 = time.perf_counter()
+    r = run_scene(scene, hooks=[felt])
+    wall = time.perf_counter() - t0
+    s, log, m = r.summary, r.log, r.summary["metrics"]
+    k = s["steps"]
+    last = slice(max(0, k - int(round(1.0 / scene.dt_s))), k)
+    osc = band_rms(log["p_r"][last], scene.dt_s, 2.0, 50.0) if k > 8 else 0.0
+    reg = scene.mapping.registration()
+    tip = np.asarray(scene.fixture.tip_m if scene.fixture.type == "scalpel" else (0.0, 0.0, 0.0))
+    master_tip_P = np.array([reg.point_to_patient(p) for p in log["p_r"][:k]]) + \
+        np.einsum("ij,njk,k->ni", reg.X_PM_R, log["R_r"][:k], tip)
+    slave_tip = log["slave_tip"][:k]
+    track = float(np.sqrt(np.mean(np.sum((slave_tip - master_tip_P) ** 2, axis=1)))) if k else 0.0
+    contact = log["slave_contact_N"][:k]
+    p = s.get("passivity", {})
+    row = {
+        "scene": name, "delay_ms": delay_ms, "loss": loss, "guard": "tdpa" if guard else "off",
+        "status": s["status"], "nan": s["nan"], "osc_mm": osc * 1e3, "track_mm": track * 1e3,
+        "follow_um": m.get("tip_tracking_rms_m", 0.0) * 1e6,
+        "depth_um": m.get("cut_depth_error_max_m", 0.0) * 1e6 if scene.fixture.type == "scalpel" else float("nan"),
+        "F_tissue": float(np.sqrt(np.mean(contact ** 2))) if k else 0.0,
+        "F_tissue_max": float(contact.max(initial=0.0)),
+        "F_felt": float(np.sqrt(np.mean(felt.F[:k] ** 2))) if k else 0.0,
+        "diss_mJ": (p.get("dissipated_master_J", 0.0) + p.get("dissipated_slave_J", 0.0)) * 1e3,
+        "drift_mm": m.get("link_drift_max_m", 0.0) * 1e3, "tick_us": s["tick_us"]["median"], "wall_s": wall,
+    }
+    return row, (log if guard else {})
+
+
+def verdict(row: dict, ref_force_max: float) -> bool:
+    """Stable: no NaN, no fault, no force blow-up, no oscillation (see the module docstring)."""
+    fault = row["status"] not in ("ok",) and row["status"] != "slave_saturated"
+    return (not row["nan"] and not fault and row["F_tissue_max"] <= 10.0 * max(ref_force_max, 0.1)
+            and row["osc_mm"] * 1e-3 < OSC_LIMIT_M)
+
+
+COLUMNS = ("scene", "delay_ms", "loss", "guard", "stable", "status", "osc_mm", "track_mm", "follow_um",
+           "depth_um", "F_tissue", "F_felt", "diss_mJ", "drift_mm", "tick_us")
+
+
+def _fmt(v) -> str:
+    if isinstance(v, float):
+        return "-" if math.isnan(v) else f"{v:.3g}"
+    return str(v)
+
+
+def write_table(rows: list[dict], out: Path) -> None:
+    with open(out / "delay.csv", "w", newline="") as f:
+        w = csv.DictWriter(f, fieldnames=list(rows[0].keys()))
+        w.writeheader()
+        w.writerows(rows)
+    lines = ["| " + " | ".join(COLUMNS) + " |", "|" + "---|" * len(COLUMNS)]
+    for r in rows:
+        lines.append("| " + " | ".join(_fmt(r[c]) for c in COLUMNS) + " |")
+    (out / "delay.md").write_text("\n".join(lines) + "\n")
+
+
+def plot(rows: list[dict], out: Path) -> None:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    panels = (("osc_mm", "oscillation 2-50 Hz [mm]"), ("track_mm", "master-slave tracking RMS [mm]"),
+              ("F_tissue", "contact force RMS [N]"), ("drift_mm", "guard drift [mm]"))
+    fig, axes = plt.subplots(2, 2, figsize=(10, 7))
+    for ax, (key, label) in zip(axes.flat, panels):
+        for scene in sorted({r["scene"] for r in rows}):
+            for guard, ls in (("off", "--"), ("tdpa", "-")):
+                for loss, mk in ((0.0, "o"), (0.05, "x")):
+                    pts = [r for r in rows if r["scene"] == scene and r["guard"] == guard and r["loss"] == loss]
+                    if not pts:
+                        continue
+                    x = [max(r["delay_ms"], 1.0) for r in pts]
+                    ax.plot(x, [max(r[key], 1e-6) for r in pts], ls, marker=mk, ms=4, lw=1,
+                            label=f"{scene} {guard} loss {loss:g}")
+                    bad = [(xx, max(r[key], 1e-6)) for xx, r in zip(x, pts) if not r["stable"]]
+                    if bad:
+                        ax.scatter(*zip(*bad), s=60, facecolors="none", edgecolors="r")
+        ax.set_xscale("log")
+        ax.set_yscale("log")
+        ax.set_xlabel("round-trip delay [ms] (0 drawn at 1)")
+        ax.set_ylabel(label, fontsize=8)
+        ax.grid(alpha=0.3, which="both")
+    axes[0, 0].legend(fontsize=6)
+    fig.suptitle("delay study: dashed unguarded, solid TDPA; red circles: unstable", fontsize=9)
+    fig.tight_layout()
+    fig.savefig(out / "delay.png", dpi=110)
+    plt.close(fig)
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--out", default="docs/delay")
+    ap.add_argument("--delays", type=float, nargs="+", default=DELAYS_MS)
+    ap.add_argument("--losses", type=float, nargs="+", default=LOSSES)
+    ap.add_argument("--scenes", nargs="+", default=SCENES)
+    ap.add_argument("--seconds", type=float, help="shorten every run to this (s)")
+    args = ap.parse_args(argv)
+    out = Path(args.out)
+    out.mkdir(parents=True, exist_ok=True)
+    rows = []
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    for name in args.scenes:
+        ref_force = None
+        for delay in args.delays:
+            for loss in args.losses:
+                for guard in (False, True):
+                    row, log = run_point(name, delay, loss, guard, args.seconds)
+                    if ref_force is None:
+                        ref_force = row["F_tissue_max"]
+                    row["stable"] = verdict(row, ref_force)
+                    rows.append(row)
+                    print(" ".join(f"{c}={_fmt(row[c])}" for c in COLUMNS), flush=True)
+                    if guard and name == "stiff_contact" and delay == 200 and loss == 0.0:
+                        plot_passivity(plt, log, "stiff_contact, 200 ms round trip, TDPA", out / "passivity.png")
+    write_table(rows, out)
+    plot(rows, out)
+    print(out / "delay.md")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
