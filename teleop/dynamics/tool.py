@@ -11,7 +11,7 @@ import math
 
 import numpy as np
 
-from teleop.dynamics.body import Kinematics, RigidBody, kinetic_energy
+from teleop.dynamics.body import Kinematics, RigidBody
 from teleop.dynamics.fixtures import Fixture
 from teleop.dynamics.integrators import (
     Integrator,
@@ -198,5 +198,4 @@ class ReferenceTool:
 
     def energy(self) -> float:
         """Kinetic plus potential energy of the conservative effects (J)."""
-        k = self.kinematics()
-        return kinetic_energy(self.body, k) + sum(e.potential_energy(k.p, k.R) for e in self.model.effects)
+        return self.model.energy(self.state.chart, self.state.q, self.state.qd)

@@ -383,3 +383,29 @@ def project_parameter_rates(R, E, Einv, J_inv, inv_m, G, qd, P, Pinv, rtol):
     out = np.zeros(n)
     _add_product(P, zd, 1.0, out)
     return zd, out
+
+
+# -- energy ----------------------------------------------------------------------------------------
+@njit(cache=True)
+def energy_rates(R, E_W, J, mass, qd, F, fx):
+    """(K J, a W, b W) at chart rates qd (6,) (chart terms R, E_W = R E_B): the kinetic energy
+    K = 1/2 m v.v + 1/2 w_B.J w_B, the power a = F . nu of the wrench F (6,) (world, at the body
+    origin), and the dampers' dissipation b = c_lin v.v + c_ang w.w (fx as in :func:`newton_euler`;
+    gravity is conservative and is not in a or b). The power of the forces at rates s qd is
+    a s - b s^2."""
+    v0, v1, v2 = qd[0], qd[1], qd[2]
+    d1, d2, d3 = qd[3], qd[4], qd[5]
+    w = np.empty(3)
+    for i in range(3):
+        w[i] = E_W[i, 0] * d1 + E_W[i, 1] * d2 + E_W[i, 2] * d3
+    wB = np.empty(3)
+    for i in range(3):
+        wB[i] = R[0, i] * w[0] + R[1, i] * w[1] + R[2, i] * w[2]
+    vv = v0 * v0 + v1 * v1 + v2 * v2
+    ww = w[0] * w[0] + w[1] * w[1] + w[2] * w[2]
+    rot = 0.0
+    for i in range(3):
+        rot += wB[i] * (J[i, 0] * wB[0] + J[i, 1] * wB[1] + J[i, 2] * wB[2])
+    K = 0.5 * mass * vv + 0.5 * rot
+    a = F[0] * v0 + F[1] * v1 + F[2] * v2 + F[3] * w[0] + F[4] * w[1] + F[5] * w[2]
+    return K, a, fx[0] * vv + fx[1] * ww
