@@ -19,7 +19,7 @@ from teleop.errors import ConfigError, SceneError
 from teleop.loop import Hook
 from teleop.master.ideal import IdealMaster
 from teleop.scenario.build import build_fixture, build_registration, build_tool, master_fixture_spec
-from teleop.scenario.metrics import MasterMetrics, SlaveMetrics, TremorProbe, make_metrics
+from teleop.scenario.metrics import EnergyDrift, MasterMetrics, SlaveMetrics, TremorProbe, make_metrics
 from teleop.scenario.operators import make_operator
 from teleop.scenario.schema import Scene
 from teleop.session import RunResult, Session
@@ -85,7 +85,8 @@ def run_scene(scene: Scene, progress=None, realtime: bool = False, operator=None
         operator = make_operator(scene.operator, spec_M, scene.effects, rng)
     n = int(round(scene.duration_s / scene.dt_s))
     master_metrics = MasterMetrics(make_metrics(spec_M, n, tool.body.mass_kg))
-    hooks: list = [master_metrics]
+    energy_drift = EnergyDrift(tool)
+    hooks: list = [master_metrics, energy_drift]
     reg = build_registration(scene)
     constraints_P = build_fixture(scene.fixture).constraints  # the fixture where the patient is
     slave = make_slave(scene, reg, constraints_P)
@@ -105,7 +106,7 @@ def run_scene(scene: Scene, progress=None, realtime: bool = False, operator=None
     session = Session(tool, master, operator, scene.dt_s, scene.duration_s, slave=slave, feedback=feedback,
                       hooks=hooks, realtime=realtime, progress=progress)
     result = session.run()
-    metrics = master_metrics.result()
+    metrics = {**master_metrics.result(), **energy_drift.result()}
     result.log.update(master_metrics.log())
     if slave_metrics is not None:
         metrics.update(slave_metrics.result())

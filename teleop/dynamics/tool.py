@@ -72,6 +72,8 @@ class ReferenceTool:
         self._constraint_wrench = np.zeros(6)
         self.recharts = 0
         self.acceleration_W = np.zeros(6)
+        #: the wrench (6,) the last step applied (operator and feedback; None: none), for energy audits
+        self.applied_W = None
         if not (max_speed_m_s > 0 and max_rate_rad_s > 0):
             raise ConfigError("max_speed_m_s and max_rate_rad_s must be positive")
         self._max_v2, self._max_w2 = max_speed_m_s**2, max_rate_rad_s**2
@@ -126,6 +128,7 @@ class ReferenceTool:
             self.status = STATUS_DIVERGED
             return self.status
         s.t += h
+        self.applied_W = operator_W
         self.lam, self.rank, self.wrench_W = ev.lam, ev.rank, ev.wrench_W
         self.acceleration_W = ev.nudot  # (vdot m/s^2, wdot rad/s^2), world: eq. 19's feedforward
         self._constraint_wrench = ev.constraint_wrench_W
