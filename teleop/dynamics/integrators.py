@@ -2,9 +2,9 @@
 
 * ``parametric``   the paper's method (eqs. 10-11): integrate z on q = psi(z) (semi-implicit), then
                    project zd onto the nonholonomic rows in the kinetic-energy metric.
-* ``energy``       the parametric step (projection where there is no parametrization), then the
-                   rates scaled so that the energy changes by the work done over the step: keeps
-                   the energy of an undamped tool (:class:`EnergyConsistent`).
+* ``energy``       a RATTLE-type split of the parametric step (the constraint impulse half at each
+                   end), then the rates scaled so that the energy changes by the work done over
+                   the step: keeps the energy of an undamped tool (:class:`EnergyConsistent`).
 * ``explicit_euler`` plain explicit Euler on (q, qd): drifts off the manifold; for comparison.
 * ``baumgarte``    semi-implicit Euler with Baumgarte stabilization of the constraint rows.
 * ``projection``   semi-implicit Euler, then Newton projection of q on h = 0 and of qd on A qd = 0.
@@ -217,20 +217,29 @@ class Parametric(Integrator):
 
 
 class EnergyConsistent(Parametric):
-    """The parametric step (the projection step where the fixture has no parametrization), then
-    an energy-consistent correction: the rates are scaled by the s that makes the energy change
-    over the step equal the work of the non-conservative forces, by the trapezoid rule,
+    """A RATTLE-type split of the parametric step, then an energy-consistent correction.
+
+    The step (where the fixture has a parametrization; otherwise the ``projection`` step):
+
+    1. half kick: zd_h = zd_0 + h/2 zdd_0 (eq. 11 with every force at the start, constraints too);
+    2. drift on the manifold: z_1 = z_0 + h zd_h, q_1 = psi(z_1) (holonomic rows exact);
+    3. velocity: nu* = nu_0 + h M^-1 F_0 + h/2 M^-1 G_0^T lam_0 (world twists: the applied forces
+       over the step, the start's constraint impulse over its first half), projected in the
+       kinetic-energy metric onto every row at q_1: the second half of the constraint impulse, as
+       in RATTLE (velocity rows exact). Splitting the constraint impulse between the
+       two ends cancels the first-order energy gain of the parametric step's one-sided impulse.
+
+    Then the rates are scaled by the s that makes the energy change over the step equal the work
+    of the non-conservative forces by the trapezoid rule,
 
         E(q1, s qd1) - E(q0, qd0) = h/2 (P0 + P1(s)),   P = F . nu - c_lin v.v - c_ang w.w,
 
-    with F the operator wrench held over the step plus the non-conservative effects, and E kinetic
-    plus potential energy (gravity, springs). Scaling keeps every velocity row (G nu = 0) exact, and
-    the parametric step keeps the holonomic rows exact, so the constraints hold as before. With no
-    force and no damper the energy is then constant to rounding; under forces it follows their
-    work to second order (exact for a force held on a free mass). The trajectory itself stays
-    first order, as the parametric step's. A correction larger than :attr:`MAX_SCALE` (the kinetic
-    energy is too small to carry the defect, e.g. at rest or at a spring's turning point) is not
-    made: the step's own energy is kept and the balance starts again from it."""
+    F the operator wrench held over the step plus the non-conservative effects, E kinetic plus
+    potential energy (gravity, springs). Scaling keeps every row. With no force and no damper the
+    energy is then constant to rounding; under forces it follows their work to second order. A
+    correction beyond :attr:`MAX_SCALE` (the kinetic energy too small to carry the defect, e.g.
+    at rest or a spring's turning point) is not made: the step's own energy is kept and the
+    balance starts again from it (counted in ``corrections_skipped``)."""
 
     name = "energy"
     #: the largest relative change of the rates the correction makes (dimensionless)
@@ -242,14 +251,42 @@ class EnergyConsistent(Parametric):
             super().reset(model, state, parametrization)
         self.E = model.energy(state.chart, state.q, state.qd)
         self.corrections_skipped = 0
+        self._J_inv, self._inv_m = model.body.J_inv, 1.0 / model.body.mass_kg
 
     def sync(self, state: ToolState) -> None:
         if self._base is None:
             super().sync(state)
 
+    def _split_step(self, model, state, h, operator_W):
+        """Steps 1-3 of the class docstring; returns the start's evaluation."""
+        param, chart = self.param, state.chart
+        ev = model.evaluate(chart, state.q, state.qd, state.t, operator_W)
+        _, Pinv = self._jac(chart, state.z)
+        zd_h = state.zd + (0.5 * h) * (Pinv @ (ev.qdd - param.curvature(chart, state.z, state.zd)))
+        # nu* = nu_0 + h nudot_0 - h/2 M^-1 G_0^T lam_0: the applied forces over the whole step,
+        # the start's constraint impulse over its first half (world twists, no chart)
+        R0, g = ev.pose.R, ev.constraint_wrench_W
+        nu = model.twist(ev.pose, state.qd) + h * ev.nudot
+        nu[:3] -= (0.5 * h * self._inv_m) * g[:3]
+        nu[3:] -= (0.5 * h) * (R0 @ (self._J_inv @ (R0.T @ g[3:])))
+        state.z = state.z + h * zd_h
+        P, Pinv = self._jac(chart, state.z)
+        state.q = param.psi(chart, state.z)
+        pt = model.pose_terms(chart, state.q)
+        qd = model.rates(pt, nu)
+        if model.m:  # the second half impulse: the projection onto every row at q_1
+            state.zd, state.qd = model.project_parameter_rates(pt, qd, P, Pinv)
+        else:
+            state.zd = Pinv @ qd
+            state.qd = P @ state.zd
+        return ev
+
     def step(self, model, state, h, operator_W):
         _, a0, b0 = model.energy_rates(model.pose_terms(state.chart, state.q), state.qd, state.t, operator_W)
-        ev = super().step(model, state, h, operator_W) if self._base is None else self._base.step(model, state, h, operator_W)
+        if self._base is None:
+            ev = self._split_step(model, state, h, operator_W)
+        else:
+            ev = self._base.step(model, state, h, operator_W)
         pt = model.pose_terms(state.chart, state.q)
         K, a, b = model.energy_rates(pt, state.qd, state.t + h, operator_W)
         V = model.potential_energy(pt.p, pt.R)
@@ -259,7 +296,7 @@ class EnergyConsistent(Parametric):
         s = (B + math.sqrt(disc)) / (2.0 * A) if A > 0.0 and disc >= 0.0 else math.nan
         if abs(s - 1.0) <= self.MAX_SCALE:  # False for NaN
             state.qd = s * state.qd
-            if state.zd is not None and self._base is None:
+            if self._base is None:
                 state.zd = s * state.zd
             self.E = C + V + 0.5 * h * (a * s - b * s * s)  # = E0 + h/2 (P0 + P1(s)) = s^2 K + V
         else:
