@@ -409,3 +409,55 @@ def energy_rates(R, E_W, J, mass, qd, F, fx):
     K = 0.5 * mass * vv + 0.5 * rot
     a = F[0] * v0 + F[1] * v1 + F[2] * v2 + F[3] * w[0] + F[4] * w[1] + F[5] * w[2]
     return K, a, fx[0] * vv + fx[1] * ww
+
+
+@njit(cache=True)
+def constraint_acceleration(R, J_inv, inv_m, g):
+    """M_nu^-1 g (6,): the twist acceleration (world) a wrench g (6,: N, N*m, world, at the body
+    origin) gives the body at attitude R; for g = G^T lam, the constraints' share of nudot."""
+    out = np.empty(6)
+    for i in range(3):
+        out[i] = inv_m * g[i]
+    Iinv = _inverse_inertia(R, J_inv)
+    _rv(Iinv, g[3], g[4], g[5], out[3:])
+    return out
+
+
+@njit(cache=True)
+def split_twist(R, E_W, J_inv, inv_m, qd, nudot, g, F, fx, h):
+    """The velocity of the RATTLE-type split step, before the end's projection:
+    nu* = nu_0 + h nudot_0 - h/2 M^-1 G^T lam_0 (6,) (the applied forces over the whole step, the
+    start's constraint impulse over its first half), with nu_0 = (qd[:3], E_W qd[3:]) and the
+    constraint wrench g = G^T lam (6,). Also the start's power terms (a0, b0) of
+    :func:`energy_rates`. Returns nu*, a0, b0."""
+    _, a0, b0 = energy_rates(R, E_W, np.eye(3), 1.0, qd, F, fx)
+    c = constraint_acceleration(R, J_inv, inv_m, g)
+    nu = np.empty(6)
+    for i in range(3):
+        nu[i] = qd[i]
+        nu[3 + i] = E_W[i, 0] * qd[3] + E_W[i, 1] * qd[4] + E_W[i, 2] * qd[5]
+    for i in range(6):
+        nu[i] += h * nudot[i] - 0.5 * h * c[i]
+    return nu, a0, b0
+
+
+@njit(cache=True)
+def split_end(R, E_W, Einv, J, J_inv, mass, G, nu, P, Pinv, F, fx, rtol):
+    """The end of the split step at the new pose: nu (6,) projected onto the rows G in the
+    kinetic-energy metric (the second half of the constraint impulse), mapped to parameter rates
+    zd = P^+ T^-1 nu and chart rates qd = P zd; with :func:`energy_rates` at qd.
+    Returns zd (k,), qd (6,), K, a, b."""
+    nup = project_twist(R, J_inv, 1.0 / mass, G, nu, rtol)
+    qf = np.empty(6)
+    qf[:3] = nup[:3]
+    x = np.empty(3)
+    for i in range(3):
+        x[i] = R[0, i] * nup[3] + R[1, i] * nup[4] + R[2, i] * nup[5]
+    _rv(Einv, x[0], x[1], x[2], qf[3:])
+    n, k = P.shape
+    zd = np.zeros(k)
+    _add_product(Pinv, qf, 1.0, zd)
+    qd = np.zeros(n)
+    _add_product(P, zd, 1.0, qd)
+    K, a, b = energy_rates(R, E_W, J, mass, qd, F, fx)
+    return zd, qd, K, a, b
