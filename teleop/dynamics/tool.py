@@ -48,7 +48,7 @@ class ReferenceTool:
         body: RigidBody,
         fixture: Fixture,
         effects=(),
-        integrator: str | Integrator = "parametric",
+        integrator: str | Integrator = "energy",
         coriolis: bool = True,
         chart: EulerChart | None = None,
         max_speed_m_s: float = 100.0,
