@@ -49,7 +49,8 @@ def test_energy_matches_pinocchio(x, seq):
 def test_the_force_free_motion_follows_scipy(name, tol_m):
     """From the state at the end of the push, 2 s of force-free motion at 1 kHz against DOP853
     (rtol 1e-11) on the same eqs. 8-9: the position error stays within tol_m (the step's
-    second-order error; measured 7e-8, 9e-7, 9e-8 m, the parametric step 2e-5, 9e-3, 2e-4 m), and the energy integrator's energy stays at the start's."""
+    second-order error; measured 7e-8, 9e-7, 9e-8 m, the parametric step 2e-5, 9e-3, 2e-4 m),
+    and the energy integrator's energy stays at the start's."""
     scene = load_scene(str(UNDAMPED / f"{name}.toml")).with_overrides(integrator="energy")
     tool = build_tool(scene)
     op = make_operator(scene.operator, scene.fixture, scene.effects, np.random.default_rng(0))
