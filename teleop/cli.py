@@ -36,7 +36,7 @@ def _summary_text(s: dict) -> str:
         f"tick       median {s['tick_us']['median']:.1f} us   p99 {s['tick_us']['p99']:.1f} us",
     ]
     for k, v in s["metrics"].items():
-        lines.append(f"  {k:34s} {v:.4g}")
+        lines.append(f"  {k:34s} {v:.4g}" if v is not None else f"  {k:34s} null")
     for k in ("can_bus_load_pct", "can_frames_lost", "watchdog_trips", "late_ticks"):
         if k in s:
             lines.append(f"  {k:34s} {s[k]}")

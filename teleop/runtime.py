@@ -21,7 +21,7 @@ from teleop.link.guard import MasterGuard, SlaveGuard, tdpa_params
 from teleop.loop import Hook
 from teleop.master import CobotMaster, IdealMaster
 from teleop.scenario.build import build_fixture, build_registration, build_tool, master_fixture_spec
-from teleop.scenario.metrics import MasterMetrics, SlaveMetrics, TremorProbe, make_metrics
+from teleop.scenario.metrics import EnergyDrift, MasterMetrics, SlaveMetrics, TremorProbe, make_metrics
 from teleop.scenario.operators import make_operator
 from teleop.scenario.schema import FixtureSpec, Scene
 from teleop.session import RunResult, Session
@@ -118,7 +118,8 @@ def run_scene(scene: Scene, progress=None, realtime: bool = False, operator=None
         operator = make_operator(scene.operator, spec_M, scene.effects, rng)
     n = int(round(scene.duration_s / scene.dt_s))
     master_metrics = MasterMetrics(make_metrics(spec_M, n, tool.body.mass_kg, tool.fixture.constraints))
-    extra_hooks, hooks = hooks, [master_metrics]
+    energy_drift = EnergyDrift(tool)
+    extra_hooks, hooks = hooks, [master_metrics, energy_drift]
     reg = build_registration(scene)
     constraints_P = build_fixture(scene.fixture).constraints  # the fixture where the patient is
     slave = make_slave(scene, reg, constraints_P)
@@ -141,7 +142,7 @@ def run_scene(scene: Scene, progress=None, realtime: bool = False, operator=None
     session = Session(tool, master, operator, scene.dt_s, scene.duration_s, slave=slave, feedback=feedback,
                       hooks=hooks, realtime=realtime, progress=progress, link=link, guard=guard)
     result = session.run()
-    metrics = master_metrics.result()
+    metrics = {**master_metrics.result(), **energy_drift.result()}
     if guard is not None and "passivity" in result.summary:  # the drift at the slave's scale (m)
         metrics["link_drift_max_m"] = result.summary["passivity"]["drift_max_M_m"] / reg.scale
         metrics["link_drift_final_m"] = result.summary["passivity"]["drift_final_M_m"] / reg.scale

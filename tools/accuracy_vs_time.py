@@ -6,7 +6,9 @@ It also runs straight_incision over the master's integrator and period and the s
 and tolerance (tracking and depth error). For every point it records the constraint drift (holonomic position residual, velocity residual
 |G nu|), the energy error on a conservative scene, the trajectory error against a reference run
 (RK4 at 0.1 ms), CPU microseconds per tick (median, p99) and the CPU load (us per tick over the
-period: a shorter period costs more ticks a second). It writes ``accuracy.csv``, ``accuracy.md``
+period: a shorter period costs more ticks a second) and, on the undamped scenes
+(tests/data/undamped: pushed for 0.5 s, then left alone), the energy drift over the force-free
+stretch (``metrics.energy_drift_rel_max``). It writes ``accuracy.csv``, ``accuracy.md``
 and ``pareto.png`` (errors against CPU load, log-log), and marks the shipped default
 (parametric at 1 ms). The effect sweep shows what each simulated effect costs.
 """
@@ -18,17 +20,21 @@ import csv
 import time
 from dataclasses import replace
 from pathlib import Path
+from types import SimpleNamespace
 
 import numpy as np
 
 from teleop.dynamics.constraints import stack_jacobian, stack_residual
 from teleop.dynamics.integrators import INTEGRATORS
 from teleop.scenario.build import build_tool
+from teleop.scenario.metrics import EnergyDrift
 from teleop.scenario.operators import make_operator
 from teleop.scenario.schema import load_scene
 
 PERIODS_MS = (0.1, 0.25, 0.5, 1.0, 2.0)
-SCENES = ("paper_rolling_disk", "paper_disk_on_sphere")
+UNDAMPED_DIR = Path(__file__).resolve().parents[1] / "tests" / "data" / "undamped"
+UNDAMPED = ("undamped_sphere_slide", "undamped_rolling_disk", "undamped_scalpel_slide")
+SCENES = ("paper_rolling_disk", "paper_disk_on_sphere") + UNDAMPED
 DEFAULT = ("parametric", 1.0)
 EFFECT_SETS = {
     "effect set: coriolis + damping": ("coriolis", "damping"),
@@ -39,10 +45,15 @@ EFFECT_SETS = {
 LOAD_TIE = 0.10
 
 
+def _load(name: str):
+    return load_scene(str(UNDAMPED_DIR / f"{name}.toml")) if name in UNDAMPED else load_scene(name)
+
+
 def simulate(scene, seconds: float, record_dt: float = 0.01):
     """Run a scene's tool (ideal master) and measure drift, energy, and the sampled trajectory."""
     scene = scene.with_overrides(duration_s=seconds)
     tool = build_tool(scene)
+    drift, loop = EnergyDrift(tool), SimpleNamespace(tool=tool)
     op = make_operator(scene.operator, scene.fixture, scene.effects, np.random.default_rng(scene.seed))
     n = int(round(seconds / scene.dt_s))
     every = max(1, int(round(record_dt / scene.dt_s)))
@@ -54,9 +65,11 @@ def simulate(scene, seconds: float, record_dt: float = 0.01):
         p, R = tool.pose()
         v, w = tool.twist()
         F = op.wrench(i * scene.dt_s, p, R, v, w)
+        drift.before_tick(i, i * scene.dt_s, loop)
         t0 = time.perf_counter_ns()
         st = tool.step(scene.dt_s, F)
         ticks[i] = (time.perf_counter_ns() - t0) * 1e-3
+        drift.after_tick(i, i * scene.dt_s, loop)
         if st != "ok":
             status = st
             break
@@ -74,6 +87,7 @@ def simulate(scene, seconds: float, record_dt: float = 0.01):
         "pos_residual_max": pos_res,
         "vel_residual_max": vel_res,
         "energy_rel_err": abs(tool.energy() - e0) / max(e0, 1e-12),
+        "energy_drift_rel_max": float("nan") if drift.worst is None else drift.worst,
         "traj": np.array(traj),
         "tick_median_us": float(np.median(ticks[: i + 1])),
         "tick_p99_us": float(np.percentile(ticks[: i + 1], 99)),
@@ -92,29 +106,31 @@ def conservative(scene):
 def sweep(seconds: float):
     rows = []
     for name in SCENES:
-        base = load_scene(name)
+        base = _load(name)
         ref = simulate(base.with_overrides(integrator="rk4", dt_s=1e-4), seconds)
-        cons_scene = conservative(base)
+        cons_scene = conservative(base) if name not in UNDAMPED else None  # these are their own test
         for integ in INTEGRATORS:
             for ms in PERIODS_MS:
                 sc = base.with_overrides(integrator=integ, dt_s=ms * 1e-3)
                 r = simulate(sc, seconds)
-                e = simulate(cons_scene.with_overrides(integrator=integ, dt_s=ms * 1e-3), seconds)
+                e = (simulate(cons_scene.with_overrides(integrator=integ, dt_s=ms * 1e-3), seconds) if cons_scene
+                     else {"energy_rel_err": float("nan")})
                 k = min(len(r["traj"]), len(ref["traj"]))
                 err = float(np.sqrt(((r["traj"][:k] - ref["traj"][:k]) ** 2).sum(axis=1).mean())) if k else float("nan")
                 rows.append({
-                    "scene": name, "integrator": integ, "period_ms": ms, "effects": "all (coriolis, damping)",
+                    "scene": name, "integrator": integ, "period_ms": ms,
+                    "effects": "all (coriolis, damping)" if name not in UNDAMPED else "undamped (coriolis)",
                     "solver": "", "eps": float("nan"),
                     "status": r["status"], "traj_err_m": err,
                     "pos_residual_max": r["pos_residual_max"], "vel_residual_max": r["vel_residual_max"],
-                    "energy_rel_err": e["energy_rel_err"],
+                    "energy_rel_err": e["energy_rel_err"], "energy_drift_rel_max": r["energy_drift_rel_max"],
                     "tick_median_us": r["tick_median_us"], "tick_p99_us": r["tick_p99_us"],
                     "cpu_load_pct": 100.0 * r["tick_median_us"] / (ms * 1e3),
                     "default": (integ, ms) == DEFAULT,
                 })
                 print(f"{name:22s} {integ:15s} {ms:5.2f} ms  err {err:9.2e} m  drift {r['pos_residual_max']:9.2e}  "
-                      f"E {e['energy_rel_err']:9.2e}  {r['tick_median_us']:7.1f} us")
-        for label, effects in EFFECT_SETS.items():
+                      f"E {e['energy_rel_err']:9.2e}  drift {r['energy_drift_rel_max']:9.2e}  {r['tick_median_us']:7.1f} us")
+        for label, effects in (EFFECT_SETS.items() if name not in UNDAMPED else ()):
             sc = replace(base, effects=effects)
             r = simulate(sc.with_overrides(integrator=DEFAULT[0], dt_s=DEFAULT[1] * 1e-3), seconds)
             k = min(len(r["traj"]), len(ref["traj"]))
@@ -196,8 +212,9 @@ def read_csv(path: Path) -> list:
     for r in csv.DictReader(open(path)):
         for k, v in r.items():
             if k in ("period_ms", "eps", "traj_err_m", "pos_residual_max", "vel_residual_max", "energy_rel_err",
+                     "energy_drift_rel_max",
                      "tick_median_us", "tick_p99_us", "cpu_load_pct"):
-                r[k] = float(v)
+                r[k] = float(v) if v != "" else float("nan")
         r["default"] = r["default"] == "True"
         r["every_tick"] = r.get("every_tick") == "True"
         r.pop("front", None)
@@ -211,8 +228,8 @@ def write_outputs(rows, out: Path) -> None:
         wr = csv.DictWriter(f, fieldnames=list(dict.fromkeys(k for r in rows for k in r)), restval="")
         wr.writeheader()
         wr.writerows(rows)
-    lines = ["| scene | integrator | period ms | effects | QP solver (eps) | traj / tracking err m | drift / depth err m | |Gν| | energy err | µs median | µs p99 | CPU load % | front |",
-             "|---|---|---|---|---|---|---|---|---|---|---|---|---|"]
+    lines = ["| scene | integrator | period ms | effects | QP solver (eps) | traj / tracking err m | drift / depth err m | |Gν| | energy err | energy drift | µs median | µs p99 | CPU load % | front |",
+             "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|"]
     main = [r for r in rows if not r["effects"].startswith("effect set")]
     for name in SCENES + (INCISION,):
         sub = [r for r in main if r["scene"] == name]
@@ -233,6 +250,7 @@ def write_outputs(rows, out: Path) -> None:
             f"| {r['scene']} | {r['integrator']} {mark} | {r['period_ms']:g} | {r['effects']} | "
             f"{qp} | {r['traj_err_m']:.2e} | "
             f"{r['pos_residual_max']:.1e} | {r['vel_residual_max']:.1e} | {r['energy_rel_err']:.1e} | "
+            f"{r.get('energy_drift_rel_max', float('nan')):.1e} | "
             f"{r['tick_median_us']:.1f} | {r['tick_p99_us']:.1f} | {r['cpu_load_pct']:.1f} | {'yes' if r.get('front') else ''} |"
         )
     (out / "accuracy.md").write_text("\n".join(lines) + "\n")
@@ -244,12 +262,16 @@ def write_outputs(rows, out: Path) -> None:
 
     import matplotlib.ticker  # noqa: F401 (matplotlib.ticker below)
 
-    fig, axes = plt.subplots(2, len(SCENES) + 1, figsize=(20, 8.5))
-    markers = dict(zip(INTEGRATORS, "osD^v*"))
-    rows_spec = (("traj_err_m", "trajectory error vs RK4 @ 0.1 ms [m]"), ("pos_residual_max", "constraint drift max |h| [m]"))
+    fig, axes = plt.subplots(3, len(SCENES) + 1, figsize=(26, 12.5))
+    markers = dict(zip(INTEGRATORS, "osD^v*p"))
+    rows_spec = (("traj_err_m", "trajectory error vs RK4 @ 0.1 ms [m]"), ("pos_residual_max", "constraint drift max |h| [m]"),
+                 ("energy_drift_rel_max", "energy drift, force-free stretch (relative)"))
     for col, name in enumerate(SCENES):
         for row, (key, label) in enumerate(rows_spec):
             ax = axes[row][col]
+            if key == "energy_drift_rel_max" and name not in UNDAMPED:
+                ax.set_axis_off()  # damped: no force-free stretch
+                continue
             for integ in INTEGRATORS:
                 sub = [r for r in main if r["scene"] == name and r["integrator"] == integ]
                 ax.plot([r["cpu_load_pct"] for r in sub], [max(r[key], 1e-17) for r in sub],
@@ -295,6 +317,7 @@ def write_outputs(rows, out: Path) -> None:
         ax.set_title(f"{INCISION}: integrators, periods, QP solvers", fontsize=9)
         ax.grid(alpha=0.3, which="both")
     axes[0][len(SCENES)].legend(fontsize=7, loc="upper left", bbox_to_anchor=(1.02, 1.0), borderaxespad=0.0)
+    axes[2][len(SCENES)].set_axis_off()
     axes[0][0].legend(fontsize=7)
     fig.tight_layout()
     fig.savefig(out / "pareto.png", dpi=110)

@@ -77,6 +77,39 @@ def bench_integrators(steps: int, yard: Yardstick) -> dict:
     return out
 
 
+UNDAMPED = Path(__file__).resolve().parents[1] / "tests" / "data" / "undamped"
+
+
+def bench_energy(steps: int) -> dict:
+    """The 'energy' integrator against the parametric step on the three undamped scenes (issue
+    15's target: at most 2x), interleaved in blocks of 500 steps so that both see the same load.
+    Each scene runs its scripted push, then force-free motion."""
+    from teleop.scenario.build import build_tool
+    from teleop.scenario.operators import ScriptedWrench
+    from teleop.scenario.schema import load_scene
+
+    out = {}
+    for path in sorted(UNDAMPED.glob("*.toml")):
+        scene = load_scene(str(path))
+        runs = {}
+        for name in ("parametric", "energy"):
+            sc = scene.with_overrides(integrator=name)
+            runs[name] = (build_tool(sc), ScriptedWrench(sc.operator, sc.fixture), [])
+        dt, block = scene.dt_s, 500
+        for start in range(0, steps, block):
+            for tool, op, samples in runs.values():
+                for i in range(start, min(start + block, steps)):
+                    w = op.wrench(i * dt, *tool.pose())
+                    t0 = time.perf_counter_ns()
+                    tool.step(dt, w)
+                    samples.append(time.perf_counter_ns() - t0)
+        res = {name: _stats(r[2]) for name, r in runs.items()}
+        res["ratio_median"] = round(res["energy"]["median"] / res["parametric"]["median"], 2)
+        res["ratio_p99"] = round(res["energy"]["p99"] / res["parametric"]["p99"], 2)
+        out[path.stem] = res
+    return out
+
+
 def scene_ticks(seconds: float) -> dict:
     """tick_us of every scene (ideal master unless the scene names the cobot), and of the incision
     scenes with their heavy effects switched off: what simulating only what a scene calls for buys."""
@@ -142,6 +175,11 @@ def main(argv=None) -> int:
         ratio = s["median"] / aba["median"]
         print(f"step_us {name:26s} median {s['median']:8.2f}  p99 {s['p99']:8.2f}   ({ratio:5.1f}x aba)")
     print(f"reference_step_us / pin_aba_us = {result['reference_over_aba']} (target <= 15)")
+    result["energy_vs_parametric_us"] = bench_energy(args.steps // 2)
+    for name, r in result["energy_vs_parametric_us"].items():
+        print(f"{name:26s} parametric median {r['parametric']['median']:7.2f} p99 {r['parametric']['p99']:7.2f}  "
+              f"energy median {r['energy']['median']:7.2f} p99 {r['energy']['p99']:7.2f}  "
+              f"ratio {r['ratio_median']:.2f} / {r['ratio_p99']:.2f} (target median <= 2)")
     if not args.engine_only:
         import master_bench
         import slave_bench

@@ -26,6 +26,9 @@ class Effect(ABC):
     """One external force term. ``add_wrench`` accumulates into ``out`` (6,) = (f_W, tau_W)."""
 
     name: str = "effect"
+    #: True when the wrench is minus the gradient of :meth:`potential_energy` (it does no net work
+    #: beyond the change of that energy); False: its power counts as work done on the tool.
+    conservative: bool = False
 
     @abstractmethod
     def add_wrench(self, p, R, v, w, t: float, out: np.ndarray) -> None:
@@ -43,6 +46,7 @@ class Gravity(Effect):
     mass_kg: float
     g: np.ndarray = field(default_factory=lambda: np.array([0.0, 0.0, -9.81]))
     name: str = "gravity"
+    conservative = True
 
     def __post_init__(self):
         object.__setattr__(self, "g", np.asarray(self.g, dtype=float).reshape(3))
@@ -97,6 +101,7 @@ class Spring(Effect):
     anchor_R: np.ndarray = field(default_factory=lambda: np.eye(3))
     k_Nm_per_rad: float = 0.0
     name: str = "spring"
+    conservative = True
 
     def __post_init__(self):
         object.__setattr__(self, "anchor_p", np.asarray(self.anchor_p, dtype=float).reshape(3))

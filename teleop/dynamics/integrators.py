@@ -2,12 +2,16 @@
 
 * ``parametric``   the paper's method (eqs. 10-11): integrate z on q = psi(z) (semi-implicit), then
                    project zd onto the nonholonomic rows in the kinetic-energy metric.
+* ``energy``       a RATTLE-type split of the parametric step (the constraint impulse half at each
+                   end), then the rates scaled so that the energy changes by the work done over
+                   the step: keeps the energy of an undamped tool (:class:`EnergyConsistent`).
 * ``explicit_euler`` plain explicit Euler on (q, qd): drifts off the manifold; for comparison.
 * ``baumgarte``    semi-implicit Euler with Baumgarte stabilization of the constraint rows.
-* ``projection``   semi-implicit Euler, then Newton projection of q on h = 0 and of qd on A qd = 0.
+* ``projection``   semi-implicit Euler, then Newton projection of q on h = 0 and of qd on A qd = 0
+                   (half the start's constraint impulse taken back first: RATTLE's split).
 * ``rk4``          classic RK4 on (q, qd), then the same projections.
 * ``lie_group``    semi-implicit Euler on SE(3): R <- exp(h w) R with Pinocchio's exp3, then
-                   projection by retraction. No Euler chart, no gimbal lock.
+                   projection by retraction (the twist's as ``projection``'s). No Euler chart.
 
 Every integrator advances a :class:`ToolState` in place and returns the :class:`Evaluation` (or
 twist evaluation) at the start of the step, whose multipliers are the step's constraint forces.
@@ -15,6 +19,7 @@ twist evaluation) at the start of the step, whose multipliers are the step's con
 
 from __future__ import annotations
 
+import math
 from abc import ABC, abstractmethod
 from dataclasses import dataclass
 
@@ -23,7 +28,8 @@ import numpy as np
 import pinocchio as pin
 
 from teleop.dynamics.body import Kinematics
-from teleop.dynamics.kernels.motion import flat_advance, left_pinv
+from teleop.dynamics.kernels.motion import flat_advance, left_pinv, split_end, split_twist
+from teleop.dynamics.multipliers import RANK_RTOL
 from teleop.dynamics.model import ConstrainedBody
 from teleop.dynamics.rotations import EulerChart, chart_conditioning, euler_from_rotation, rechart
 from teleop.errors import ConfigError
@@ -106,6 +112,12 @@ class Baumgarte(Integrator):
 
 
 class Projection(Integrator):
+    """Semi-implicit Euler, the Newton projection of q, then the projection of the rates after half
+    the start's constraint impulse is taken back out: the projection at the end supplies the
+    other half, as in RATTLE. (Applying the whole impulse at the start and projecting gains kinetic
+    energy at first order; on an undamped sphere slide that grows until the speed bound stops
+    the tool, status "diverged".)"""
+
     name = "projection"
 
     def step(self, model, state, h, operator_W):
@@ -113,6 +125,9 @@ class Projection(Integrator):
         state.qd = state.qd + h * ev.qdd
         state.q = state.q + h * state.qd
         project_position(model, state)
+        if model.m:
+            half = model.rates(ev.pose, model.constraint_acceleration(ev.pose.R, ev.constraint_wrench_W))
+            state.qd = state.qd - (0.5 * h) * half
         project_velocity(model, state)
         return ev
 
@@ -212,6 +227,91 @@ class Parametric(Integrator):
         return ev
 
 
+class EnergyConsistent(Parametric):
+    """A RATTLE-type split of the parametric step, then an energy-consistent correction.
+
+    The step (where the fixture has a parametrization; otherwise the ``projection`` step):
+
+    1. half kick: zd_h = zd_0 + h/2 zdd_0 (eq. 11 with every force at the start, constraints too);
+    2. drift on the manifold: z_1 = z_0 + h zd_h, q_1 = psi(z_1) (holonomic rows exact);
+    3. velocity: nu* = nu_0 + h M^-1 F_0 + h/2 M^-1 G_0^T lam_0 (world twists: the applied forces
+       over the step, the start's constraint impulse over its first half), projected in the
+       kinetic-energy metric onto every row at q_1: the second half of the constraint impulse, as
+       in RATTLE (velocity rows exact). Splitting the constraint impulse between the
+       two ends cancels the first-order energy gain of the parametric step's one-sided impulse.
+
+    Then the rates are scaled by the s that makes the energy change over the step equal the work
+    of the non-conservative forces by the trapezoid rule,
+
+        E(q1, s qd1) - E(q0, qd0) = h/2 (P0 + P1(s)),   P = F . nu - c_lin v.v - c_ang w.w,
+
+    F the operator wrench held over the step plus the non-conservative effects, E kinetic plus
+    potential energy (gravity, springs). Scaling keeps every row. With no force and no damper the
+    energy is then constant to rounding; under forces it follows their work to second order. A
+    correction beyond :attr:`MAX_SCALE` (the kinetic energy too small to carry the defect, e.g.
+    at rest or a spring's turning point) is not made: the step's own energy is kept and the
+    balance starts again from it (counted in ``corrections_skipped``)."""
+
+    name = "energy"
+    #: the largest relative change of the rates the correction makes (dimensionless)
+    MAX_SCALE = 0.05
+
+    def reset(self, model, state, parametrization):
+        self._base = None if parametrization is not None else Projection()
+        if self._base is None:
+            super().reset(model, state, parametrization)
+        self.E = model.energy(state.chart, state.q, state.qd)
+        self.corrections_skipped = 0
+
+    def sync(self, state: ToolState) -> None:
+        if self._base is None:
+            super().sync(state)
+
+    def _split_step(self, model, state, h, operator_W):
+        """Steps 1-3 of the class docstring, then the correction's terms at both ends.
+        Returns the start's evaluation and (a0, b0, K, a, b) of :func:`kernels.motion.energy_rates`;
+        the non-conservative wrench is held at the start's over the step."""
+        param, chart = self.param, state.chart
+        ev = model.evaluate(chart, state.q, state.qd, state.t, operator_W)
+        pt0, body = ev.pose, model.body
+        F = model.working_wrench(pt0, state.qd, state.t, operator_W)
+        _, Pinv = self._jac(chart, state.z)
+        zd_h = state.zd + (0.5 * h) * (Pinv @ (ev.qdd - param.curvature(chart, state.z, state.zd)))
+        nu, a0, b0 = split_twist(pt0.R, pt0.E_W, body.J_inv, model._inv_m, state.qd, ev.nudot,
+                                 ev.constraint_wrench_W, F, model._fx, h)
+        state.z = state.z + h * zd_h
+        P, Pinv = self._jac(chart, state.z)
+        state.q = param.psi(chart, state.z)
+        pt = model.pose_terms(chart, state.q)
+        G = model.rows.evaluate(pt.p, pt.R)[0]
+        state.zd, state.qd, K, a, b = split_end(pt.R, pt.E_W, pt.E_inv, body.J, body.J_inv, body.mass_kg, G, nu,
+                                                P, Pinv, F, model._fx, RANK_RTOL)
+        return ev, (a0, b0, K, a, b)
+
+    def step(self, model, state, h, operator_W):
+        if self._base is None:
+            ev, (a0, b0, K, a, b) = self._split_step(model, state, h, operator_W)
+        else:
+            _, a0, b0 = model.energy_rates(model.pose_terms(state.chart, state.q), state.qd, state.t, operator_W)
+            ev = self._base.step(model, state, h, operator_W)
+            K, a, b = model.energy_rates(model.pose_terms(state.chart, state.q), state.qd, state.t + h, operator_W)
+        pt = model.pose_terms(state.chart, state.q)
+        V = model.potential_energy(pt.p, pt.R)
+        # s^2 (K + h b / 2) - (h a / 2) s - (E0 + h P0 / 2 - V) = 0, the root near 1
+        A, B, C = K + 0.5 * h * b, 0.5 * h * a, self.E + 0.5 * h * (a0 - b0) - V
+        disc = B * B + 4.0 * A * C
+        s = (B + math.sqrt(disc)) / (2.0 * A) if A > 0.0 and disc >= 0.0 else math.nan
+        if abs(s - 1.0) <= self.MAX_SCALE:  # False for NaN
+            state.qd = s * state.qd
+            if self._base is None:
+                state.zd = s * state.zd
+            self.E = C + V + 0.5 * h * (a * s - b * s * s)  # = E0 + h/2 (P0 + P1(s)) = s^2 K + V
+        else:
+            self.corrections_skipped += 1
+            self.E = K + V
+        return ev
+
+
 class LieGroup(Integrator):
     """Semi-implicit Euler on SE(3) in twist space, then projection by retraction. The chart state
     (q, qd) is written back after every step for reporting only."""
@@ -226,15 +326,19 @@ class LieGroup(Integrator):
 
     def step(self, model, state, h, operator_W):
         ev = model.evaluate_twist(self.p, self.R, self.v, self.w, state.t, operator_W)
+        half = model.constraint_acceleration(self.R, ev.constraint_wrench_W) if model.m else None
         self.v = self.v + h * ev.nudot[:3]
         self.w = self.w + h * ev.nudot[3:]
         self.p = self.p + h * self.v
         self.R = self._exp3(h * self.w) @ self.R
-        self._project(model)
+        self._project(model, half, h)
         self._write_chart(model, state)
         return ev
 
-    def _project(self, model):
+    def _project(self, model, half, h):
+        """Pose onto h = 0 by retraction; the twist, less half the start's constraint impulse
+        (``half`` (6,): its acceleration; the end's projection gives the other half, as in
+        RATTLE), onto every row."""
         for _ in range(PROJECTION_ITERS if model.holonomic else 0):
             d, err = model.correction(self.p, self.R, holonomic_only=True)
             if err < PROJECTION_TOL:
@@ -242,7 +346,7 @@ class LieGroup(Integrator):
             self.p = self.p - d[:3]
             self.R = self._exp3(-d[3:]) @ self.R
         if model.m:
-            nu = model.project_twist_at(self.p, self.R, np.concatenate([self.v, self.w]))
+            nu = model.project_twist_at(self.p, self.R, np.concatenate([self.v, self.w]) - (0.5 * h) * half)
             self.v, self.w = nu[:3], nu[3:]
 
     def _write_chart(self, model, state):
@@ -255,7 +359,7 @@ class LieGroup(Integrator):
 
 
 INTEGRATORS = {
-    cls.name: cls for cls in (Parametric, ExplicitEuler, Baumgarte, Projection, RK4, LieGroup)
+    cls.name: cls for cls in (Parametric, EnergyConsistent, ExplicitEuler, Baumgarte, Projection, RK4, LieGroup)
 }
 
 

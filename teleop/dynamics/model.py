@@ -85,6 +85,10 @@ class ConstrainedBody:
         self._inv_m = 1.0 / body.mass_kg
         self._fx, self._py_effects = effect_params(self.effects)
         self._zero6 = np.zeros(6)
+        self._conservative_py = tuple(e for e in self._py_effects if e.conservative)
+        self._working_py = tuple(e for e in self._py_effects if not e.conservative)
+        #: True when an effect takes energy out or puts it in (a damper, a non-conservative effect)
+        self.dissipative = bool(self._fx[0] or self._fx[1] or self._working_py)
 
     # -- pose-only terms --------------------------------------------------------------------------
     def pose_terms(self, chart: EulerChart, q: np.ndarray) -> PoseTerms:
@@ -156,6 +160,40 @@ class ConstrainedBody:
         G, _, h = rows.evaluate(p, R)
         d, _, _ = K.solve_rows(R, self.body.J_inv, self._inv_m, G, h, RANK_RTOL)
         return d, float(np.abs(h).max()) if h.size else 0.0
+
+    def constraint_acceleration(self, R, constraint_wrench_W) -> np.ndarray:
+        """M_nu^-1 G^T lam (6,): the twist acceleration (world) the constraint wrench G^T lam
+        (6,: N, N*m) gives the body at attitude R."""
+        return K.constraint_acceleration(R, self.body.J_inv, self._inv_m, constraint_wrench_W)
+
+    # -- energy -------------------------------------------------------------------------------------
+    def potential_energy(self, p, R) -> float:
+        """Potential energy (J) of the conservative effects (gravity, springs) at pose (p, R)."""
+        g = self._fx
+        V = -(g[2] * p[0] + g[3] * p[1] + g[4] * p[2])
+        for e in self._conservative_py:
+            V += e.potential_energy(p, R)
+        return V
+
+    def working_wrench(self, pt: PoseTerms, qd, t: float, operator_W=None) -> np.ndarray:
+        """The operator wrench plus the non-conservative Python effects' (6,) at (pose, rates):
+        the forces whose power is work done on the tool (besides the compiled dampers)."""
+        F = self._zero6 if operator_W is None else _wrench6(operator_W)
+        if self._working_py:
+            F = total_wrench(self._working_py, pt.p, pt.R, qd[:3], pt.E_W @ qd[3:], t, F)
+        return F
+
+    def energy_rates(self, pt: PoseTerms, qd, t: float, operator_W=None) -> tuple[float, float, float]:
+        """(K J, a W, b W) at chart rates qd (see :func:`kernels.motion.energy_rates`): the kinetic
+        energy, the power of the operator wrench plus the non-conservative Python effects, and the
+        dampers' dissipation. The power of all non-conservative forces is a - b."""
+        F = self.working_wrench(pt, qd, t, operator_W)
+        return K.energy_rates(pt.R, pt.E_W, self.body.J, self.body.mass_kg, qd, F, self._fx)
+
+    def energy(self, chart: EulerChart, q, qd) -> float:
+        """Kinetic plus potential energy (J) at (q, qd)."""
+        pt = self.pose_terms(chart, q)
+        return self.energy_rates(pt, qd, 0.0)[0] + self.potential_energy(pt.p, pt.R)
 
     # -- Lie group: no chart ----------------------------------------------------------------------
     def evaluate_twist(self, p, R, v, w, t: float, operator_W=None) -> Evaluation:

@@ -11,7 +11,7 @@ import math
 
 import numpy as np
 
-from teleop.dynamics.body import Kinematics, RigidBody, kinetic_energy
+from teleop.dynamics.body import Kinematics, RigidBody
 from teleop.dynamics.fixtures import Fixture
 from teleop.dynamics.integrators import (
     Integrator,
@@ -48,7 +48,7 @@ class ReferenceTool:
         body: RigidBody,
         fixture: Fixture,
         effects=(),
-        integrator: str | Integrator = "parametric",
+        integrator: str | Integrator = "energy",
         coriolis: bool = True,
         chart: EulerChart | None = None,
         max_speed_m_s: float = 100.0,
@@ -72,6 +72,8 @@ class ReferenceTool:
         self._constraint_wrench = np.zeros(6)
         self.recharts = 0
         self.acceleration_W = np.zeros(6)
+        #: the wrench (6,) the last step applied (operator and feedback; None: none), for energy audits
+        self.applied_W = None
         if not (max_speed_m_s > 0 and max_rate_rad_s > 0):
             raise ConfigError("max_speed_m_s and max_rate_rad_s must be positive")
         self._max_v2, self._max_w2 = max_speed_m_s**2, max_rate_rad_s**2
@@ -126,6 +128,7 @@ class ReferenceTool:
             self.status = STATUS_DIVERGED
             return self.status
         s.t += h
+        self.applied_W = operator_W
         self.lam, self.rank, self.wrench_W = ev.lam, ev.rank, ev.wrench_W
         self.acceleration_W = ev.nudot  # (vdot m/s^2, wdot rad/s^2), world: eq. 19's feedforward
         self._constraint_wrench = ev.constraint_wrench_W
@@ -198,5 +201,4 @@ class ReferenceTool:
 
     def energy(self) -> float:
         """Kinetic plus potential energy of the conservative effects (J)."""
-        k = self.kinematics()
-        return kinetic_energy(self.body, k) + sum(e.potential_energy(k.p, k.R) for e in self.model.effects)
+        return self.model.energy(self.state.chart, self.state.q, self.state.qd)

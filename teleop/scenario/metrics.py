@@ -246,6 +246,45 @@ class MasterMetrics(Hook):
         return self.metrics.result()
 
 
+class EnergyDrift(Hook):
+    """``energy_drift_rel_max``: the largest relative change of the reference tool's energy
+    (kinetic plus potential, J) over the stretches of ticks where no external work is done on it:
+    the step applied no wrench (no operator force, no contact feedback: all exactly zero), and the
+    tool has no damper or other non-conservative effect. The change is measured from the energy
+    at the stretch's start, relative to its magnitude (floor ``E_FLOOR_J``). None (JSON null)
+    when the run has no such stretch; a damped tool never has one."""
+
+    #: the smallest energy a relative change is taken of (J)
+    E_FLOOR_J = 1e-9
+
+    def __init__(self, tool):
+        self.active = not tool.model.dissipative
+        self.worst: float | None = None
+        self._start = self._prev = None
+
+    def before_tick(self, i, t_s, loop) -> None:
+        if self.active and self._prev is None:
+            self._prev = loop.tool.energy()
+
+    def after_tick(self, i, t_s, loop) -> None:
+        if not self.active:
+            return
+        tool = loop.tool
+        W = tool.applied_W
+        E = tool.energy()
+        if tool.status == "ok" and (W is None or not np.any(W)):
+            if self._start is None:
+                self._start = self._prev
+            rel = abs(E - self._start) / max(abs(self._start), self.E_FLOOR_J)
+            self.worst = rel if self.worst is None else max(self.worst, rel)
+        else:
+            self._start = None
+        self._prev = E
+
+    def result(self) -> dict:
+        return {"energy_drift_rel_max": self.worst}
+
+
 class SlaveMetrics(Hook):
     """The slave's accuracy, every tick, in the patient frame (``spec``: the scene's fixture):
 

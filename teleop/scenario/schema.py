@@ -75,7 +75,7 @@ class Scene(Checked):
     duration_s: float = setting(gt=0.0, why="must be positive", doc="simulated time, s")
     dt_s: float = setting(0.001, gt=0.0, le=0.1, why="must be in (0, 0.1] s", doc="control period, s")
     seed: int = setting(0, ge=0, why="must be non-negative", doc="seed of the run's random generator")
-    integrator: str = setting("parametric", choices=tuple(sorted(INTEGRATORS)),
+    integrator: str = setting("energy", choices=tuple(sorted(INTEGRATORS)),
                               why="unknown integrator; choose one of", doc="the reference tool's integrator")
     effects: tuple[str, ...] = setting((), check=_effects, choices=EFFECTS, doc="effects to build")
     tool: ToolSpec = setting(doc="the reference tool")

@@ -383,3 +383,81 @@ def project_parameter_rates(R, E, Einv, J_inv, inv_m, G, qd, P, Pinv, rtol):
     out = np.zeros(n)
     _add_product(P, zd, 1.0, out)
     return zd, out
+
+
+# -- energy ----------------------------------------------------------------------------------------
+@njit(cache=True)
+def energy_rates(R, E_W, J, mass, qd, F, fx):
+    """(K J, a W, b W) at chart rates qd (6,) (chart terms R, E_W = R E_B): the kinetic energy
+    K = 1/2 m v.v + 1/2 w_B.J w_B, the power a = F . nu of the wrench F (6,) (world, at the body
+    origin), and the dampers' dissipation b = c_lin v.v + c_ang w.w (fx as in :func:`newton_euler`;
+    gravity is conservative and is not in a or b). The power of the forces at rates s qd is
+    a s - b s^2."""
+    v0, v1, v2 = qd[0], qd[1], qd[2]
+    d1, d2, d3 = qd[3], qd[4], qd[5]
+    w = np.empty(3)
+    for i in range(3):
+        w[i] = E_W[i, 0] * d1 + E_W[i, 1] * d2 + E_W[i, 2] * d3
+    wB = np.empty(3)
+    for i in range(3):
+        wB[i] = R[0, i] * w[0] + R[1, i] * w[1] + R[2, i] * w[2]
+    vv = v0 * v0 + v1 * v1 + v2 * v2
+    ww = w[0] * w[0] + w[1] * w[1] + w[2] * w[2]
+    rot = 0.0
+    for i in range(3):
+        rot += wB[i] * (J[i, 0] * wB[0] + J[i, 1] * wB[1] + J[i, 2] * wB[2])
+    K = 0.5 * mass * vv + 0.5 * rot
+    a = F[0] * v0 + F[1] * v1 + F[2] * v2 + F[3] * w[0] + F[4] * w[1] + F[5] * w[2]
+    return K, a, fx[0] * vv + fx[1] * ww
+
+
+@njit(cache=True)
+def constraint_acceleration(R, J_inv, inv_m, g):
+    """M_nu^-1 g (6,): the twist acceleration (world) a wrench g (6,: N, N*m, world, at the body
+    origin) gives the body at attitude R; for g = G^T lam, the constraints' share of nudot."""
+    out = np.empty(6)
+    for i in range(3):
+        out[i] = inv_m * g[i]
+    Iinv = _inverse_inertia(R, J_inv)
+    _rv(Iinv, g[3], g[4], g[5], out[3:])
+    return out
+
+
+@njit(cache=True)
+def split_twist(R, E_W, J_inv, inv_m, qd, nudot, g, F, fx, h):
+    """The velocity of the RATTLE-type split step, before the end's projection:
+    nu* = nu_0 + h nudot_0 - h/2 M^-1 G^T lam_0 (6,) (the applied forces over the whole step, the
+    start's constraint impulse over its first half), with nu_0 = (qd[:3], E_W qd[3:]) and the
+    constraint wrench g = G^T lam (6,). Also the start's power terms (a0, b0) of
+    :func:`energy_rates`. Returns nu*, a0, b0."""
+    _, a0, b0 = energy_rates(R, E_W, np.eye(3), 1.0, qd, F, fx)
+    c = constraint_acceleration(R, J_inv, inv_m, g)
+    nu = np.empty(6)
+    for i in range(3):
+        nu[i] = qd[i]
+        nu[3 + i] = E_W[i, 0] * qd[3] + E_W[i, 1] * qd[4] + E_W[i, 2] * qd[5]
+    for i in range(6):
+        nu[i] += h * nudot[i] - 0.5 * h * c[i]
+    return nu, a0, b0
+
+
+@njit(cache=True)
+def split_end(R, E_W, Einv, J, J_inv, mass, G, nu, P, Pinv, F, fx, rtol):
+    """The end of the split step at the new pose: nu (6,) projected onto the rows G in the
+    kinetic-energy metric (the second half of the constraint impulse), mapped to parameter rates
+    zd = P^+ T^-1 nu and chart rates qd = P zd; with :func:`energy_rates` at qd.
+    Returns zd (k,), qd (6,), K, a, b."""
+    nup = project_twist(R, J_inv, 1.0 / mass, G, nu, rtol)
+    qf = np.empty(6)
+    qf[:3] = nup[:3]
+    x = np.empty(3)
+    for i in range(3):
+        x[i] = R[0, i] * nup[3] + R[1, i] * nup[4] + R[2, i] * nup[5]
+    _rv(Einv, x[0], x[1], x[2], qf[3:])
+    n, k = P.shape
+    zd = np.zeros(k)
+    _add_product(Pinv, qf, 1.0, zd)
+    qd = np.zeros(n)
+    _add_product(P, zd, 1.0, qd)
+    K, a, b = energy_rates(R, E_W, J, mass, qd, F, fx)
+    return zd, qd, K, a, b
