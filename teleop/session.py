@@ -70,31 +70,34 @@ class Columns(dict):
 
 #: slave statuses that keep a run from being "ok", mildest first: the run goes on (the slave holds
 #: or degrades safely), but its status names the worst of them ("slave_<status>"). "saturated"
-#: (a joint bound active, the target still met) is reported in the counts only; "fixtures_relaxed"
-#: fails the run only on more than RELAXED_SHARE_MAX of its ticks.
+#: (a joint bound active, the target still met) is reported in the counts only; the degraded solves
+#: (DEGRADED: "fixtures_relaxed", "infeasible_fallback") fail the run only on more than
+#: RELAXED_SHARE_MAX of its ticks (the fixture tolerances still hold the result).
 SLAVE_FAULTS = ("hold", "link_lost", "tracking_error", "fixtures_relaxed", "infeasible_fallback",
                 "invalid_target")
-#: the share of ticks the slave may spend with its fixtures relaxed (soft rows) in an "ok" run
+DEGRADED = ("fixtures_relaxed", "infeasible_fallback")
+#: the share of ticks the slave may spend in a degraded solve (DEGRADED) in an "ok" run
 RELAXED_SHARE_MAX = 0.01
 #: the slave tool's largest distance from its target in an "ok" run, m
 SLAVE_TARGET_MAX_M = 0.005
 #: each fixture metric's tolerance in an "ok" run (the master side's virtual tool, as the encoders
 #: see it, and the slave's blade): m, rad, m/s. A metric absent from a run is not checked.
 FIXTURE_TOLERANCES = {
-    "depth_error_max_m": 1e-3, "blade_tilt_max_rad": 0.02, "sideslip_max_m_per_s": 0.01,
-    "height_error_max_m": 1e-3, "upright_error_max_rad": 0.02,
-    "sphere_deviation_max_m": 1e-3, "normal_angle_error_max_rad": 0.02,
+    "depth_error_max_m": 1e-3, "blade_tilt_max_rad": 0.1, "sideslip_max_m_per_s": 0.01,
+    "height_error_max_m": 1e-3, "upright_error_max_rad": 0.1,
+    "sphere_deviation_max_m": 1e-3, "normal_angle_error_max_rad": 0.1,
 }
 SLAVE_FIXTURE_TOLERANCES = {"cut_depth_error_max_m": 1e-3, "rcm_error_max_m": 2e-3}
 
 
 def verdict(master_status: str, steps: int, slave_counts: dict | None = None, metrics: dict | None = None,
-            nan: bool = False) -> tuple[str, str]:
+            nan: bool = False, exempt=()) -> tuple[str, str]:
     """The run's one-word status and a one-line reason, first match wins: "interrupted" (Ctrl-C),
     "no_ticks", the master side's fault, "nan", "slave_<status>" (the worst slave fault, see
     SLAVE_FAULTS), "fixture_violated" (the master side past FIXTURE_TOLERANCES),
     "slave_fixture_violated" (SLAVE_FIXTURE_TOLERANCES), "slave_off_target" (the slave's tool
-    farther than SLAVE_TARGET_MAX_M from its target), else "ok"."""
+    farther than SLAVE_TARGET_MAX_M from its target), else "ok". ``exempt``: metric names the
+    scene's fixture does not hold (a trocar's fixture lets the blade tilt)."""
     counts, metrics = slave_counts or {}, metrics or {}
     if master_status == "interrupted":
         return "interrupted", f"stopped by Ctrl-C after {steps} ticks: a partial run"
@@ -106,13 +109,13 @@ def verdict(master_status: str, steps: int, slave_counts: dict | None = None, me
         return "nan", "the tool's state became NaN"
     total = max(1, sum(counts.values()))
     worst = [s for s in SLAVE_FAULTS if counts.get(s, 0) and (
-        s != "fixtures_relaxed" or counts[s] / total > RELAXED_SHARE_MAX)]
+        s not in DEGRADED or counts[s] / total > RELAXED_SHARE_MAX)]
     if worst:
         s = worst[-1]
         return f"slave_{s}", f"the slave was {s!r} on {counts[s]} of {total} ticks"
     for status, tols in (("fixture_violated", FIXTURE_TOLERANCES), ("slave_fixture_violated", SLAVE_FIXTURE_TOLERANCES)):
         for key, tol in tols.items():
-            if metrics.get(key, 0.0) > tol:
+            if key not in exempt and metrics.get(key, 0.0) > tol:
                 return status, f"{key} = {metrics[key]:.3g}, past its tolerance {tol:g}"
     far = metrics.get("tip_tracking_max_m", 0.0)
     if far > SLAVE_TARGET_MAX_M:
