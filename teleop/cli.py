@@ -18,7 +18,9 @@ from __future__ import annotations
 import argparse
 import json
 import logging
+import signal
 import sys
+import threading
 from pathlib import Path
 
 from teleop import __version__
@@ -314,9 +316,15 @@ def _error(message) -> int:
     return EXIT_BAD_INPUT
 
 
+def _terminate(signum, frame):
+    raise KeyboardInterrupt  # SIGTERM ends a run as Ctrl-C does: its summary says "interrupted"
+
+
 def main(argv=None) -> int:
     args = build_parser().parse_args(argv)
     configure_logging(args.verbose, args.quiet)
+    main_thread = threading.current_thread() is threading.main_thread()
+    previous = signal.signal(signal.SIGTERM, _terminate) if main_thread else None
     try:
         return args.func(args)
     except TeleopError as e:
@@ -328,6 +336,9 @@ def main(argv=None) -> int:
     except KeyboardInterrupt:
         print("teleop: interrupted (nothing written)", file=sys.stderr)
         return EXIT_INTERRUPTED
+    finally:
+        if main_thread:
+            signal.signal(signal.SIGTERM, previous)
 
 
 if __name__ == "__main__":  # pragma: no cover

@@ -23,7 +23,7 @@ from pathlib import Path
 
 import numpy as np
 
-from teleop.errors import ConfigError
+from teleop.errors import ConfigError, plain
 
 #: the largest scene file, URDF or other text input read, bytes
 MAX_TEXT_BYTES = 10_000_000
@@ -84,12 +84,6 @@ def read_text(path, limit: int = MAX_TEXT_BYTES, what: str = "file") -> str:
         return data.decode("utf-8")
     except UnicodeDecodeError as e:
         raise _fail(path, f"not UTF-8 text (byte {e.start}: {data[e.start:e.start + 1]!r})") from None
-
-
-def plain(text) -> str:
-    """``text`` on one line with control and format characters escaped (safe for a terminal)."""
-    return re.sub(r"[\x00-\x1f\x7f-\x9f\u200b-\u200f\u2028-\u202e\u2066-\u2069]",
-                  lambda m: m.group(0).encode("unicode_escape").decode("ascii"), str(text))
 
 
 # ---------------------------------------------------------------------------------------- run logs

@@ -231,6 +231,7 @@ class Session:
         warned = -1.0
         with loop.master as master:
             status = master.status
+            log.info("running %d ticks of %g s (master %s)", self.n, loop.dt, status)
             try:
                 for i in range(self.n if status == "ok" else 0):
                     status = loop.tick(i)
