@@ -18,6 +18,7 @@ from __future__ import annotations
 import argparse
 import json
 import logging
+import re
 import signal
 import sys
 import threading
@@ -130,7 +131,7 @@ def cmd_run(args) -> int:
 
             view = make_view("meshcat", viz_scene_for(scene), record=bool(args.out), host=args.host)
             if args.viewer:
-                log.warning("viewer: %s", view.url)
+                print(f"viewer: {view.url}  (bound to {args.host})", file=sys.stderr)
         from teleop.viz_bridge import RunView
 
         rv = RunView(view) if view is not None else None
@@ -196,10 +197,13 @@ def cmd_replay(args) -> int:
     from teleop.viz_bridge import replay_log, viz_scene_for
 
     log_path, arrays, summary = _run_log(args.log)
-    scene = load_scene(summary["scenario"])
+    name = summary["scenario"]
+    if not re.fullmatch(r"[A-Za-z0-9_-]{1,100}", name):  # a log names a shipped scene, never a path
+        raise ConfigError(f"{log_path}: summary.scenario: {plain(name)!r} is not a scene name")
+    scene = load_scene(name)
     with make_view("meshcat", viz_scene_for(scene), record=not args.viewer, host=args.host) as view:
         if args.viewer:
-            log.warning("viewer: %s  (replaying %s in real time)", view.url, plain(summary["scenario"]))
+            print(f"viewer: {view.url}  (replaying {plain(summary['scenario'])} in real time)", file=sys.stderr)
         frames = replay_log(arrays, view, realtime=args.viewer)
         if not args.viewer:
             out = view.save_html(log_path.parent / "recording.html")

@@ -225,3 +225,11 @@ def test_a_zip_bomb_is_refused_before_it_is_inflated(tmp_path, capsys, monkeypat
     monkeypatch.setattr(inputs, "MAX_LOG_INFLATED_BYTES", 10_000_000)
     monkeypatch.setattr(np, "load", lambda *a, **k: pytest.fail("np.load reached"))
     _refused(capsys, ["plot", str(p)], str(p), "inflates to 20000000 bytes")
+
+
+def test_a_log_cannot_point_replay_at_a_file(tmp_path, capsys):
+    p = _log(tmp_path)
+    with np.load(p) as z:
+        arrays = {k: z[k] for k in z.files if k != "summary"}
+    np.savez(p, **arrays, summary=json.dumps({"scenario": "/etc/passwd.toml"}))
+    _refused(capsys, ["replay", str(p)], "summary.scenario", "not a scene name")
