@@ -89,14 +89,14 @@ def read_text(path, limit: int = MAX_TEXT_BYTES, what: str = "file") -> str:
 # ---------------------------------------------------------------------------------------- run logs
 
 #: the arrays of a run log: name -> (dtype kind, trailing shape); every array has the run's ticks
-#: as its first axis. Names matching a pattern of LOG_PATTERNS are metric series (trailing shape
-#: free, floats). Arrays a newer writer adds are refused unless listed here.
+#: as its first axis. Any other array (metric series ``m_*``, the slave's ``slave_*``, what a newer
+#: writer adds) is a name of LOG_NAME and numbers, one row a tick.
 LOG_SCHEMA = {
     "t": ("f", ()), "q_r": ("f", (6,)), "q_v_p": ("f", (3,)), "p_r": ("f", (3,)), "R_r": ("f", (3, 3)),
     "R_v": ("f", (3, 3)), "lam": ("f", None), "operator_W": ("f", (6,)), "master_q": ("f", (6,)),
     "can_frames_lost": ("i", ()), "constraint_W": ("f", (6,)), "tick_us": ("f", ()),
 }
-LOG_PATTERNS = (re.compile(r"m_[a-z0-9_]{1,60}"), re.compile(r"slave_[a-z0-9_]{1,60}"))
+LOG_NAME = re.compile(r"[A-Za-z][A-Za-z0-9_]{0,79}")
 REQUIRED = ("t", "p_r", "R_r", "q_v_p", "R_v", "operator_W", "constraint_W", "tick_us")
 
 
@@ -115,8 +115,7 @@ def _check_zip(path: Path) -> None:
         raise _fail(path, f"the run log inflates to {total} bytes, more than the limit of {MAX_LOG_INFLATED_BYTES}")
     for i in infos:
         name = i.filename[:-4] if i.filename.endswith(".npy") else None
-        if name is None or (name != "summary" and name not in LOG_SCHEMA
-                            and not any(p.fullmatch(name) for p in LOG_PATTERNS)):
+        if name is None or not LOG_NAME.fullmatch(name):
             raise _fail(path, f"not a run log: unexpected member {plain(i.filename)!r}")
 
 
