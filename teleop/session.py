@@ -100,7 +100,7 @@ def verdict(master_status: str, steps: int, slave_counts: dict | None = None, me
     scene's fixture does not hold (a trocar's fixture lets the blade tilt)."""
     counts, metrics = slave_counts or {}, metrics or {}
     if master_status == "interrupted":
-        return "interrupted", f"stopped by Ctrl-C after {steps} ticks: a partial run"
+        return "interrupted", f"stopped by Ctrl-C or SIGTERM after {steps} ticks: a partial run"
     if steps == 0:
         return "no_ticks", "the run ended before its first tick"
     if master_status not in ("ok", "stopped_by_operator"):
