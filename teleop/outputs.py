@@ -65,9 +65,11 @@ class RunFolder:
     ``commit()`` renames it into place, ``abort()`` removes it; both release the lock."""
 
     def __init__(self, out, flag: str = "--out"):
-        self.out = Path(out)
+        self.out = Path(out).resolve()
         self.flag = flag
-        parent = self.out.parent if str(self.out.parent) else Path(".")
+        if self.out == Path.cwd() or self.out.parent == self.out:
+            raise ConfigError(f"{flag} {out}: give a folder of its own for the run (it is replaced whole)")
+        parent = self.out.parent
         check_folder(parent, flag, out)
         if self.out.exists() and not self.out.is_dir():
             raise ConfigError(f"{flag} {out}: exists and is not a folder")
