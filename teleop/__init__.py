@@ -8,7 +8,10 @@ rendered by an admittance controller (``control``) on a cobot reached over CAN (
 
 from importlib.metadata import PackageNotFoundError, version
 
+from teleop import numba_cache
 from teleop.errors import TeleopError
+
+numba_cache.configure()  # before any kernel module imports numba: a writable cache for any user
 
 #: The distribution's name on the package index ("teleop" there is another project).
 DISTRIBUTION = "teleop-haptics"

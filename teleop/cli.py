@@ -1,68 +1,148 @@
-"""The ``teleop`` command: ``run``, ``list``.
+"""The ``teleop`` command: ``run``, ``list``, ``replay``, ``plot``, ``schema``.
 
-    teleop run [NAME_OR_PATH] [--master ideal|cobot] [--viewer|--headless] [--realtime]
+    teleop run [NAME_OR_PATH] [--master ideal|cobot] [--viewer|--headless] [--host ADDR] [--realtime]
                [--operator script|keyboard] [--duration S] [--seed N] [--integrator NAME] [--dt S]
-               [--set KEY=VALUE ...] [--json PATH] [--out DIR]
+               [--set KEY=VALUE ...] [--allow-hardware] [--json PATH|-] [--out DIR] [-v|-q]
+               [--view perspective|side] [--hold] [--link sim|zenoh] [--can-log PATH]
     teleop list
     teleop schema [--out FILE]
-    teleop replay RUN_DIR [--viewer [--hold]] [--out FILE [--force]] [--view perspective|side]
+    teleop replay RUN_DIR [--viewer [--hold]] [--host ADDR] [--out FILE [--force]] [--view perspective|side]
+    teleop slave NAME_OR_PATH --listen ENDPOINT / teleop master NAME_OR_PATH --connect ENDPOINT
     teleop plot LOG [--out DIR]
+
+Bad input (a scene, an argument, a file) is one line on stderr naming the file, key or argument
+and the reason, exit code 2, nothing run and nothing written. ``--out`` is written whole or not at
+all (teleop.outputs); a Ctrl-C'd run leaves its summary with status "interrupted" (exit 130).
 """
 
 from __future__ import annotations
 
 import argparse
 import json
+import logging
+import re
+import signal
 import sys
+import threading
+from pathlib import Path
 
 from teleop import __version__
-from teleop.errors import TeleopError
+from teleop.errors import ConfigError, SceneError, TeleopError
+from teleop.inputs import plain
 from teleop.netcli import add_run_flags, add_subcommands, cmd_run_zenoh
 
 DEFAULT_SCENE = "straight_incision"
+#: exit codes: the run's status "ok"; any other status; bad input (nothing run, nothing written);
+#: Ctrl-C (the summary, if a run had started, says "interrupted")
+EXIT_OK, EXIT_FAILED, EXIT_BAD_INPUT, EXIT_INTERRUPTED = 0, 1, 2, 130
+#: command-line flags of the scene's top-level keys, for error messages
+FLAGS = {"duration_s": "--duration", "dt_s": "--dt", "seed": "--seed", "integrator": "--integrator", "master": "--master"}
 
-
-def _progress(i: int, n: int) -> None:
-    width = 30
-    done = int(width * i / max(n, 1))
-    sys.stderr.write(f"\r[{'#' * done}{'.' * (width - done)}] {100 * i // max(n, 1):3d}%")
-    sys.stderr.flush()
+log = logging.getLogger("teleop")
 
 
 def _summary_text(s: dict) -> str:
     lines = [
-        f"scene      {s['scenario']}   master={s['master']}  integrator={s['integrator']}  seed={s['seed']}",
+        f"scene      {plain(s['scenario'])}   master={s['master']}  integrator={s['integrator']}  seed={s['seed']}",
         f"status     {s['status']}   steps={s['steps']}  dt={s['dt_s'] * 1e3:g} ms  simulated={s['duration_s']:g} s  nan={s['nan']}",
-        f"tick       median {s['tick_us']['median']:.1f} us   p99 {s['tick_us']['p99']:.1f} us",
+        f"           {s.get('status_reason', '')}",
+        f"tick       median {s['tick_us']['median']:.1f} us   p99 {s['tick_us']['p99']:.1f} us   "
+        f"{s.get('realtime_factor', 0):.2f}x real time",
     ]
     for k, v in s["metrics"].items():
         lines.append(f"  {k:34s} {v:.4g}" if v is not None else f"  {k:34s} null")
     for k in ("can_bus_load_pct", "can_frames_lost", "watchdog_trips", "late_ticks"):
         if k in s:
-            lines.append(f"  {k:34s} {s[k]}")
+            v = s[k]
+            lines.append(f"  {k:34s} {v:.4g}" if isinstance(v, float) else f"  {k:34s} {v}")
     return "\n".join(lines)
+
+
+def _scene_for(args):
+    """The scene of a ``run``, its overrides applied and checked: (scene, capture path from the
+    scene file or None)."""
+    from teleop.scenario.schema import hardware_interface, load_scene
+    from teleop.session import tick_count
+
+    base = load_scene(args.scene or DEFAULT_SCENE)
+    given = dict(duration_s=args.duration, seed=args.seed, master=args.master, integrator=args.integrator,
+                 dt_s=args.dt)
+    try:
+        scene = base.with_overrides(args.set, **given)
+    except SceneError as e:
+        if e.key in FLAGS and given.get(e.key) is not None:
+            raise ConfigError(f"{FLAGS[e.key]} {given[e.key]}: {e.reason}") from None
+        raise
+    where = "--duration" if args.duration is not None else "--dt" if args.dt is not None else f"{scene.path}: duration_s"
+    try:
+        n = tick_count(scene.duration_s, scene.dt_s, where)
+    except ConfigError as e:
+        raise ConfigError(str(e)) from None
+    if n == 0:
+        raise ConfigError(f"{where}: {scene.duration_s:g} s is shorter than one tick of dt {scene.dt_s:g} s: "
+                          "a run of zero ticks")
+    hw = hardware_interface(scene)
+    if hw is not None and not args.allow_hardware:
+        raise ConfigError(f"{scene.path}: cobot.interface: {hw!r} is a hardware CAN interface; "
+                          "add --allow-hardware to open it")
+    cap = scene.cobot.capture_path
+    from_file = cap is not None and cap == base.cobot.capture_path
+    if from_file and not args.out:
+        raise ConfigError(f"{scene.path}: cobot.capture_path: a scene's capture is written inside its run's "
+                          "folder; add --out DIR")
+    return scene, (cap if from_file else None)
+
+
+def _with_capture(scene, folder, cap: str):
+    """The scene with its file's capture path placed inside the run's (temporary) folder."""
+    from teleop.scenario.schema import parse_scene
+    from teleop.typed import as_table
+
+    target = folder.path(cap)
+    target.parent.mkdir(parents=True, exist_ok=True)
+    return parse_scene(as_table(scene), scene.path, pairs=[("cobot.capture_path", str(target))])
+
+
+def _write_run(result, view, rv, scene, folder) -> list[str]:
+    """The run's files into the temporary folder, the summary last; returns their names. Beside the
+    recording: the scene the run ran and the frames its view drew (what `teleop replay` needs)."""
+    from teleop.plots import plot_log
+    from teleop.viz_bridge import save_scene_copy
+
+    if view is not None:
+        view.save_html(folder.path("recording.html"))
+        save_scene_copy(scene, folder.tmp)
+        rv.save_frames(folder.tmp)
+    result.write_log(folder.path("log.npz"))
+    plot_log(folder.path("log.npz"), folder.tmp)
+    result.write_json(folder.path("metrics.json"))
+    return sorted(p.name for p in folder.tmp.iterdir())
 
 
 def cmd_run(args) -> int:
     if args.link == "zenoh":
         return cmd_run_zenoh(args)
+    from teleop.outputs import RunFolder, check_json_target, write_json
+    from teleop.progress import RunBar, notice_compile
     from teleop.runtime import run_scene
-    from teleop.scenario.schema import load_scene
 
-    scene = load_scene(args.scene or DEFAULT_SCENE).with_overrides(
-        args.set, duration_s=args.duration, seed=args.seed, master=args.master, integrator=args.integrator,
-        dt_s=args.dt,
-    )
-    show = sys.stderr.isatty() and scene.duration_s / scene.dt_s > 5000 and args.operator != "keyboard"
-    view = None
-    if args.viewer or args.out:
-        from teleop.viz import make_view
-        from teleop.viz_bridge import RunView, save_scene_copy, viz_scene_for
-
-        view = make_view("meshcat", viz_scene_for(scene, view=args.view), record=bool(args.out))
-        if args.viewer:
-            print(f"viewer: {view.url}", file=sys.stderr)
+    scene, capture = _scene_for(args)
+    json_path = check_json_target(args.json) if args.json else None
+    folder = RunFolder(args.out) if args.out else None
+    view = bar = None
     try:
+        if capture is not None:
+            scene = _with_capture(scene, folder, capture)
+        notice_compile()
+        if args.viewer or args.out:
+            from teleop.viz import make_view
+            from teleop.viz_bridge import viz_scene_for
+
+            view = make_view("meshcat", viz_scene_for(scene, view=args.view), record=bool(args.out), host=args.host)
+            if args.viewer:
+                print(f"viewer: {view.url}  (bound to {args.host})", file=sys.stderr)
+        from teleop.viz_bridge import RunView
+
         rv = RunView(view) if view is not None else None
         if args.operator == "keyboard":
             from teleop.scenario.build import master_fixture_spec
@@ -72,42 +152,64 @@ def cmd_run(args) -> int:
             with KeyboardOperator(master_fixture_spec(scene)) as keys:
                 result = run_scene(scene, realtime=args.realtime, operator=keys, view=rv)
         else:
-            result = run_scene(scene, progress=_progress if show else None, realtime=args.realtime, view=rv)
-        if args.out:
-            from pathlib import Path
-
-            view.save_html(Path(args.out) / "recording.html")
-            save_scene_copy(scene, args.out)  # what `teleop replay` needs: the scene and the frames
-            rv.save_frames(args.out)
+            bar = RunBar(scene.duration_s, scene.dt_s, enabled=not args.quiet)
+            result = run_scene(scene, progress=bar, realtime=args.realtime, view=rv)
+            bar.close()
+        written = _write_run(result, view, rv, scene, folder) if folder is not None else []
+        if folder is not None:
+            folder.commit()
+            folder = None
         if args.viewer and args.hold:
+            print(_summary_text(result.summary), file=sys.stderr)
             view.hold(lambda url: print(f"viewer: {url} holds the last frame; Ctrl-C ends it", file=sys.stderr))
     finally:
+        if bar is not None:
+            bar.close()
         if view is not None:
             view.close()  # the meshcat server never outlives the run, even on Ctrl-C
-    if show:
-        sys.stderr.write("\r" + " " * 40 + "\r")
-    if args.json:
-        result.write_json(args.json)
-    if args.out:
-        from pathlib import Path
+        if folder is not None:
+            folder.abort()  # nothing half-written
+    s = result.summary
+    if json_path is not None:
+        write_json(json_path, s)
+    elif args.json == "-":
+        sys.stdout.write(json.dumps(s, indent=2) + "\n")
+    text = sys.stderr if args.json == "-" else sys.stdout
+    if not args.quiet:
+        print(_summary_text(s), file=text)
+        if written:
+            print(f"files      {args.out}/  ({', '.join(written)})", file=text)
+        if json_path is not None:
+            print(f"summary    {json_path}", file=text)
+        if not written and json_path is None and args.json != "-":
+            print("files      none written (add --out DIR for the log, plots and a recording; --json FILE for "
+                  "the summary)", file=text)
+    if s["status"] == "interrupted":
+        return EXIT_INTERRUPTED
+    return EXIT_OK if s["status"] == "ok" else EXIT_FAILED
 
-        out = Path(args.out)
-        result.write_json(out / "metrics.json")
-        result.write_log(out / "log.npz")
-        from teleop.plots import plot_log
 
-        plot_log(out / "log.npz", out)
-    print(_summary_text(result.summary))
-    return 0 if result.summary["status"] == "ok" and not result.summary["nan"] else 1
+def _run_log(arg: str):
+    """(log path, arrays, summary) of ``replay``/``plot``'s LOG argument, every array checked."""
+    from teleop.inputs import load_run_log
+
+    log_path = Path(arg)
+    if log_path.is_dir():
+        log_path = log_path / "log.npz"
+    if not log_path.exists():
+        raise ConfigError(f"{arg}: no run log here (expected a log.npz written by 'teleop run --out')")
+    arrays, summary = load_run_log(log_path)
+    return log_path, arrays, summary
 
 
 def cmd_replay(args) -> int:
     """Show a recorded run again: live in Meshcat (--viewer), or as replay.html in the run folder
-    (the run's own recording.html is never touched)."""
+    (the run's own recording.html is never touched). The log is checked whole first."""
     from teleop.viz.replay import replay_command
 
-    return replay_command(args.log, viewer=args.viewer, out=args.out, force=args.force, view=args.view,
-                          hold=args.hold)
+    log_path, _, _ = _run_log(args.log)
+    return replay_command(log_path.parent, viewer=args.viewer, out=args.out, force=args.force, view=args.view,
+                          hold=args.hold, host=args.host)
 
 
 def cmd_list(args) -> int:
@@ -120,17 +222,14 @@ def cmd_list(args) -> int:
 
 
 def cmd_plot(args) -> int:
-    from pathlib import Path
-
-    from teleop.errors import ConfigError
     from teleop.plots import plot_log
 
-    log = Path(args.log)
-    if log.is_dir():
-        log = log / "log.npz"
-    if not log.exists():
-        raise ConfigError(f"{args.log}: no run log here (expected a log.npz written by 'teleop run --out')")
-    for p in plot_log(log, args.out or log.parent):
+    log_path, _, _ = _run_log(args.log)
+    if args.out:
+        from teleop.outputs import check_folder
+
+        check_folder(Path(args.out), "--out", args.out)
+    for p in plot_log(log_path, args.out or log_path.parent):
         print(p)
     return 0
 
@@ -141,8 +240,10 @@ def cmd_schema(args) -> int:
 
     text = json.dumps(scene_schema(), indent=2) + "\n"
     if args.out:
-        with open(args.out, "w", encoding="utf-8") as f:
-            f.write(text)
+        from teleop.outputs import check_json_target
+
+        target = check_json_target(args.out, "--out")
+        target.write_text(text, encoding="utf-8")
         print(args.out)
     else:
         sys.stdout.write(text)
@@ -150,15 +251,25 @@ def cmd_schema(args) -> int:
 
 
 def build_parser() -> argparse.ArgumentParser:
-    ap = argparse.ArgumentParser(prog="teleop", description="Constrained teleoperation of surgical-style robots")
+    ap = argparse.ArgumentParser(prog="teleop", description="Constrained teleoperation of surgical-style robots",
+                                 epilog="exit codes: 0 ok, 1 the run's status is not ok, 2 bad input (nothing run, "
+                                        "nothing written), 130 interrupted (Ctrl-C)")
     ap.add_argument("--version", action="version", version=f"%(prog)s {__version__}")
+    common = argparse.ArgumentParser(add_help=False)
+    loud = common.add_mutually_exclusive_group()
+    loud.add_argument("-v", "--verbose", action="count", default=0, help="more messages (-vv: debug)")
+    loud.add_argument("-q", "--quiet", action="store_true", help="errors only: no notices, no progress bar, no summary text")
     sub = ap.add_subparsers(dest="command", required=True)
+    _add = sub.add_parser
+    sub.add_parser = lambda *a, **kw: _add(*a, parents=[common, *kw.pop("parents", [])], **kw)
     run = sub.add_parser("run", help="run a scene (default: the scripted surgical cut)")
     run.add_argument("scene", nargs="?", help="scene name (see 'teleop list') or path to a .toml file")
     run.add_argument("--master", choices=["ideal", "cobot"], help="ideal: wrench straight to the tool; cobot: the CAN device")
     view = run.add_mutually_exclusive_group()
     view.add_argument("--headless", action="store_true", default=True, help="no viewer (default)")
     view.add_argument("--viewer", action="store_true", help="show both sides live in Meshcat (prints the URL)")
+    run.add_argument("--host", default="127.0.0.1",
+                     help="address the viewer's web server binds (default 127.0.0.1: this machine only)")
     run.add_argument("--realtime", action="store_true", help="pace ticks to the wall clock (default: simulated time)")
     run.add_argument("--operator", choices=["script", "keyboard"], default="script",
                      help="the scene's scripted operator (default) or you at the keyboard")
@@ -168,21 +279,25 @@ def build_parser() -> argparse.ArgumentParser:
     run.add_argument("--dt", type=float, help="control period in s (overrides the scene)")
     run.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
                      help="set any scene key, VALUE as TOML (e.g. --set slave.solver=daqp --set tool.mass_kg=0.3)")
+    run.add_argument("--allow-hardware", action="store_true",
+                     help="let the scene open a hardware CAN interface (cobot.interface other than a simulated one)")
+    run.add_argument("--json", help="write the run summary as JSON here ('-': to stdout, the text summary to stderr)")
+    run.add_argument("--out", help="write metrics.json, log.npz, recording.html and PNG plots into this folder "
+                                   "(whole or not at all)")
     run.add_argument("--view", choices=["perspective", "side"], default="perspective",
                      help="viewer camera: perspective from above, or side (level, orthographic)")
     run.add_argument("--hold", action="store_true", help="with --viewer: keep the page served after the run until Ctrl-C")
-    run.add_argument("--json", help="write the run summary as JSON here")
-    run.add_argument("--out", help="write metrics.json, log.npz and PNG plots into this folder")
     add_run_flags(run)
     run.set_defaults(func=cmd_run)
     add_subcommands(sub)
     ls = sub.add_parser("list", help="list the scenes")
     ls.set_defaults(func=cmd_list)
-    rp = sub.add_parser("replay", help="show a run folder again (live in Meshcat, or into replay.html)")
+    rp = sub.add_parser("replay", help="show a recorded run again (Meshcat, or recording.html)")
     rp.add_argument("log", help="a log.npz or the --out folder of a run")
     rp.add_argument("--viewer", action="store_true", help="replay live in Meshcat instead of writing HTML")
-    rp.add_argument("--out", help="HTML file to write (default: replay.html in the run folder)")
-    rp.add_argument("--force", action="store_true", help="allow --out to overwrite an existing file")
+    rp.add_argument("--host", default="127.0.0.1", help="address the viewer's web server binds (default 127.0.0.1)")
+    rp.add_argument("--out", help="write the replay to this .html file (default: replay.html in the run folder)")
+    rp.add_argument("--force", action="store_true", help="replace --out if it exists (never the run's data files)")
     rp.add_argument("--view", choices=["perspective", "side"], default="perspective", help="viewer camera")
     rp.add_argument("--hold", action="store_true", help="with --viewer: keep the page served until Ctrl-C")
     rp.set_defaults(func=cmd_replay)
@@ -196,13 +311,47 @@ def build_parser() -> argparse.ArgumentParser:
     return ap
 
 
+def configure_logging(verbose: int, quiet: bool) -> None:
+    """teleop's messages on stderr, one line each: warnings by default, -v info, -vv debug,
+    -q errors only."""
+    level = logging.ERROR if quiet else logging.DEBUG if verbose > 1 else logging.INFO if verbose else logging.WARNING
+    handler = logging.StreamHandler(sys.stderr)
+    handler.setFormatter(logging.Formatter("teleop: %(message)s"))
+    root = logging.getLogger("teleop")
+    root.handlers[:] = [handler]
+    root.setLevel(level)
+    root.propagate = False
+
+
+def _error(message) -> int:
+    """One line on stderr, control characters escaped; the bad-input exit code."""
+    print(f"teleop: error: {plain(str(message).splitlines()[0] if str(message) else message)}", file=sys.stderr)
+    return EXIT_BAD_INPUT
+
+
+def _terminate(signum, frame):
+    raise KeyboardInterrupt  # SIGTERM ends a run as Ctrl-C does: its summary says "interrupted"
+
+
 def main(argv=None) -> int:
     args = build_parser().parse_args(argv)
+    configure_logging(args.verbose, args.quiet)
+    main_thread = threading.current_thread() is threading.main_thread()
+    previous = signal.signal(signal.SIGTERM, _terminate) if main_thread else None
     try:
         return args.func(args)
     except TeleopError as e:
-        print(f"teleop: error: {e}", file=sys.stderr)
-        return 2
+        return _error(e)
+    except OSError as e:  # a file the command was pointed at: its name and the system's reason
+        return _error(f"{e.filename or ''}: {e.strerror or e}" if e.filename else f"{type(e).__name__}: {e}")
+    except MemoryError:
+        return _error("out of memory: the run or file is too large for this machine")
+    except KeyboardInterrupt:
+        print("teleop: interrupted (nothing written)", file=sys.stderr)
+        return EXIT_INTERRUPTED
+    finally:
+        if main_thread:
+            signal.signal(signal.SIGTERM, previous)
 
 
 if __name__ == "__main__":  # pragma: no cover

@@ -1,6 +1,14 @@
 """One error hierarchy. Every message names what was wrong and where."""
 
 import difflib
+import re
+
+_CONTROL = re.compile(r"[\x00-\x1f\x7f-\x9f\u200b-\u200f\u2028-\u202e\u2066-\u2069]")
+
+
+def plain(text) -> str:
+    """``text`` on one line with control and format characters escaped (safe for a terminal)."""
+    return _CONTROL.sub(lambda m: m.group(0).encode("unicode_escape").decode("ascii"), str(text))
 
 
 class TeleopError(Exception):

@@ -24,7 +24,7 @@ from teleop.scenario.build import build_fixture, build_registration, build_tool,
 from teleop.scenario.metrics import EnergyDrift, MasterMetrics, SlaveMetrics, TremorProbe, make_metrics
 from teleop.scenario.operators import make_operator
 from teleop.scenario.schema import FixtureSpec, Scene
-from teleop.session import RunResult, Session
+from teleop.session import RunResult, Session, tick_count, verdict
 from teleop.slave import SlaveArm
 from teleop.slave.side import SlaveSide
 
@@ -111,12 +111,12 @@ def run_scene(scene: Scene, progress=None, realtime: bool = False, operator=None
     """Run a scene. ``operator`` replaces the scene's (e.g. a keyboard); ``view`` gets every tick
     and throttles itself; ``progress(i, n)`` is called every 1000 ticks; ``hooks`` more
     :class:`~teleop.loop.Hook` s, after the scene's own."""
+    n = tick_count(scene.duration_s, scene.dt_s)  # refuses a run past MAX_TICKS before building anything
     rng = np.random.default_rng(scene.seed)
     tool = build_tool(scene)
     spec_M = master_fixture_spec(scene)
     if operator is None:
         operator = make_operator(scene.operator, spec_M, scene.effects, rng)
-    n = int(round(scene.duration_s / scene.dt_s))
     master_metrics = MasterMetrics(make_metrics(spec_M, n, tool.body.mass_kg, tool.fixture.constraints))
     energy_drift = EnergyDrift(tool)
     extra_hooks, hooks = hooks, [master_metrics, energy_drift]
@@ -153,6 +153,12 @@ def run_scene(scene: Scene, progress=None, realtime: bool = False, operator=None
     if tremor is not None:
         metrics.update(tremor.result(scene.dt_s))
     s = result.summary
+    steps = s["steps"]
+    result.log = {k: v[:steps] for k, v in result.log.items()}  # Ctrl-C may land between two hooks
+    trocar = isinstance(scene.fixture, FixtureSpec) and scene.fixture.trocar_m is not None
+    exempt = ("blade_tilt_max_rad",) if trocar else ()  # the trocar tilts the blade
+    s["status"], s["status_reason"] = verdict(s["master_status"], steps, s.get("slave_statuses"), metrics, s["nan"],
+                                              exempt)
     result.summary = {"scenario": scene.name, **s, "integrator": scene.integrator, "master": scene.master,
                       "seed": scene.seed, "effects": list(scene.effects), "metrics": metrics}
     return result

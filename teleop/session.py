@@ -16,29 +16,118 @@ the run; otherwise the worst slave status seen, when it is one of :data:`SLAVE_F
 from __future__ import annotations
 
 import json
+import logging
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
 
+from teleop.errors import ConfigError
 from teleop.loop import BilateralLoop, Hook
+
+log = logging.getLogger(__name__)
+
+#: the longest run, ticks: its log (about 0.5 kB a tick) stays under about 1 GB
+MAX_TICKS = 2_000_000
+#: ticks of log reserved at first and added each time it fills (the log grows, never preallocated)
+LOG_CHUNK = 16_384
+#: --realtime: warn when the loop falls this far behind the wall clock, s (then once a second)
+LAG_WARN_S = 0.05
+
+
+def tick_count(duration_s: float, dt_s: float, where: str = "duration_s") -> int:
+    """The ticks of a run (duration / dt rounded); ConfigError naming ``where`` past MAX_TICKS."""
+    n = round(duration_s / dt_s)
+    if n > MAX_TICKS:
+        raise ConfigError(f"{where}: {duration_s:g} s at dt {dt_s:g} s is {n:.3g} ticks; a run is at most "
+                          f"{MAX_TICKS} ticks (teleop.session.MAX_TICKS)")
+    return int(n)
+
+
+class Columns(dict):
+    """Named per-tick arrays that grow in chunks of LOG_CHUNK ticks: ``ensure(i)`` before writing
+    tick i, ``trimmed(n)`` the first n ticks. ``shapes`` maps a name to (trailing shape, dtype)."""
+
+    def __init__(self, shapes: dict, expected: int = LOG_CHUNK):
+        cap = max(1, min(int(expected), LOG_CHUNK))
+        super().__init__({k: np.zeros((cap, *shape), dtype=dt) for k, (shape, dt) in shapes.items()})
+        self.capacity = cap
+
+    def ensure(self, i: int) -> None:
+        if i < self.capacity:
+            return
+        grown = 2 * self.capacity if self.capacity < 8 * LOG_CHUNK else self.capacity + 8 * LOG_CHUNK
+        cap = max(i + 1, grown)
+        for k, a in self.items():
+            b = np.zeros((cap, *a.shape[1:]), dtype=a.dtype)
+            b[: self.capacity] = a
+            self[k] = b
+        self.capacity = cap
+
+    def trimmed(self, n: int) -> dict:
+        return {k: v[:n] for k, v in self.items()}
 
 #: slave statuses that keep a run from being "ok", mildest first: the run goes on (the slave holds
 #: or degrades safely), but its status names the worst of them ("slave_<status>"). "saturated"
-#: (a joint bound active, the target still met) is reported in the counts only.
+#: (a joint bound active, the target still met) is reported in the counts only; relaxed fixture rows
+#: (DEGRADED: "fixtures_relaxed") fail the run only on more than RELAXED_SHARE_MAX of its ticks (the
+#: fixture tolerances still hold the result); any other fault fails it on one tick.
 SLAVE_FAULTS = ("hold", "link_lost", "tracking_error", "fixtures_relaxed", "infeasible_fallback",
                 "invalid_target")
+DEGRADED = ("fixtures_relaxed",)
+#: the share of ticks the slave may spend with its fixtures relaxed (DEGRADED) in an "ok" run
+RELAXED_SHARE_MAX = 0.01
+#: the slave tool's largest distance from its target in an "ok" run, m
+SLAVE_TARGET_MAX_M = 0.005
+#: each fixture metric's tolerance in an "ok" run (the master side's virtual tool, as the encoders
+#: see it, and the slave's blade): m, rad, m/s. A metric absent from a run is not checked.
+FIXTURE_TOLERANCES = {
+    "depth_error_max_m": 1e-3, "blade_tilt_max_rad": 0.1, "sideslip_max_m_per_s": 0.01,
+    "height_error_max_m": 1e-3, "upright_error_max_rad": 0.1,
+    "sphere_deviation_max_m": 1e-3, "normal_angle_error_max_rad": 0.1,
+    "fixture_residual_max": 1e-3, "fixture_rate_max": 0.01,  # a user's fixture type, by its own rows
+}
+SLAVE_FIXTURE_TOLERANCES = {"cut_depth_error_max_m": 1e-3, "rcm_error_max_m": 2e-3, "slave_fixture_residual_max": 1e-3}
 
 
-def run_status(master_status: str, steps: int, slave_counts: dict | None) -> str:
-    """The run's one-word verdict (see the module docstring)."""
+def verdict(master_status: str, steps: int, slave_counts: dict | None = None, metrics: dict | None = None,
+            nan: bool = False, exempt=()) -> tuple[str, str]:
+    """The run's one-word status and a one-line reason, first match wins: "interrupted" (Ctrl-C),
+    "no_ticks", the master side's fault, "nan", "slave_<status>" (the worst slave fault, see
+    SLAVE_FAULTS), "fixture_violated" (the master side past FIXTURE_TOLERANCES),
+    "slave_fixture_violated" (SLAVE_FIXTURE_TOLERANCES), "slave_off_target" (the slave's tool
+    farther than SLAVE_TARGET_MAX_M from its target), else "ok". ``exempt``: metric names the
+    scene's fixture does not hold (a trocar's fixture lets the blade tilt)."""
+    counts, metrics = slave_counts or {}, metrics or {}
+    if master_status == "interrupted":
+        return "interrupted", f"stopped by Ctrl-C or SIGTERM after {steps} ticks: a partial run"
     if steps == 0:
-        return "no_ticks"
-    if master_status != "ok":
-        return master_status
-    worst = [s for s in SLAVE_FAULTS if (slave_counts or {}).get(s, 0)]
-    return f"slave_{worst[-1]}" if worst else "ok"
+        return "no_ticks", "the run ended before its first tick"
+    if master_status not in ("ok", "stopped_by_operator"):
+        return master_status, f"the master side stopped the run: {master_status}"
+    if nan:
+        return "nan", "the tool's state became NaN"
+    total = max(1, sum(counts.values()))
+    worst = [s for s in SLAVE_FAULTS if counts.get(s, 0) and (
+        s not in DEGRADED or counts[s] / total > RELAXED_SHARE_MAX)]
+    if worst:
+        s = worst[-1]
+        return f"slave_{s}", f"the slave was {s!r} on {counts[s]} of {total} ticks"
+    for status, tols in (("fixture_violated", FIXTURE_TOLERANCES), ("slave_fixture_violated", SLAVE_FIXTURE_TOLERANCES)):
+        for key, tol in tols.items():
+            if key not in exempt and metrics.get(key, 0.0) > tol:
+                return status, f"{key} = {metrics[key]:.3g}, past its tolerance {tol:g}"
+    far = metrics.get("tip_tracking_max_m", 0.0)
+    if far > SLAVE_TARGET_MAX_M:
+        return "slave_off_target", f"the slave's tool was {far:.3g} m from its target (bound {SLAVE_TARGET_MAX_M:g} m)"
+    return "ok", "both sides did what was asked"
+
+
+def run_status(master_status: str, steps: int, slave_counts: dict | None, metrics: dict | None = None,
+               nan: bool = False) -> str:
+    """The run's one-word verdict (:func:`verdict`)."""
+    return verdict(master_status, steps, slave_counts, metrics, nan)[0]
 
 
 @dataclass
@@ -62,13 +151,12 @@ class MasterRecorder(Hook):
     device's joints, the tick's CPU time."""
 
     def __init__(self, tool, n: int):
-        m = tool.model.m
-        self.log = {
-            "t": np.zeros(n), "q_r": np.zeros((n, 6)), "q_v_p": np.zeros((n, 3)),
-            "p_r": np.zeros((n, 3)), "R_r": np.zeros((n, 3, 3)), "R_v": np.zeros((n, 3, 3)),
-            "lam": np.zeros((n, m)), "operator_W": np.zeros((n, 6)), "master_q": np.zeros((n, 6)),
-            "can_frames_lost": np.zeros(n, dtype=np.int64), "constraint_W": np.zeros((n, 6)), "tick_us": np.zeros(n),
-        }
+        m, f = tool.model.m, float
+        self.log = Columns({
+            "t": ((), f), "q_r": ((6,), f), "q_v_p": ((3,), f), "p_r": ((3,), f), "R_r": ((3, 3), f),
+            "R_v": ((3, 3), f), "lam": ((m,), f), "operator_W": ((6,), f), "master_q": ((6,), f),
+            "can_frames_lost": ((), np.int64), "constraint_W": ((6,), f), "tick_us": ((), f),
+        }, n)
         self.n = 0
         self.nan = False
         self._pv = self._Rv = None
@@ -78,6 +166,7 @@ class MasterRecorder(Hook):
 
     def after_tick(self, i, t_s, loop) -> None:
         tool, log = loop.tool, self.log
+        log.ensure(i)
         self.nan = self.nan or not (np.all(np.isfinite(tool.q)) and np.all(np.isfinite(self._pv)))
         log["t"][i] = tool.t
         log["q_r"][i] = tool.q
@@ -102,12 +191,13 @@ class GuardRecorder(Hook):
     rad in M)."""
 
     def __init__(self, n: int):
-        self.log = {k: np.zeros((n, 6)) for k in ("tdpa_W_master_J", "tdpa_W_slave_J", "tdpa_diss_master_J",
-                                                  "tdpa_diss_slave_J", "tdpa_alpha", "tdpa_drift_M")}
+        self.log = Columns({k: ((6,), float) for k in ("tdpa_W_master_J", "tdpa_W_slave_J", "tdpa_diss_master_J",
+                                                       "tdpa_diss_slave_J", "tdpa_alpha", "tdpa_drift_M")}, n)
         self.n = 0
 
     def after_tick(self, i, t_s, loop) -> None:
         m, s, log = loop.master_guard.port, loop.slave_guard.port, self.log
+        log.ensure(i)
         log["tdpa_W_master_J"][i], log["tdpa_W_slave_J"][i] = m.W, s.W
         log["tdpa_diss_master_J"][i], log["tdpa_diss_slave_J"][i] = m.E_diss, s.E_diss
         log["tdpa_alpha"][i], log["tdpa_drift_M"][i] = m.action, s.offset
@@ -156,9 +246,9 @@ class Session:
 
     def __init__(self, tool, master, operator, dt_s: float, duration_s: float, slave=None, link=None,
                  feedback=None, hooks=(), realtime: bool = False, progress=None, guard=None):
-        if not (dt_s > 0 and duration_s >= 0):
-            raise ValueError(f"dt_s must be > 0 and duration_s >= 0, got {dt_s!r}, {duration_s!r}")
-        self.n = int(round(duration_s / dt_s))
+        if not (dt_s > 0 and duration_s >= 0 and np.isfinite(dt_s) and np.isfinite(duration_s)):
+            raise ConfigError(f"dt_s must be > 0 and duration_s >= 0, both finite, got {dt_s!r}, {duration_s!r}")
+        self.n = tick_count(duration_s, dt_s)
         self.recorder = MasterRecorder(tool, self.n)
         self.slave_counter = SlaveCounter() if slave is not None else None
         own = [self.recorder] + ([self.slave_counter] if slave is not None else [])
@@ -170,36 +260,51 @@ class Session:
         self.realtime, self.progress = realtime, progress
 
     def run(self) -> RunResult:
+        """Run to the end (see the module docstring). Ctrl-C ends the run between ticks with status
+        "interrupted": the result holds what was recorded up to then."""
         loop, status, late = self.loop, "ok", 0
         wall0 = time.perf_counter()
+        warned = -1.0
         with loop.master as master:
             status = master.status
-            for i in range(self.n if status == "ok" else 0):
-                status = loop.tick(i)
-                if status != "ok":
-                    break
-                if getattr(loop.operator, "stop", False):
-                    status = "stopped_by_operator"
-                    break
-                if self.progress is not None and i % 1000 == 0:
-                    self.progress(i, self.n)
-                if self.realtime:
-                    late += _pace(wall0 + (i + 1) * loop.dt)
+            log.info("running %d ticks of %g s (master %s)", self.n, loop.dt, status)
+            try:
+                for i in range(self.n if status == "ok" else 0):
+                    status = loop.tick(i)
+                    if status != "ok":
+                        break
+                    if getattr(loop.operator, "stop", False):
+                        status = "stopped_by_operator"
+                        break
+                    if self.progress is not None and i % 1000 == 0:
+                        self.progress(i, self.n)
+                    if self.realtime:
+                        deadline = wall0 + (i + 1) * loop.dt
+                        late += _pace(deadline)
+                        lag = time.perf_counter() - deadline
+                        if lag > LAG_WARN_S and time.perf_counter() - warned > 1.0:
+                            warned = time.perf_counter()
+                            rtf = (i + 1) * loop.dt / (warned - wall0)
+                            log.warning("--realtime: %.0f ms behind the wall clock at t = %.2f s (running at "
+                                        "%.2fx real time; %d late ticks)", 1e3 * lag, (i + 1) * loop.dt, rtf, late)
+            except KeyboardInterrupt:
+                status = "interrupted"
             stats = master.stats()
             link_stats = loop.link.stats()
             if link_stats:
                 stats["link"] = link_stats
+        self.wall_s = time.perf_counter() - wall0
         return self._result(status, late, stats)
 
     def _result(self, status: str, late: int, stats: dict) -> RunResult:
         steps, rec = self.recorder.n, self.recorder
-        log = {k: v[:steps] for k, v in rec.log.items()}
+        log = rec.log.trimmed(steps)
         if self.guard_recorder is not None:
             log.update({k: v[:steps] for k, v in self.guard_recorder.log.items()})
         ticks = log["tick_us"]
         counts = self.slave_counter.counts if self.slave_counter is not None else None
         summary = {
-            "status": run_status(status if status != "stopped_by_operator" else "ok", steps, counts),
+            "status": run_status(status, steps, counts, nan=rec.nan),
             "master_status": status,
             "steps": steps,
             "dt_s": self.loop.dt,
@@ -213,6 +318,10 @@ class Session:
         }
         if status == "stopped_by_operator":
             summary["stopped_by_operator"] = True
+        if status == "interrupted":
+            summary["interrupted"] = True  # a partial run: what was recorded up to Ctrl-C
+        summary["wall_s"] = round(self.wall_s, 3)
+        summary["realtime_factor"] = round(steps * self.loop.dt / self.wall_s, 3) if self.wall_s > 0 else 0.0
         if counts is not None:
             summary["slave_statuses"] = dict(counts)
             summary["command_errors"] = self.loop.command_errors

@@ -29,7 +29,7 @@ import unicodedata
 
 import numpy as np
 
-from teleop.errors import ConfigError, FieldError, SceneError
+from teleop.errors import ConfigError, FieldError, SceneError, plain
 
 MISSING = dataclasses.MISSING
 
@@ -84,7 +84,7 @@ def build(cls, table, where: str = "", given: dict | None = None):
     names = [f.name for f in flds]
     for k in table:
         if k not in names:
-            raise FieldError(join(where, str(k)), unknown_key(str(k), names))
+            raise FieldError(join(where, plain(k)), unknown_key(plain(k), names))
     hints = typing.get_type_hints(cls)
     kw = dict(given or {})
     for f in flds:

@@ -11,6 +11,7 @@ live view drew, for a run of any scene file.
 from __future__ import annotations
 
 import json
+import re
 import time
 from pathlib import Path
 
@@ -18,6 +19,7 @@ import numpy as np
 import tomli_w
 
 from teleop.errors import ConfigError
+from teleop.inputs import plain
 from teleop.scenario.build import master_fixture_spec, master_frame
 from teleop.scenario.schema import Scene, load_scene
 from teleop.scenario.tables import CustomFixture
@@ -59,6 +61,8 @@ def load_run_scene(folder) -> Scene:
     if log.is_file():
         with np.load(log) as z:
             name = json.loads(str(z["summary"]))["scenario"]
+        if not (isinstance(name, str) and re.fullmatch(r"[A-Za-z0-9_-]{1,100}", name)):
+            raise ConfigError(f"{log}: summary.scenario: {plain(str(name))!r} is not a scene name (the shipped scenes' names only)")
         try:
             return load_scene(name)
         except ConfigError:

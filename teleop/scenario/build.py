@@ -12,7 +12,7 @@ from teleop.dynamics.effects import AngularDamper, Gravity, LinearDamper, Spring
 from teleop.dynamics.fixtures import Fixture
 from teleop.dynamics.registry import FrameMap
 from teleop.dynamics.tool import ReferenceTool
-from teleop.errors import ConfigError, SceneError
+from teleop.errors import ConfigError, DynamicsError, SceneError
 from teleop.scenario.schema import Scene
 
 
@@ -72,7 +72,17 @@ def build_tool(scene: Scene) -> ReferenceTool:
             body, build_fixture(scene.fixture, master_frame(scene)), build_effects(scene, body),
             integrator=scene.integrator, coriolis="coriolis" in scene.effects,
         )
-        tool.reset(scene.tool.q0, scene.tool.qd0)
     except ConfigError as e:
         raise SceneError(scene.path, "fixture", str(e)) from None
+    try:
+        with np.errstate(all="raise"):
+            tool.reset(scene.tool.q0, scene.tool.qd0)
+        ok = np.all(np.isfinite(tool.q)) and np.all(np.isfinite(tool.qd))
+    except ConfigError as e:
+        raise SceneError(scene.path, "tool.q0", str(e)) from None
+    except (np.linalg.LinAlgError, DynamicsError, FloatingPointError, ZeroDivisionError):
+        ok = False
+    if not ok:
+        raise SceneError(scene.path, "tool.q0", f"the {scene.fixture.type!r} fixture cannot be met from q0 = "
+                                                f"{list(scene.tool.q0)} (a singular point of its chart); choose another q0")
     return tool

@@ -15,6 +15,7 @@ from teleop.dynamics.rotations import cross
 from teleop.dynamics.rows import RowStack
 from teleop.loop import Hook
 from teleop.scenario.schema import FixtureSpec
+from teleop.session import Columns
 
 #: Rolling-error regulariser of Figure 8 D: 1 mm/s.
 ROLLING_EPS_M_S = 1e-3
@@ -33,10 +34,11 @@ class MetricSet(ABC):
     def __init__(self, spec: FixtureSpec, n: int, mass_kg: float):
         self.spec, self.mass = spec, mass_kg
         self.n = 0
-        self.series = {k: np.zeros(n) for k in self.names}
+        self.series = Columns({k: ((), float) for k in self.names}, n)
 
     def record(self, **values) -> None:
         i = self.n
+        self.series.ensure(i)
         for k, v in values.items():
             self.series[k][i] = v
         self.n += 1
@@ -288,7 +290,8 @@ class EnergyDrift(Hook):
 class SlaveMetrics(Hook):
     """The slave's accuracy, every tick, in the patient frame (``spec``: the scene's fixture):
 
-    * ``tip_tracking_rms_m`` - RMS distance of the slave's tool frame from its target;
+    * ``tip_tracking_rms_m``, ``tip_tracking_max_m`` - RMS and largest distance of the slave's tool
+      frame from its target;
     * ``cut_depth_error_max_m`` - max |depth of the blade tip - fixture depth| while in tissue;
     * ``cut_direction_error_max_rad`` - max angle between the slave's and the target's cutting axes;
     * ``contact_force_max_N`` - max |tissue force| at the blade tip;
@@ -296,7 +299,7 @@ class SlaveMetrics(Hook):
     * ``rcm_error_max_m`` - max distance of the shaft from the trocar (``rcm``: RemoteCenter rows).
 
     For a user's fixture type (no cutting plane) the depth and cut length stay 0 and
-    ``fixture_residual_max`` (m or rad) is the largest |h| of its holonomic rows at the slave's tool.
+    ``slave_fixture_residual_max`` (m or rad) is the largest |h| of its holonomic rows at the slave's tool.
     """
 
     def __init__(self, spec, n: int, nq: int, rcm=(), constraints=()):
@@ -308,13 +311,12 @@ class SlaveMetrics(Hook):
         self.rcm = tuple(rcm)
         series = ("track_m", "depth_err_m", "dir_err_rad", "contact_N") + (("rcm_m",) if self.rcm else ()) \
             + (("fixture_residual",) if self.rows is not None else ())
-        self.series = {k: np.zeros(n) for k in series}
-        self.series["q"] = np.zeros((n, nq))
-        self.series["tip"] = np.zeros((n, 3))
+        self.series = Columns({**{k: ((), float) for k in series}, "q": ((nq,), float), "tip": ((3,), float)}, n)
         self.n = 0
 
     def after_tick(self, i, t_s, loop) -> None:
         s, log = loop.slave.state, self.series
+        log.ensure(i)
         depth = -float(self.normal @ (s.tip - self.origin)) if self.normal is not None else 0.0
         log["track_m"][i] = float(np.linalg.norm(s.p - s.p_t))
         # error while the blade is in the tissue; a tiny floor marks "inside" for the cut length
@@ -337,6 +339,7 @@ class SlaveMetrics(Hook):
         k, log = self.n, self.series
         out = {
             "tip_tracking_rms_m": float(np.sqrt(np.mean(log["track_m"][:k] ** 2))) if k else 0.0,
+            "tip_tracking_max_m": float(log["track_m"][:k].max(initial=0.0)),
             "cut_depth_error_max_m": float(log["depth_err_m"][:k].max(initial=0.0)),
             "cut_direction_error_max_rad": float(log["dir_err_rad"][:k].max(initial=0.0)),
             "contact_force_max_N": float(log["contact_N"][:k].max(initial=0.0)),
@@ -348,7 +351,7 @@ class SlaveMetrics(Hook):
         if self.rcm:
             out["rcm_error_max_m"] = float(log["rcm_m"][:k].max(initial=0.0))
         if self.rows is not None:
-            out["fixture_residual_max"] = float(log["fixture_residual"][:k].max(initial=0.0))
+            out["slave_fixture_residual_max"] = float(log["fixture_residual"][:k].max(initial=0.0))
         return out
 
 
@@ -360,8 +363,7 @@ class TremorProbe(Hook):
     def __init__(self, hand, n: int, scale: float, R_PM: np.ndarray, normal_P):
         self.hand, self.scale, self.R_PM = hand, scale, R_PM
         self.n_P = _unit(normal_P)
-        self.hand_across = np.zeros((n, 2))
-        self.tip_across = np.zeros((n, 2))
+        self.across = Columns({"hand": ((2,), float), "tip": ((2,), float)}, n)
         self.k = 0
         self._R_v = None
 
@@ -375,14 +377,15 @@ class TremorProbe(Hook):
         side_P = self.R_PM @ R_v[:, 1]
         n_M = self.R_PM.T @ self.n_P
         tremor = self.hand.tremor(t)
-        self.hand_across[self.k] = (tremor @ n_M / self.scale, tremor @ R_v[:, 1] / self.scale)
-        self.tip_across[self.k] = (tip_P @ self.n_P, tip_P @ side_P)
+        self.across.ensure(self.k)
+        self.across["hand"][self.k] = (tremor @ n_M / self.scale, tremor @ R_v[:, 1] / self.scale)
+        self.across["tip"][self.k] = (tip_P @ self.n_P, tip_P @ side_P)
         self.k += 1
 
     def result(self, dt: float) -> dict:
         lo, hi = self.hand.spec.tremor_band_hz
-        t_in = band_rms(self.hand_across[: self.k], dt, lo, hi)
-        t_out = band_rms(self.tip_across[: self.k], dt, lo, hi)
+        t_in = band_rms(self.across["hand"][: self.k], dt, lo, hi)
+        t_out = band_rms(self.across["tip"][: self.k], dt, lo, hi)
         return {
             "tremor_in_rms_m": t_in,
             "tremor_out_rms_m": t_out,

@@ -13,14 +13,16 @@ import copy
 import difflib
 import re
 import tomllib
+from pathlib import PurePath
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Literal
 
 from teleop.contact.tissue import TissueBlock
 from teleop.dynamics.integrators import INTEGRATORS
-from teleop.errors import SceneError
-from teleop.resources import scenario_dir
+from teleop.errors import ConfigError, SceneError
+from teleop.inputs import read_text
+from teleop.resources import robot_dir, scenario_dir
 from teleop.master.config import CobotConfig
 from teleop.scenario.overrides import apply_settings
 from teleop.scenario.tables import (
@@ -144,17 +146,66 @@ def list_scenes() -> list[str]:
 
 def load_scene(name_or_path: str, sets=()) -> Scene:
     """Load and validate a scene (then ``sets``, "key=value" overrides). Any problem is a
-    SceneError naming the file, the key and the reason."""
+    SceneError naming the file, the key and the reason. The file itself stays in its lane
+    (:func:`check_lane`); ``sets`` come from the command line and may name any path."""
     path = find_scene(name_or_path)
-    if path.stat().st_size > MAX_SCENE_BYTES:
-        raise SceneError(str(path), "<file>", f"larger than {MAX_SCENE_BYTES} bytes")
     try:
-        data = tomllib.loads(path.read_text(encoding="utf-8"))
+        data = tomllib.loads(read_text(path, MAX_SCENE_BYTES, "scene file"))
     except tomllib.TOMLDecodeError as e:
         raise SceneError(str(path), "<syntax>", f"not valid TOML: {e}") from None
-    except (UnicodeDecodeError, OSError, RecursionError) as e:
-        raise SceneError(str(path), "<file>", f"cannot read: {type(e).__name__}: {e}".splitlines()[0]) from None
+    except RecursionError:
+        raise SceneError(str(path), "<syntax>", "tables or lists nested too deeply") from None
+    except ConfigError as e:
+        raise SceneError(str(path), "<file>", getattr(e, "reason", str(e))) from None
+    check_lane(data, str(path))
     return parse_scene(data, str(path), sets=sets)
+
+
+#: keys of a scene file that name a file to read: each must be inside the robot folder
+URDF_KEYS = (("slave", "arm", "urdf"), ("slave", "tool", "urdf"))
+
+
+def check_lane(data: dict, path: str) -> None:
+    """A scene *file* reaches nothing outside its run: its URDF paths resolve inside the project's
+    robot folder (relative paths are relative to it; they are rewritten to absolute paths),
+    ``slave.arm.package_dirs`` too, and ``cobot.capture_path`` is a relative path without '..'
+    (written inside the run's folder). Hardware interfaces are checked on the whole run
+    (:func:`hardware_interface`)."""
+    robots = robot_dir().resolve()
+
+    def inside(key: str, value) -> str:
+        if not isinstance(value, str):
+            return value  # the validator names the type
+        p = (robots / value).resolve()
+        if not p.is_relative_to(robots):
+            raise SceneError(path, key, f"a scene file reads files only inside the robot folder {robots} "
+                                        f"(got {value!r}); give other paths on the command line (--set {key}=PATH)")
+        return str(p)
+
+    for keys in URDF_KEYS:
+        node = data
+        for k in keys[:-1]:
+            node = node.get(k) if isinstance(node, dict) else None
+        if isinstance(node, dict) and keys[-1] in node:
+            node[keys[-1]] = inside(".".join(keys), node[keys[-1]])
+    arm = data.get("slave", {}).get("arm") if isinstance(data.get("slave"), dict) else None
+    if isinstance(arm, dict) and isinstance(arm.get("package_dirs"), list):
+        arm["package_dirs"] = [inside(f"slave.arm.package_dirs[{i}]", d) for i, d in enumerate(arm["package_dirs"])]
+    cobot = data.get("cobot")
+    cap = cobot.get("capture_path") if isinstance(cobot, dict) else None
+    if isinstance(cap, str):
+        p = PurePath(cap)
+        if p.is_absolute() or ".." in p.parts or not p.parts:
+            raise SceneError(path, "cobot.capture_path", "a scene file writes only inside its run's folder: give a "
+                                                         f"relative path without '..' (got {cap!r})")
+
+
+def hardware_interface(scene: Scene) -> str | None:
+    """The CAN interface the scene's cobot would open when it is real hardware (not one of the
+    simulated ones), else None. The command line must allow it (``--allow-hardware``)."""
+    from teleop.master.cobot.host import SIMULATED_INTERFACES
+
+    return None if scene.cobot.interface in SIMULATED_INTERFACES else scene.cobot.interface
 
 
 def parse_scene(data: dict, path: str = "<scene>", sets=(), pairs=()) -> Scene:

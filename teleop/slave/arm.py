@@ -22,6 +22,7 @@ import numpy as np
 import pinocchio as pin
 
 from teleop.errors import ConfigError
+from teleop.inputs import plain, read_text
 from teleop.resources import robot_file
 from teleop.slave.limits import JointLimits
 from teleop.slave.solvers import PACKAGES, installed_solvers
@@ -151,6 +152,19 @@ def _rpy_se3(xyz, rpy) -> pin.SE3:
     return pin.SE3(pin.rpy.rpyToMatrix(*rpy), np.asarray(xyz, dtype=float))
 
 
+def _urdf_model(path, key: str) -> pin.Model:
+    """Pinocchio's model of a URDF file, read as a regular file of bounded size (teleop.inputs);
+    a file that is not a URDF is a ConfigError naming ``key``."""
+    try:
+        xml = read_text(path, what="URDF")
+    except ConfigError as e:
+        raise ConfigError(f"{key}: {getattr(e, 'reason', e)}") from None
+    try:
+        return pin.buildModelFromXML(xml)
+    except (ValueError, RuntimeError) as e:
+        raise ConfigError(f"{key}: {plain(path)} is not a valid URDF ({plain(str(e).splitlines()[0])[:120]})") from None
+
+
 def build_model(cfg: SlaveConfig, where: str = "slave") -> ArmModel:
     """Load arm + tool, append the tool at the flange, add frame "E"; validate q0 and limits."""
     if isinstance(cfg.arm, str):
@@ -158,7 +172,7 @@ def build_model(cfg: SlaveConfig, where: str = "slave") -> ArmModel:
         full = erd.load(erd_name).model
     else:
         spec = dict(cfg.arm)
-        full = pin.buildModelFromUrdf(str(spec["urdf"]))
+        full = _urdf_model(spec["urdf"], f"{where}.arm.urdf")
         flange = spec["flange"]
         q0 = spec.get("q0", tuple(pin.neutral(full)))
         a_max = spec.get("a_max", (10.0,) * full.nv)
@@ -168,7 +182,7 @@ def build_model(cfg: SlaveConfig, where: str = "slave") -> ArmModel:
     if not model.existFrame(flange):
         raise ConfigError(f"{where}.arm: flange frame {flange!r} not in the model")
     tool_urdf, tip = TOOLS[cfg.tool] if isinstance(cfg.tool, str) else (dict(cfg.tool)["urdf"], dict(cfg.tool)["tip"])
-    tool = pin.buildModelFromUrdf(str(tool_urdf))
+    tool = _urdf_model(tool_urdf, f"{where}.tool.urdf")
     if not tool.existFrame(tip):
         raise ConfigError(f"{where}.tool: tip frame {tip!r} not in {tool_urdf}")
     model = pin.appendModel(model, tool, model.getFrameId(flange), _rpy_se3(cfg.mount_xyz_m, cfg.mount_rpy_rad))

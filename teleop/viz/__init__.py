@@ -15,14 +15,15 @@ from teleop.viz.null_view import NullView
 VIEWS = ("meshcat", "null")
 
 
-def make_view(kind: str, scene: VizScene, record: bool = False, open_browser: bool = False):
-    """A view by name: "meshcat" (starts a meshcat server; close() stops it) or "null"."""
+def make_view(kind: str, scene: VizScene, record: bool = False, open_browser: bool = False, **options):
+    """A view by name: "meshcat" (starts a meshcat server; close() stops it; ``host=`` the address
+    its web server binds, 127.0.0.1 by default) or "null"."""
     if kind == "null":
         return NullView(scene, record=record, open_browser=open_browser)
     if kind == "meshcat":
         from teleop.viz.meshcat_view import MeshcatView
 
-        return MeshcatView(scene, record=record, open_browser=open_browser)
+        return MeshcatView(scene, record=record, open_browser=open_browser, **options)
     raise ConfigError(f"make_view: unknown view {kind!r}; choose one of {VIEWS}")
 
 

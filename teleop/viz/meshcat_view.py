@@ -34,24 +34,39 @@ from teleop.viz.shapes import COLORS, VIEW_HEIGHT_M, VIEW_WIDTH_M, polyline
 
 log = logging.getLogger(__name__)
 
-#: run the meshcat server, exiting as soon as the process that started it is gone
+#: run the meshcat server, exiting as soon as the process that started it is gone. Its ZMQ socket
+#: binds 127.0.0.1 always (only this process talks to it); its web server binds argv[2] (meshcat's
+#: own main() listens on every interface: tornado's listen() without an address)
 _SERVER = """
-import os, sys, threading, time, runpy
-parent = int(sys.argv[1])
+import os, sys, threading, time
+from meshcat.servers import zmqserver
+parent, web_host = int(sys.argv[1]), sys.argv[2]
 def watch():
     while os.getppid() == parent:
         time.sleep(0.25)
     os._exit(0)
 threading.Thread(target=watch, daemon=True).start()
-sys.argv = ["meshcat-server"]
-runpy.run_module("meshcat.servers.zmqserver", run_name="__main__")
+class Bridge(zmqserver.ZMQWebSocketBridge):
+    def make_app(self):
+        app = super().make_app()
+        listen = app.listen
+        app.listen = lambda port, **kw: listen(port, address=web_host, **kw)
+        return app
+bridge = Bridge(host="127.0.0.1")
+shown = "[" + web_host + "]" if ":" in web_host else web_host
+print("zmq_url=" + bridge.zmq_url)
+print("web_url=http://%s:%d/static/" % (shown, bridge.fileserver_port))
+bridge.run()
 """
+#: the address the viewer's web server binds unless the command line asks for another
+DEFAULT_HOST = "127.0.0.1"
 SOCKET_TIMEOUT_MS = 10000
 
 
-def start_server(timeout_s: float = 30.0):
-    """Start a meshcat server subprocess; returns (process, zmq_url, web_url)."""
-    proc = subprocess.Popen([sys.executable, "-u", "-c", _SERVER, str(os.getpid())],
+def start_server(timeout_s: float = 30.0, host: str = DEFAULT_HOST):
+    """Start a meshcat server subprocess whose web server binds ``host``; returns (process,
+    zmq_url, web_url)."""
+    proc = subprocess.Popen([sys.executable, "-u", "-c", _SERVER, str(os.getpid()), host],
                             stdin=subprocess.DEVNULL, stdout=subprocess.PIPE,
                             stderr=subprocess.DEVNULL, start_new_session=True)
     lines: queue.Queue = queue.Queue()
@@ -111,7 +126,7 @@ class MeshcatView:
     """
 
     def __init__(self, scene: VizScene, record: bool = False, open_browser: bool = False,
-                 rate_hz: float = 30.0):
+                 rate_hz: float = 30.0, host: str = DEFAULT_HOST):
         if not isinstance(scene, VizScene):
             raise ConfigError(f"MeshcatView.scene: expected a VizScene, got {type(scene).__name__}")
         if not 1.0 <= rate_hz <= 60.0:
@@ -129,7 +144,7 @@ class MeshcatView:
         self._lock = threading.Lock()  # one user of the ZMQ socket at a time
         self._cv = threading.Condition()
         self._pending, self._queued, self._done, self._stopping = None, 0, 0, False
-        proc, zmq_url, self.url = start_server()
+        proc, zmq_url, self.url = start_server(host=host)
         window = ViewerWindow.__new__(ViewerWindow)  # connect to our server without its prints
         window.server_proc, window.zmq_url, window.web_url = proc, zmq_url, self.url
         window.connect_zmq()

@@ -12,7 +12,7 @@ from teleop.errors import ConfigError
 
 
 def replay_command(source, viewer: bool = False, out=None, force: bool = False, view: str = "perspective",
-                   hold: bool = False) -> int:
+                   hold: bool = False, host: str = "127.0.0.1") -> int:
     """Replay the run folder (or its log.npz) ``source``; returns the exit code (0)."""
     from teleop.viz import make_view
     from teleop.viz_bridge import load_run_scene, replay_run, viz_scene_for
@@ -33,7 +33,7 @@ def replay_command(source, viewer: bool = False, out=None, force: bool = False, 
         if out and target.exists() and not force:
             raise ConfigError(f"--out {target}: exists; pick another name or add --force")
     scene = load_run_scene(folder)
-    with make_view("meshcat", viz_scene_for(scene, view=view), record=not viewer) as v:
+    with make_view("meshcat", viz_scene_for(scene, view=view), record=not viewer, host=host) as v:
         if viewer:
             print(f"viewer: {v.url}  (replaying {scene.name} in real time)", file=sys.stderr)
         frames = replay_run(folder, v, realtime=viewer)

@@ -16,10 +16,12 @@ import uuid
 import can
 import numpy as np
 
-from teleop.can.faults import Faults
+from teleop.errors import ConfigError, FieldError
+from teleop.master.config import FaultSettings
 from teleop.master.cobot.model import CobotModel
 from teleop.master.cobot.plant import CobotPlant, DeviceParams
 from teleop.master.cobot.simulator import CobotSimulator
+from teleop.typed import build
 
 
 class CobotBus(can.BusABC):
@@ -29,6 +31,11 @@ class CobotBus(can.BusABC):
 
     def __init__(self, channel=None, seed: int = 0, step_s: float = 1e-4, joints0=None, faults=None,
                  **kwargs):
+        if isinstance(faults, dict):  # the one validator (teleop.typed), as for a scene's [cobot.faults]
+            try:
+                faults = build(FaultSettings, faults, "faults")
+            except FieldError as e:
+                raise ConfigError(f"{e.key}: {e.reason}") from None
         self.step_s = float(step_s)
         private = f"teleop-cobot-plugin-{uuid.uuid4().hex}"
         self._host = can.Bus(interface="virtual", channel=private, fd=True, preserve_timestamps=True)
@@ -36,7 +43,6 @@ class CobotBus(can.BusABC):
         rng = np.random.default_rng(seed)
         joints0 = np.array([0.0, 0.0, 0.0, 0.0, np.pi / 2, 0.0] if joints0 is None else joints0, dtype=float)
         self.plant = CobotPlant(CobotModel(), DeviceParams(), joints0, rng)
-        faults = Faults.from_dict(faults) if isinstance(faults, dict) else faults
         self.sim = CobotSimulator(self._device_bus, self.plant, rng, faults=faults)
         self.t = 0.0
         self.channel_info = f"teleop simulated cobot {channel or private}"
