@@ -46,8 +46,15 @@ def cmd_run(args) -> int:
     from teleop.runtime import run_scene
     from teleop.scenario.schema import load_scene
 
+    sets = list(args.set)
+    if args.can_log:  # the cobot's capture_path, as a TOML string (json.dumps quotes and escapes it)
+        if (args.master or load_scene(args.scene or DEFAULT_SCENE).master) != "cobot":
+            from teleop.errors import ConfigError
+
+            raise ConfigError("--can-log: only the cobot master has a CAN bus (add --master cobot)")
+        sets.append(f"cobot.capture_path={json.dumps(str(args.can_log))}")
     scene = load_scene(args.scene or DEFAULT_SCENE).with_overrides(
-        args.set, duration_s=args.duration, seed=args.seed, master=args.master, integrator=args.integrator,
+        sets, duration_s=args.duration, seed=args.seed, master=args.master, integrator=args.integrator,
         dt_s=args.dt,
     )
     show = sys.stderr.isatty() and scene.duration_s / scene.dt_s > 5000 and args.operator != "keyboard"
@@ -182,6 +189,8 @@ def build_parser() -> argparse.ArgumentParser:
     run.add_argument("--dt", type=float, help="control period in s (overrides the scene)")
     run.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
                      help="set any scene key, VALUE as TOML (e.g. --set slave.solver=daqp --set tool.mass_kg=0.3)")
+    run.add_argument("--can-log", metavar="PATH",
+                     help="cobot master: write the CAN traffic here (.log candump, .asc, .blf, .csv by suffix)")
     run.add_argument("--json", help="write the run summary as JSON here")
     run.add_argument("--out", help="write metrics.json, log.npz and PNG plots into this folder")
     run.set_defaults(func=cmd_run)
