@@ -173,7 +173,10 @@ def run_one(scene_name: str, fault: str, t_inject: float, seed: int) -> dict:
     inj = Injector(fault, t_inject, np.random.default_rng(seed), scene.fixture)
     result = run_scene(scene, view=inj)
     t0 = inj.injected_at
-    row = {
+    if t0 is None:  # the run ended before the instant: nothing was injected
+        return {"scene": scene_name, "fault": fault, "injected": False, "t_inject_s": None,
+                "status": result.summary["status"], "detected": False, "detected_as": "", "unsafe": False}
+    row = {"injected": True,
         "scene": scene_name, "fault": fault, "t_inject_s": t0, "status": result.summary["status"],
         "detected": inj.detected_at is not None, "detected_as": inj.detail,
         "slave_status_before": inj.status_before,
@@ -204,7 +207,7 @@ def summarize(rows) -> list[dict]:
     unsafe runs, worst depth excess (um), worst contact force (N)."""
     out = []
     for fault in FAULTS:
-        r = [x for x in rows if x["fault"] == fault]
+        r = [x for x in rows if x["fault"] == fault and x.get("injected", True)]
         if not r:
             continue
         det = [x["t_detect_s"] for x in r if x["t_detect_s"] is not None]
@@ -247,6 +250,10 @@ def main(argv=None) -> int:
     scenes = args.scenes or blade_scenes()
 
     def show(row):
+        if not row["injected"]:
+            print(f"{row['scene']:24s} {row['fault']:22s} not injected: the run ended first ({row['status']})",
+                  file=sys.stderr, flush=True)
+            return
         print(f"{row['scene']:24s} {row['fault']:22s} t={row['t_inject_s']:.3f} s  -> {row['detected_as'] or '-':22s}"
               f" detect {row['t_detect_s']}  safe {row['t_safe_s']}  depth+ {row['depth_excess_um']:.1f} um"
               f"  F {row['force_max_N']:.1f} N", file=sys.stderr, flush=True)
@@ -256,6 +263,9 @@ def main(argv=None) -> int:
     print(f"scenes: {', '.join(scenes)}; {args.trials} trial(s) per fault and scene, injected in "
           f"[{args.t_min}, {args.t_max}] s; seed {args.seed}")
     print(table(summary))
+    skipped = sorted({(r["scene"], r["status"]) for r in rows if not r["injected"]})
+    for name, status in skipped:
+        print(f"not injected in {name}: its cobot run ends before the injection window ({status})")
     if args.json:
         with open(args.json, "w", encoding="utf-8") as f:
             json.dump({"rows": rows, "summary": summary}, f, indent=1)
