@@ -209,3 +209,35 @@ def test_device_stops_without_host_heartbeat():
         link.sim.advance_to(link.t)
     assert link.sim.state == 3 and np.all(link.device.qd_cmd == 0.0)
     link.close()
+
+
+@pytest.mark.parametrize("kind, axis", [("sensor_nan", 2), ("sensor_stuck", 0)])
+def test_device_refuses_a_bad_load_cell_with_emergency_code_4(kind, axis):
+    """The firmware's own checks: a NaN sample at once, a load cell without new samples after 3
+    SYNCs: servos to zero, state fault, DEV_EMERGENCY code 4, host fault device_emergency."""
+    link = Link()
+    link.driver.start(link.joints0)
+    for _ in range(3):
+        link.cycle(np.array([0.02, 0, 0, 0, 0, 0]))
+    link.sim.inject_sensor_fault(kind, link.t, axis=axis)
+    faults = [link.cycle(np.array([0.02, 0, 0, 0, 0, 0]))[1] for _ in range(5)]
+    first = next(i for i, f in enumerate(faults) if f is not None)
+    assert faults[first] == "device_emergency" and first <= (1 if kind == "sensor_nan" else 4)
+    assert link.sim.state == 3 and np.all(link.device.qd_cmd == 0.0)
+    link.close()
+
+
+def test_an_encoder_jump_beyond_what_the_device_can_move_is_a_fault():
+    """0.5 mm in one 1 ms period passes (0.5 m/s x 1 ms x 1.5 + 2 counts = 0.8 mm is the bound);
+    2 mm latches encoder_fault and the jumped reading is not applied."""
+    step_max = 1.5 * np.array([0.5] * 3 + [10.0] * 3) * 1e-3 + 2 * np.array([25e-6] * 3 + [5e-4] * 3)
+    for size, fault in ((0.5e-3, None), (2e-3, "encoder_fault")):
+        link = Link(encoder_step_max=step_max)
+        link.driver.start(link.joints0)
+        link.cycle()
+        link.sim.inject_sensor_fault("encoder_jump", link.t, axis=1, size=size)
+        _, got = link.cycle()
+        assert got == fault
+        if fault:
+            assert link.driver.joints_rad_m[1] == pytest.approx(link.joints0[1], abs=3e-5)
+        link.close()
