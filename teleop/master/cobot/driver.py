@@ -202,7 +202,8 @@ class CobotDriver:
         before = self.errors.state
         if eid & CAN_ERR_CNT:
             state = self.errors.set(data[6], data[7])
-        elif eid & (CAN_ERR_ACK | CAN_ERR_TX_TIMEOUT | CAN_ERR_BUSOFF) or (eid & CAN_ERR_PROT and data[2] & CAN_ERR_PROT_TX):
+        elif (eid & (CAN_ERR_ACK | CAN_ERR_TX_TIMEOUT | CAN_ERR_BUSOFF)
+              or (eid & CAN_ERR_PROT and data[2] & CAN_ERR_PROT_TX)):
             state = self.errors.tx_error()
         else:
             state = self.errors.rx_error()
