@@ -22,7 +22,8 @@ The injection hooks are the device simulator's :meth:`CobotSimulator.inject_sens
 in ``teleop.slave``: the arm's ``limits`` are replaced, and its QP's ``solve`` is wrapped to report
 failure.
 
-Per run: detected (a status other than "ok": the master's latched fault, or the slave's status),
+Per run: detected (a status other than "ok": the master's latched fault, or a slave status other
+than "ok" and "saturated", which the fault-free cuts report on many ticks),
 the time from injection to detection, the time to the safe state, and whether anything unsafe
 happened from the injection until the safe state (or the end of the run): the slave's blade tip
 deeper than the fixture's depth by more than ``DEPTH_TOL_M``, or a tissue contact force above
@@ -55,6 +56,9 @@ SAFE_TIP_M_S = 1e-3  #: slave holding still: blade tip speed below, m/s
 POST_CYCLES = 200  #: hold periods run after a master-side fault to watch the safe state
 SAFE_WITHIN_S = 0.05  #: the stated target: safe state within this time of the injection, s
 WINDOW_S = 0.4  #: a run lasts this long past the injection (a master fault ends it sooner), s
+#: slave statuses that do not detect a fault: "saturated" (a joint on a bound) is common in the
+#: fault-free cuts, so a joint limit that shows only as "saturated" is not detected
+NOT_A_FAULT = ("ok", "saturated")
 
 
 def blade_scenes() -> list[str]:
@@ -99,7 +103,7 @@ class Injector:
             if loop.master.status != "ok":  # any master-side fault ends the run: hold, watch the rest
                 self.detected_at, self.detail = t_s, loop.master.status
                 self._hold_after_fault(loop, t_s)
-            elif self.fault.startswith("slave_") and loop.slave.state.status != "ok":
+            elif self.fault.startswith("slave_") and loop.slave.state.status not in NOT_A_FAULT:
                 # a slave fault: its fallback / bound acts in this very tick
                 self.detected_at = self.safe_at = t_s
                 self.detail = f"slave {loop.slave.state.status}"
