@@ -67,8 +67,13 @@ def _scene_for(args):
     base = load_scene(args.scene or DEFAULT_SCENE)
     given = dict(duration_s=args.duration, seed=args.seed, master=args.master, integrator=args.integrator,
                  dt_s=args.dt)
+    sets = list(args.set)
+    if args.can_log:  # the cobot's capture_path, as a TOML string (json.dumps quotes and escapes it)
+        if (args.master or base.master) != "cobot":
+            raise ConfigError("--can-log: only the cobot master has a CAN bus (add --master cobot)")
+        sets.append(f"cobot.capture_path={json.dumps(str(args.can_log))}")
     try:
-        scene = base.with_overrides(args.set, **given)
+        scene = base.with_overrides(sets, **given)
     except SceneError as e:
         if e.key in FLAGS and given.get(e.key) is not None:
             raise ConfigError(f"{FLAGS[e.key]} {given[e.key]}: {e.reason}") from None
@@ -281,6 +286,8 @@ def build_parser() -> argparse.ArgumentParser:
                      help="set any scene key, VALUE as TOML (e.g. --set slave.solver=daqp --set tool.mass_kg=0.3)")
     run.add_argument("--allow-hardware", action="store_true",
                      help="let the scene open a hardware CAN interface (cobot.interface other than a simulated one)")
+    run.add_argument("--can-log", metavar="PATH",
+                     help="cobot master: write the CAN traffic here (.log candump, .asc, .blf, .csv by suffix)")
     run.add_argument("--json", help="write the run summary as JSON here ('-': to stdout, the text summary to stderr)")
     run.add_argument("--out", help="write metrics.json, log.npz, recording.html and PNG plots into this folder "
                                    "(whole or not at all)")

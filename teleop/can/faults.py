@@ -3,7 +3,8 @@
 loss and corruption act on both directions (a lost frame never reaches the wire; a corrupted one
 arrives with a flipped payload bit, caught by the checksum); latency and jitter delay the device's
 frames on their way to the host (a slow adapter or gateway); ``silent_after_s`` mutes the device;
-``bus_off_at_s`` takes the device off the bus after an error frame.
+``bus_off_at_s`` makes every transmission of the device fail from then on: 32 error frames (its
+TEC to 256, :mod:`teleop.can.confinement`), then it is bus-off and silent.
 """
 
 from __future__ import annotations

@@ -38,6 +38,7 @@ class LockstepBus(can.BusABC):
         kwargs.pop("fd", None)  # CAN FD frames pass as they are; the flag is python-can's convention
         kwargs.pop("preserve_timestamps", None)  # timestamps always pass unchanged
         super().__init__(channel=self.channel_id, **kwargs)
+        self._can_protocol = can.CanProtocol.CAN_FD  # carries CAN FD frames (and classic ones)
 
     def send(self, msg: can.Message, timeout: float | None = None) -> None:
         if not self._open:

@@ -71,9 +71,16 @@ def test_silent_device_trips_watchdog_within_three_cycles():
     assert np.all(m.sim.plant.qd_cmd == 0.0)  # zero velocity reached the device (it keeps listening)
 
 
-def test_bus_off_is_reported():
+def test_device_bus_off_is_its_silence_not_the_hosts_bus_off():
+    """The device's transmissions fail from 0.1 s: 32 error frames (its TEC to 256), then silence.
+    The host counts them as a receiver (REC 32: error-active, not bus-off) and its watchdog trips
+    on the silence within stale_cycles."""
     statuses, _, stats, m = run({"bus_off_at_s": 0.1}, 300)
-    assert statuses[-1] == "bus_off" and stats["link_fault"] == "bus_off"
+    assert statuses[-1] == "watchdog" and stats["link_fault"] == "watchdog"
+    assert 16 <= stats["can_error_frames"] <= 32 and stats["device_tec"] == 256  # ~90 us apart; read until the trip
+    assert stats["can_error_state"] == "error_active" and stats["can_tec"] == 0
+    off_step = next(i for i, _ in enumerate(statuses) if m.cfg.tare_cycles * 1e-3 + i * 1e-3 >= 0.1)
+    assert len(statuses) - 1 - off_step <= 3 + 1  # +1: the last frames before bus-off were in flight
 
 
 def test_a_device_out_of_travel_latches_a_tracking_fault_and_stops():

@@ -128,7 +128,7 @@ def test_capture_reads_back_with_cantools(tmp_path):
     run(tool, parallel_parking, 5, cfg={"capture_path": str(asc)}, metric=disk_metric)
     import can
     frames = list(can.ASCReader(str(asc)))
-    assert len(frames) > 20 and any(f.arbitration_id == 0x180 for f in frames)
+    assert len(frames) > 20 and any(f.arbitration_id == 0x040 for f in frames)
 
 
 def test_clutch_reengages_without_jump():

@@ -9,7 +9,7 @@ import pytest
 from teleop.master.cobot.database import FrameDatabase
 from teleop.master.cobot.driver import CobotDriver
 from teleop.master.cobot.simulator import CobotSimulator
-from teleop.master.cobot.driver import CAN_ERR_BUSOFF
+from teleop.master.cobot.driver import CAN_ERR_ACK, CAN_ERR_BUSOFF, CAN_ERR_CNT, CAN_ERR_PROT
 from teleop.master.cobot.model import CobotModel
 from teleop.master.cobot.plant import CobotPlant, DeviceParams
 
@@ -107,14 +107,93 @@ def test_garbage_and_error_frames_are_counted_not_applied():
     link.driver.start(link.joints0)
     link.cycle()
     before = link.driver.joints_rad_m.copy()
-    link.dev_bus.send(can.Message(arbitration_id=0x180, data=bytes(16), is_fd=True, is_extended_id=False))
+    link.dev_bus.send(can.Message(arbitration_id=0x040, data=bytes(20), is_fd=True, is_extended_id=False))
     link.dev_bus.send(can.Message(arbitration_id=0x123, data=bytes(8), is_extended_id=False))
     link.driver.read()
     assert link.driver.stats()["can_frames_rejected"] == 2
+    assert link.driver.rejected["checksum"] == 1 and link.driver.rejected["unknown_id"] == 1
     assert np.array_equal(link.driver.joints_rad_m, before)
+    # one error frame, even one that says bus-off, latches nothing: it is one count
     link.dev_bus.send(can.Message(arbitration_id=CAN_ERR_BUSOFF, is_error_frame=True, data=bytes(8)))
     link.driver.read()
-    assert link.driver.fault == "bus_off"
+    assert link.driver.fault is None and link.driver.errors.tec == 8
+    link.close()
+
+
+def test_a_valid_frame_with_the_wrong_id_type_or_fd_flag_is_rejected():
+    link = Link()
+    link.driver.start(link.joints0)
+    link.cycle()
+    fid, data, _ = link.driver.db.encode("DEV_EMERGENCY", {"EmcyCode": 1, "EmcyCounter": 0})
+    link.dev_bus.send(can.Message(arbitration_id=fid, data=data, is_fd=True, is_extended_id=True))
+    link.dev_bus.send(can.Message(arbitration_id=fid, data=data, is_fd=False, is_extended_id=False))
+    link.driver.read()
+    assert link.driver.fault is None
+    assert link.driver.rejected["id_type"] == 1 and link.driver.rejected["fd_flag"] == 1
+    link.dev_bus.send(can.Message(arbitration_id=fid, data=data, is_fd=True, is_extended_id=False))
+    link.driver.read()
+    assert link.driver.fault == "device_emergency"  # the same frame, well-formed
+    link.close()
+
+
+def test_error_counters_follow_iso_11898_fault_confinement():
+    """Receive errors (+1 REC) never take the host off the bus; transmit errors (+8 TEC) make it
+    error-passive at 128 (it keeps running) and bus-off at 256 (latched); valid traffic counts
+    down. Reference: ISO 11898-1 fault confinement, hand-counted."""
+    link = Link()
+    link.driver.start(link.joints0)
+    link.cycle()
+    err = lambda eid, d=bytes(8): can.Message(arbitration_id=eid, is_error_frame=True, data=d)
+    for _ in range(200):  # receive errors: 200 error frames from other nodes
+        link.dev_bus.send(err(CAN_ERR_PROT))
+    link.driver.max_frames_per_read = 1000
+    link.driver.read()
+    d = link.driver
+    assert d.errors.rec == 200 and d.errors.state == "error_passive" and d.fault is None
+    n, fault = link.cycle()  # valid frames: REC from above 127 drops back to 127, then counts down
+    assert fault is None and d.errors.rec < 127
+    for _ in range(15):  # 15 transmit errors (no ACK): TEC 120, error-active
+        link.dev_bus.send(err(CAN_ERR_ACK))
+    d.read()
+    tec = d.errors.tec
+    assert 100 <= tec <= 120 and d.fault is None
+    for _ in range(2):
+        link.dev_bus.send(err(CAN_ERR_ACK))
+    d.read()
+    assert d.errors.state == "error_passive" and d.fault is None and d.stats()["can_error_state"] == "error_passive"
+    for _ in range(17):
+        link.dev_bus.send(err(CAN_ERR_ACK))
+    d.read()
+    assert d.errors.tec == 256 and d.fault == "bus_off"
+    link.close()
+
+
+def test_controller_counters_override_the_count():
+    link = Link()
+    link.driver.start(link.joints0)
+    data = bytes([0, 0, 0, 0, 0, 0, 130, 5])  # SocketCAN CAN_ERR_CNT: TEC in data[6], REC in data[7]
+    link.dev_bus.send(can.Message(arbitration_id=CAN_ERR_CNT, is_error_frame=True, data=data))
+    link.driver.read()
+    assert (link.driver.errors.tec, link.driver.errors.rec) == (130, 5) and link.driver.fault is None
+    link.close()
+
+
+def test_one_read_takes_at_most_the_bound_and_a_flood_trips_the_watchdog():
+    """20 000 frames queued (a babbling node): a read takes 64; the feedback behind the flood is
+    stale, so the watchdog trips within stale_cycles, in bounded time per cycle."""
+    import time
+    link = Link(stale_cycles=3)
+    link.driver.start(link.joints0)
+    link.cycle()
+    junk = can.Message(arbitration_id=0x7FF, data=bytes(8), is_extended_id=False)
+    for _ in range(20_000):
+        link.dev_bus.send(junk)
+    t0 = time.perf_counter()
+    faults = [link.cycle()[1] for _ in range(3)]
+    per_cycle = (time.perf_counter() - t0) / 3
+    assert link.driver.read_bound_hits == 3 and link.driver.frames_rx <= 4 + 3 * 64 + 10
+    assert faults[-1] == "watchdog"
+    assert per_cycle < 0.1  # 64 frames, not 20 000 (a bound, not a benchmark)
     link.close()
 
 
@@ -130,3 +209,35 @@ def test_device_stops_without_host_heartbeat():
         link.sim.advance_to(link.t)
     assert link.sim.state == 3 and np.all(link.device.qd_cmd == 0.0)
     link.close()
+
+
+@pytest.mark.parametrize("kind, axis", [("sensor_nan", 2), ("sensor_stuck", 0)])
+def test_device_refuses_a_bad_load_cell_with_emergency_code_4(kind, axis):
+    """The firmware's own checks: a NaN sample at once, a load cell without new samples after 3
+    SYNCs: servos to zero, state fault, DEV_EMERGENCY code 4, host fault device_emergency."""
+    link = Link()
+    link.driver.start(link.joints0)
+    for _ in range(3):
+        link.cycle(np.array([0.02, 0, 0, 0, 0, 0]))
+    link.sim.inject_sensor_fault(kind, link.t, axis=axis)
+    faults = [link.cycle(np.array([0.02, 0, 0, 0, 0, 0]))[1] for _ in range(5)]
+    first = next(i for i, f in enumerate(faults) if f is not None)
+    assert faults[first] == "device_emergency" and first <= (1 if kind == "sensor_nan" else 4)
+    assert link.sim.state == 3 and np.all(link.device.qd_cmd == 0.0)
+    link.close()
+
+
+def test_an_encoder_jump_beyond_what_the_device_can_move_is_a_fault():
+    """0.5 mm in one 1 ms period passes (0.5 m/s x 1 ms x 1.5 + 2 counts = 0.8 mm is the bound);
+    2 mm latches encoder_fault and the jumped reading is not applied."""
+    step_max = 1.5 * np.array([0.5] * 3 + [10.0] * 3) * 1e-3 + 2 * np.array([25e-6] * 3 + [5e-4] * 3)
+    for size, fault in ((0.5e-3, None), (2e-3, "encoder_fault")):
+        link = Link(encoder_step_max=step_max)
+        link.driver.start(link.joints0)
+        link.cycle()
+        link.sim.inject_sensor_fault("encoder_jump", link.t, axis=1, size=size)
+        _, got = link.cycle()
+        assert got == fault
+        if fault:
+            assert link.driver.joints_rad_m[1] == pytest.approx(link.joints0[1], abs=3e-5)
+        link.close()

@@ -17,13 +17,14 @@ def test_device_answers_sync_through_can_bus():
     db = FrameDatabase()
     with can.Bus(interface="teleop_cobot", channel="cobot0", seed=3) as bus:
         assert isinstance(bus, CobotBus)
+        assert bus.protocol == can.CanProtocol.CAN_FD  # every frame of the protocol is CAN FD
         fid, data, fd = db.encode("SYNC", {"SyncCounter": 5})
         bus.send(can.Message(arbitration_id=fid, data=data, is_fd=fd, bitrate_switch=fd, is_extended_id=False))
         got = {}
         for _ in range(50):  # simulated polls of 0.1 ms each
             msg = bus.recv(timeout=0.0)
             if msg is not None:
-                out = db.decode(msg.arbitration_id, bytes(msg.data), msg.timestamp)
+                out = db.decode_message(msg)
                 assert isinstance(out, Decoded)
                 got[out.name] = out
         assert {"DEV_JOINTS", "DEV_WRENCH", "DEV_HEARTBEAT"} <= set(got)

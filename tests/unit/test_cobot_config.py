@@ -1,10 +1,11 @@
 """CobotConfig: defaults, validation naming the key and the reason."""
 
+import numpy as np
 import pytest
 
 from teleop.can.faults import Faults
 from teleop.errors import ConfigError
-from teleop.master import CobotConfig
+from teleop.master import CobotConfig, CobotMaster
 
 
 def test_defaults():
@@ -34,3 +35,10 @@ def test_errors_name_where_and_key(d, key, why):
 def test_tracking_fault_thresholds_must_be_positive(key, bad):
     with pytest.raises(ConfigError, match=f"cobot.{key}"):
         CobotConfig.from_dict({key: bad}, "cobot")
+
+
+def test_a_period_shorter_than_the_read_window_is_a_config_error():
+    """--dt 1e-4 below cobot.read_window_s (3e-4 s): a clear error naming both, before any bus opens
+    (it used to end in startup_timeout)."""
+    with pytest.raises(ConfigError, match=r"dt_s.*cobot\.read_window_s"):
+        CobotMaster(CobotConfig(), 1e-4, np.random.default_rng(0), np.zeros(3), np.eye(3))

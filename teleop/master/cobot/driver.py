@@ -1,10 +1,14 @@
 """Host-side driver of the cobot over any python-can bus (virtual, socketcan, pcan, ...).
 
-``read`` drains the bus and decodes frames into SI values; ``send_*`` encode and transmit. Every
-frame that fails its checksum, length, id or DBC range is rejected, counted by reason and logged;
-only finite, in-range values reach :attr:`joints_rad_m` and :attr:`wrench_S`. The watchdog latches a
-fault (``watchdog`` for stale feedback, ``heartbeat``, ``bus_off``, ``device_emergency``,
-``send_failed``); after a fault :meth:`send_command` sends zero velocity only.
+``read`` takes at most ``max_frames_per_read`` frames off the bus (a flood cannot hold the cycle:
+what is left waits for the next read, and stale feedback trips the watchdog) and decodes them into
+SI values; ``send_*`` encode and transmit. Every frame that fails its id, id type, FD flag,
+length, CRC, counter or DBC range is rejected, counted by reason and logged; only finite, in-range
+values reach :attr:`joints_rad_m` and :attr:`wrench_S`. Error frames feed the host's own error
+counters (:mod:`teleop.can.confinement`: TEC/REC, error-passive at 128, bus-off at 256), never a
+fault by themselves. The watchdog latches a fault (``watchdog`` for stale feedback, ``heartbeat``,
+``bus_off``, ``device_emergency``, ``encoder_fault``, ``send_failed``); after a fault
+:meth:`send_command` sends zero velocity only.
 """
 
 from __future__ import annotations
@@ -17,11 +21,17 @@ from collections import Counter
 import can
 import numpy as np
 
+from teleop.can.confinement import BUS_OFF, ErrorCounters
 from teleop.master.cobot.database import Decoded, FrameDatabase
 from teleop.errors import CanError
 
-#: SocketCAN error-class bit for bus-off in an error frame's id.
-CAN_ERR_BUSOFF = 0x40
+#: SocketCAN error classes in an error frame's id (linux/can/error.h) and the protocol-error
+#: type bit "on transmission" in data[2]
+CAN_ERR_TX_TIMEOUT, CAN_ERR_PROT, CAN_ERR_ACK, CAN_ERR_BUSOFF, CAN_ERR_BUSERROR, CAN_ERR_CNT = (
+    0x1, 0x8, 0x20, 0x40, 0x80, 0x200)
+CAN_ERR_PROT_TX = 0x80
+#: frames one read takes off the bus at most (a 1 kHz cycle carries 2-4)
+MAX_FRAMES_PER_READ = 64
 JOINT_SIGNALS = ("PosX", "PosY", "PosZ", "AngA", "AngB", "AngC")
 WRENCH_SIGNALS = ("ForceX", "ForceY", "ForceZ", "TorqueX", "TorqueY", "TorqueZ")
 CMD_SIGNALS = ("CmdVelX", "CmdVelY", "CmdVelZ", "CmdRateA", "CmdRateB", "CmdRateC")
@@ -38,12 +48,16 @@ class CobotDriver:
 
     stale_cycles: cycles without fresh joints or wrench that trip the watchdog.
     heartbeat_period_s: host heartbeat period; heartbeat_timeout_s: device heartbeat timeout.
-    own_bus: shut the bus down in :meth:`close`.
+    own_bus: shut the bus down in :meth:`close`. max_frames_per_read: the read bound.
+    encoder_step_max (6,): the largest change of a joint reading (m, rad) per SYNC the device can
+    make (its velocity limit times the period, plus a count); a larger one latches
+    ``encoder_fault`` (None: not checked).
     """
 
     def __init__(self, bus: can.BusABC, db: FrameDatabase | None = None, clock=time.monotonic,
                  stale_cycles: int = 3, heartbeat_period_s: float = 0.01,
-                 heartbeat_timeout_s: float = 0.05, own_bus: bool = False):
+                 heartbeat_timeout_s: float = 0.05, own_bus: bool = False,
+                 max_frames_per_read: int = MAX_FRAMES_PER_READ, encoder_step_max=None):
         self.bus, self.db, self.clock = bus, db or FrameDatabase(), clock
         for name, order in ORDERED_FRAMES.items():  # the per-period frames are encoded by position
             if self.db.codecs[name].names[: len(order)] != order:
@@ -62,6 +76,10 @@ class CobotDriver:
         self.last_device_hb_s: float | None = None
         self.fault: str | None = None
         self.rejected: Counter = Counter()
+        self.errors = ErrorCounters()
+        self.error_frames = self.read_bound_hits = 0
+        self.max_frames_per_read = int(max_frames_per_read)
+        self.encoder_step_max = None if encoder_step_max is None else np.asarray(encoder_step_max, float).tolist()
         self.frames_rx = self.frames_late = self.send_errors = self.watchdog_trips = 0
         self._sync = self._cmd = self._hb = 0
         self._next_hb_s = -math.inf
@@ -106,6 +124,7 @@ class CobotDriver:
                           bitrate_switch=fd, timestamp=self.clock())
         try:
             self.bus.send(msg)
+            self.errors.tx_ok()
             return True
         except can.CanError as e:
             self.send_errors += 1
@@ -149,27 +168,49 @@ class CobotDriver:
 
     # -- receiving ----------------------------------------------------------------------------------
     def read(self) -> int:
-        """Drain the bus without blocking; returns the number of valid frames decoded."""
+        """Take up to ``max_frames_per_read`` frames off the bus without blocking; returns the
+        number of valid frames decoded."""
         n = 0
-        while True:
+        for _ in range(self.max_frames_per_read):
             msg = self.bus.recv(timeout=0.0)
             if msg is None:
                 break
             self.frames_rx += 1
             if msg.is_error_frame:
-                self.rejected["error_frame"] += 1
-                if msg.arbitration_id & CAN_ERR_BUSOFF:
-                    self._trip("bus_off", "error frame: bus-off")
+                self._on_error_frame(msg)
                 continue
-            out = self.db.decode(msg.arbitration_id, bytes(msg.data), msg.timestamp)
+            out = self.db.decode_message(msg)
             if not isinstance(out, Decoded):
                 self.rejected[out.reason] += 1
                 level = logging.WARNING if sum(self.rejected.values()) <= 10 else logging.DEBUG
                 self.log.log(level, "rejected CAN frame 0x%03X: %s", out.frame_id, out.reason)
                 continue
             n += 1
+            self.errors.rx_ok()
             self._apply(out)
+        else:
+            self.read_bound_hits += 1
         return n
+
+    def _on_error_frame(self, msg: can.Message) -> None:
+        """An error frame (SocketCAN's error classes in its id) through the error counters: the
+        controller's own counters when it reports them, else +8 TEC for an error on this node's
+        transmission (no ACK, TX timeout, a protocol error flagged TX, bus-off), +1 REC for any
+        other. Error-passive is logged; bus-off latches the fault."""
+        self.error_frames += 1
+        eid, data = msg.arbitration_id, bytes(msg.data).ljust(8, b"\0")
+        before = self.errors.state
+        if eid & CAN_ERR_CNT:
+            state = self.errors.set(data[6], data[7])
+        elif (eid & (CAN_ERR_ACK | CAN_ERR_TX_TIMEOUT | CAN_ERR_BUSOFF)
+              or (eid & CAN_ERR_PROT and data[2] & CAN_ERR_PROT_TX)):
+            state = self.errors.tx_error()
+        else:
+            state = self.errors.rx_error()
+        if state != before:
+            self.log.warning("CAN error state %s (TEC %d, REC %d)", state, self.errors.tec, self.errors.rec)
+        if state == BUS_OFF:
+            self._trip("bus_off", f"TEC {self.errors.tec} >= 256")
 
     @staticmethod
     def _newer(counter: int, last: int) -> bool:
@@ -194,6 +235,15 @@ class CobotDriver:
             prev = self.joints_rad_m.tolist()
             for i in range(3, 6):  # unwrap the wrist angles next to the previous reading
                 meas[i] = prev[i] + (meas[i] - prev[i] + math.pi) % (2.0 * math.pi) - math.pi
+            if self.encoder_step_max is not None and self.joints_counter >= 0:
+                gap = (counter - self.joints_counter) % 256
+                jump = [abs(a - b) - gap * m for a, b, m in zip(meas, prev, self.encoder_step_max)]
+                if max(jump) > 0.0:
+                    i = jump.index(max(jump))
+                    self.rejected["encoder_jump"] += 1
+                    self._trip("encoder_fault", f"joint {i} moved {abs(meas[i] - prev[i]):.4g} in {gap} "
+                                                f"cycle(s), beyond what the device can")
+                    return
             self.joints_rad_m = np.array(meas, dtype=float)
             self.joints_counter = counter
             self.device_state = int(s["DevState"])
@@ -245,5 +295,10 @@ class CobotDriver:
             "can_frames_late": self.frames_late,
             "can_send_errors": self.send_errors,
             "watchdog_trips": self.watchdog_trips,
+            "can_error_frames": self.error_frames,
+            "can_tec": self.errors.tec,
+            "can_rec": self.errors.rec,
+            "can_error_state": self.errors.state,
+            "can_read_bound_hits": self.read_bound_hits,
             "link_fault": self.fault,
         }

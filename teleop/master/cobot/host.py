@@ -28,6 +28,7 @@ import pinocchio as pin
 from teleop.can import BusTiming, Capture, compute_cycle_load_pct
 from teleop.control.admittance import AdmittanceController, AdmittanceGains, Phi
 from teleop.control.clutch import Clutch
+from teleop.errors import ConfigError
 from teleop.master.base import Master
 from teleop.master.cobot.database import FrameDatabase
 from teleop.master.cobot.driver import CobotDriver
@@ -93,10 +94,23 @@ class CobotMaster(Master):
         self.vmax = np.array(cfg.max_velocity)
         self.timing = BusTiming(cfg.bitrate_bps, cfg.data_bitrate_bps, cfg.fd)
         self.db = FrameDatabase()
-        hb = round(cfg.heartbeat_period_s / dt_s)
+        if not self.dt_s > cfg.read_window_s:
+            raise ConfigError(f"dt_s: the cobot's period ({self.dt_s:g} s) must be longer than its read window "
+                              f"cobot.read_window_s ({cfg.read_window_s:g} s): the host reads the device's "
+                              f"answer to SYNC that long after sending it")
+        hb = max(1, round(cfg.heartbeat_period_s / dt_s))
+        length = {m.name: m.length for m in self.db.db.messages}
         self.budget_load_pct = compute_cycle_load_pct(
-            self.timing, [(2, True, 1), (16, True, 1), (16, True, 1), (16, True, 1), (3, True, hb), (4, True, hb)],
-            self.dt_s)
+            self.timing, [(length[n], True, 1) for n in ("SYNC", "HOST_CMD", "DEV_JOINTS", "DEV_WRENCH")]
+            + [(length[n], True, hb) for n in ("HOST_HEARTBEAT", "DEV_HEARTBEAT")], self.dt_s)
+        if self.budget_load_pct >= 100.0:
+            raise ConfigError(f"dt_s: a {self.dt_s:g} s period needs {self.budget_load_pct:.0f} % of the CAN bus "
+                              f"({cfg.bitrate_bps:g} / {cfg.data_bitrate_bps:g} bit/s); lengthen the period or "
+                              f"raise the bit rates")
+        # the most a joint reading can change between two SYNCs: the velocity limit over a period
+        # (with half again for the servo's timing) plus two encoder counts, m x3, rad x3
+        counts = np.array([cfg.encoder_m] * 3 + [cfg.encoder_rad] * 3)
+        step_max = 1.5 * np.array(cfg.max_velocity) * self.dt_s + 2.0 * counts
         channel = cfg.channel or f"teleop-cobot-{uuid.uuid4().hex}"
         simulated = cfg.interface in SIMULATED_INTERFACES
         extra = {"preserve_timestamps": True} if simulated else {}
@@ -104,7 +118,8 @@ class CobotMaster(Master):
         self.driver = CobotDriver(can.Bus(interface=cfg.interface, channel=channel, fd=True, **extra), self.db,
                                   clock=lambda: self.t, stale_cycles=cfg.stale_cycles,
                                   heartbeat_period_s=cfg.heartbeat_period_s,
-                                  heartbeat_timeout_s=cfg.heartbeat_timeout_s, own_bus=True)
+                                  heartbeat_timeout_s=cfg.heartbeat_timeout_s, own_bus=True,
+                                  encoder_step_max=step_max)
         self.capture = Capture(cfg.capture_path) if cfg.capture_path else None
         self.sim = open_simulated_device(cfg, channel, self.model, self.joints0, rng, self.db, self.timing,
                                          self.capture) if simulated else None

@@ -6,7 +6,8 @@ to an adapter with the real one behind it. The plant (:mod:`teleop.master.cobot.
 (:class:`~teleop.master.cobot.simulator.CobotSimulator`: bus timing, faults, heartbeats, timeouts) run in
 simulated time, which advances only while the caller waits: each ``recv`` that finds no frame
 advances the device by ``step_s`` (s) and looks again, so a lockstep host stays deterministic.
-Frame timestamps are simulated seconds.
+Frame timestamps are simulated seconds. The bus reports CAN FD (``bus.protocol`` is
+``can.CanProtocol.CAN_FD``): every frame of the protocol is a CAN FD frame.
 """
 
 from __future__ import annotations
@@ -46,7 +47,9 @@ class CobotBus(can.BusABC):
         self.sim = CobotSimulator(self._device_bus, self.plant, rng, faults=faults)
         self.t = 0.0
         self.channel_info = f"teleop simulated cobot {channel or private}"
+        kwargs.pop("fd", None)  # always CAN FD
         super().__init__(channel=channel, **kwargs)
+        self._can_protocol = can.CanProtocol.CAN_FD
 
     def send(self, msg: can.Message, timeout=None) -> None:
         """Put a host frame on the simulated wire at the current simulated time."""

@@ -7,6 +7,17 @@ arbitration by id), then through the fault model (loss, corruption, latency, jit
 bus-off), and the device's frames reach the host bus only when simulated time passes their delivery
 time. ``advance_to(t)`` is the lockstep: it processes everything up to t seconds.
 
+Bus-off (``bus_off_at_s``): from then every transmission of the device fails, each with an error
+frame on the wire; 32 failures (+8 TEC each, :mod:`teleop.can.confinement`) put the device
+bus-off and it falls silent. The host sees 32 error frames as a receiver (+1 REC each: it stays
+error-active) and then the silence (its watchdog).
+
+Sensor faults (:meth:`inject_sensor_fault`, for fault campaigns): ``sensor_nan`` (the load cell
+reads NaN), ``sensor_stuck`` (the load cell's converter stops delivering new samples),
+``encoder_jump`` (a joint's encoder count jumps). The device's firmware checks its own samples
+each SYNC: a non-finite one, or no new load-cell sample for ``STUCK_SYNCS`` SYNCs, is a sensor
+fault: servos to zero, state fault, DEV_EMERGENCY code 4.
+
 Device behaviour: on SYNC it samples encoders and load cell and answers DEV_JOINTS + DEV_WRENCH
 (counters echo the SYNC); HOST_CMD sets the servo velocities (mode 0 = zero); DEV_HEARTBEAT every
 ``heartbeat_period_s``; without a host heartbeat for ``host_timeout_s`` or a command for
@@ -20,14 +31,19 @@ import heapq
 import can
 import numpy as np
 
-from teleop.can.busmodel import BusModel, BusTiming
+from teleop.can.busmodel import BusModel, BusTiming, compute_frame_time_s
 from teleop.can.capture import Capture
+from teleop.can.confinement import BUS_OFF_LIMIT
 from teleop.can.faults import Faults
 from teleop.master.cobot.database import Decoded, FrameDatabase
-from teleop.master.cobot.driver import CAN_ERR_BUSOFF, CMD_SIGNALS, JOINT_SIGNALS, WRENCH_SIGNALS
+from teleop.master.cobot.driver import CAN_ERR_BUSERROR, CAN_ERR_PROT, CMD_SIGNALS, JOINT_SIGNALS, WRENCH_SIGNALS
 
 STATE_READY, STATE_RUNNING, STATE_FAULT = 1, 2, 3
+EMCY_SENSOR_FAULT = 4
 WRENCH_LIMITS = np.array([159.9] * 3 + [6.49] * 3)
+#: SYNCs without a new load-cell sample that the firmware takes for a stuck sensor
+STUCK_SYNCS = 3
+SENSOR_FAULTS = ("sensor_nan", "sensor_stuck", "encoder_jump")
 
 
 class CobotSimulator:
@@ -53,6 +69,17 @@ class CobotSimulator:
         self._seq = 0
         self._counters = {"hb": 0, "emcy": 0}
         self.lost = self.corrupted = self.device_rejected = self.delivered = 0
+        self.tec = 0  # the device's transmit error counter (bus-off fault)
+        self.sensor_fault: tuple | None = None  # (kind, from_s, axis, size)
+        self._stuck_wrench, self._stale_samples = None, 0
+
+    def inject_sensor_fault(self, kind: str, at_s: float, axis: int = 0, size: float = 0.0) -> None:
+        """From ``at_s`` (s): ``sensor_nan`` (load-cell ``axis`` reads NaN), ``sensor_stuck`` (the
+        load cell stops delivering samples), ``encoder_jump`` (joint ``axis`` reads ``size`` m or
+        rad off)."""
+        if kind not in SENSOR_FAULTS:
+            raise ValueError(f"sensor fault {kind!r}: expected one of {SENSOR_FAULTS}")
+        self.sensor_fault = (kind, float(at_s), int(axis), float(size))
 
     # -- device transmissions -----------------------------------------------------------------------
     def _transmitting(self, t: float) -> bool:
@@ -87,7 +114,7 @@ class CobotSimulator:
             return
         if self.faults.corrupt_pct and self.rng.random() * 100.0 < self.faults.corrupt_pct:
             msg = self._corrupt(msg)
-        d = self.db.decode(msg.arbitration_id, bytes(msg.data), t)
+        d = self.db.decode(msg.arbitration_id, msg.data, t, msg.is_extended_id, msg.is_fd)
         if not isinstance(d, Decoded):
             self.device_rejected += 1
             return
@@ -95,8 +122,9 @@ class CobotSimulator:
         if d.name == "SYNC":
             dev.advance_to(t)
             c = int(s["SyncCounter"])
-            enc = dev.sample_encoders()
-            wrench = np.clip(dev.sample_load_cell(), -WRENCH_LIMITS, WRENCH_LIMITS)  # the cell saturates
+            enc, wrench = self._sample(t)
+            if enc is None:
+                return
             joints = dict(zip(JOINT_SIGNALS, (float(v) for v in enc)))
             joints.update(DevState=self.state, JointsCounter=c)
             self._device_send("DEV_JOINTS", joints, t)
@@ -115,6 +143,47 @@ class CobotSimulator:
                 dev.set_command(np.zeros(6), t)
                 self.state = STATE_READY
 
+    def _sample(self, t: float):
+        """(encoders, load cell) at a SYNC, through the injected sensor fault and the firmware's
+        checks; (None, None) after a sensor fault (servos stopped, emergency sent)."""
+        if self.state == STATE_FAULT and self._stale_samples < 0:
+            return None, None
+        enc, wrench = self.plant.sample_encoders(), self.plant.sample_load_cell()
+        fault = self.sensor_fault
+        fresh = True
+        if fault is not None and t >= fault[1]:
+            kind, _, axis, size = fault
+            if kind == "sensor_nan":
+                wrench[axis] = np.nan
+            elif kind == "sensor_stuck":
+                self._stuck_wrench = wrench if self._stuck_wrench is None else self._stuck_wrench
+                wrench, fresh = self._stuck_wrench.copy(), False
+            else:
+                enc[axis] += size
+        self._stale_samples = 0 if fresh else self._stale_samples + 1
+        if not (np.isfinite(enc).all() and np.isfinite(wrench).all()) or self._stale_samples >= STUCK_SYNCS:
+            self.plant.set_command(np.zeros(6), t)
+            self.state, self._stale_samples = STATE_FAULT, -1
+            self._emergency(EMCY_SENSOR_FAULT, t)
+            return None, None
+        return enc, np.clip(wrench, -WRENCH_LIMITS, WRENCH_LIMITS)  # the cell saturates
+
+    def _bus_off_errors(self, t0: float) -> None:
+        """The device's failing transmissions from t0: one error frame each (a bus error seen by
+        the other nodes as receivers), +8 TEC each, until bus-off."""
+        # s between attempts: the failed frame (the longest, 20 bytes) and an error frame (error
+        # flag, delimiter, intermission: 6 + 8 + 3 bits at worst 12 + 8 + 3) at the nominal rate
+        gap = compute_frame_time_s(self.wire.timing, 20, True) + 23.0 / self.wire.timing.bitrate_bps
+        n = 0
+        while self.tec < BUS_OFF_LIMIT:
+            self.tec += 8
+            err = can.Message(arbitration_id=CAN_ERR_PROT | CAN_ERR_BUSERROR, is_error_frame=True, data=bytes(8),
+                              is_extended_id=False, timestamp=t0 + n * gap)
+            heapq.heappush(self._outbox, (t0 + n * gap, self._seq, err))
+            self._seq += 1
+            n += 1
+        self.bus_off = True
+
     # -- lockstep -----------------------------------------------------------------------------------
     def advance_to(self, t_end: float) -> None:
         """Process bus traffic and device physics up to t_end (s, simulated)."""
@@ -127,10 +196,7 @@ class CobotSimulator:
                 continue
             self.wire.submit(max(msg.timestamp, self.t), msg.arbitration_id, len(msg.data), msg.is_fd, ("host", msg))
         if f.bus_off_at_s is not None and not self.bus_off and t_end >= f.bus_off_at_s:
-            self.bus_off = True
-            err = can.Message(arbitration_id=CAN_ERR_BUSOFF, is_error_frame=True, data=bytes(8), is_extended_id=False)
-            heapq.heappush(self._outbox, (f.bus_off_at_s, self._seq, err))
-            self._seq += 1
+            self._bus_off_errors(f.bus_off_at_s)
         while self._next_hb <= t_end:
             hb = {"DevHbState": self.state, "DevHbFault": 0, "DevHbCounter": self._counters["hb"] % 256}
             self._device_send("DEV_HEARTBEAT", hb, self._next_hb)
@@ -138,8 +204,8 @@ class CobotSimulator:
             self._next_hb += self.hb_period
         while (done := self.wire.next_done(t_end)) is not None:
             t_done, (src, msg) = done
-            if self.capture is not None:
-                self.capture.write(msg, t_done)
+            if self.capture is not None:  # the capture is the host's view: its own frames are tx
+                self.capture.write(msg, t_done, is_rx=src != "host")
             if src == "host":
                 self._on_host_frame(msg, t_done)
                 continue
@@ -189,4 +255,5 @@ class CobotSimulator:
             "can_frames_lost": self.lost,
             "can_frames_corrupted": self.corrupted,
             "device_frames_rejected": self.device_rejected,
+            "device_tec": self.tec,
         }
