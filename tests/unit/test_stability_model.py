@@ -80,3 +80,27 @@ def test_bad_settings_name_the_field():
     with pytest.raises(ConfigError, match="read_window_s"):
         LoopParams(mass=1.0, read_window_s=2e-3)
     assert math.isinf(critical_mass(LoopParams(mass=1.0, dt_s=6e-3)))
+
+
+def test_an_undamped_spring_is_marginal_only_with_the_servo_model():
+    """A rendered 2000 N/m spring with no damping: the servo model's compensation leaves its poles
+    on the unit circle at its own frequency sqrt(k/m) (to the step's order); the commanded one
+    feeds it energy (poles outside: 1.003 at 0.2 kg, an e-fold in 0.3 s)."""
+    for m in (0.005, 0.05, 1.0):
+        p = LoopParams(mass=m, stiffness=2000.0)
+        z = np.linalg.eigvals(closed_loop_matrix(p))
+        top = z[np.argmax(np.abs(z))]
+        assert abs(abs(top) - 1.0) <= 1e-9
+        assert abs(np.angle(top)) / 1e-3 == pytest.approx(math.sqrt(2000.0 / m), rel=0.05)
+        assert is_stable(p)
+    assert spectral_radius(LoopParams(mass=0.2, stiffness=2000.0, compensation="commanded")) > 1.002
+
+
+def test_the_grip_rotation_explained():
+    """The light scalpel's blade axis (2e-5 kg m^2, 0.02 N m s/rad) on the handle's z axis
+    (3e-5 kg m^2, φ's world-frame rotation) renders with the commanded compensation; on its x axis
+    (2.55e-4 kg m^2 about H: a body-fixed grip rotation) it does not. The servo model renders both."""
+    blade = dict(mass=2e-5, damping=0.02)
+    assert is_stable(LoopParams(**blade, handle_mass=3e-5, compensation="commanded"))
+    assert spectral_radius(LoopParams(**blade, handle_mass=2.55e-4, compensation="commanded")) > 1.1
+    assert is_stable(LoopParams(**blade, handle_mass=2.55e-4))
