@@ -8,7 +8,8 @@ import math
 import numpy as np
 import pytest
 
-from teleop.control.stability import LoopParams, closed_loop_matrix, critical_mass, is_stable, spectral_radius
+from teleop.control.stability import (LoopParams, _Loop, closed_loop_matrix, critical_mass, is_stable,
+                                      spectral_radius)
 from teleop.errors import ConfigError
 
 
@@ -32,7 +33,6 @@ def test_the_map_is_linear():
     A = closed_loop_matrix(p)
     rng = np.random.default_rng(0)
     x, y = rng.standard_normal(A.shape[0]), rng.standard_normal(A.shape[0])
-    from teleop.control.stability import _Loop
     loop = _Loop(p)
     assert np.allclose(loop.step(2.0 * x - 3.0 * y), 2.0 * (A @ x) - 3.0 * (A @ y), rtol=1e-12, atol=1e-9)
 
