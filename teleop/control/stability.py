@@ -174,8 +174,8 @@ def is_stable(p: LoopParams, margin: float = 0.0) -> bool:
 def critical_mass(p: LoopParams, lo: float | None = None, hi: float | None = None,
                   rel_tol: float = 1e-3) -> float:
     """The lightest stable rendered mass (kg, or kg*m^2) with p's other settings, by bisection in
-    log mass on [lo, hi] (default 1e-3 and 100 handle masses, or 1e-6 and 0.1 with no handle; stability taken as monotone in mass
-    there): lo if lo is stable, inf if hi is not."""
+    log mass on [lo, hi] (default 1e-3 and 100 handle masses, or 1e-6 and 0.1 with no handle;
+    stability taken as monotone in mass there): lo if lo is stable, inf if hi is not."""
     ref = p.handle_mass if p.handle_mass > 0 else 1e-3
     lo = 1e-3 * ref if lo is None else lo
     hi = 100.0 * ref if hi is None else hi
