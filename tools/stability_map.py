@@ -256,6 +256,10 @@ def main(argv=None) -> int:
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--from-json", default=None, help="redraw the table and plot from a map.json")
     a = ap.parse_args(argv)
+    if a.workers < 1:
+        ap.error(f"--workers: expected at least 1, got {a.workers}")
+    if a.from_json and not Path(a.from_json).is_file():
+        ap.error(f"--from-json: no such file {a.from_json}")
     if a.from_json:
         results = json.loads(Path(a.from_json).read_text())
     else:
