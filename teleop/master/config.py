@@ -80,6 +80,12 @@ class CobotConfig(Checked):
     capture_path: str | None = setting(None, doc="record the wire to .log / .asc / .blf")
     realtime: bool = setting(False, doc="pace step() to the wall clock")
     observer_bandwidth_hz: float = setting(20.0, gt=0.0, le=100.0, doc="joint observer bandwidth, Hz")
+    #: how the host removes the handle's inertia from the load cell: "servo_model", the servo
+    #: model's acceleration at the reading's SYNC (renders tools lighter than the handle, issue 15);
+    #: "commanded", the acceleration commanded the period before
+    inertia_compensation: str = setting("servo_model", check=lambda s: None if s in ("servo_model", "commanded") else
+                                        "expected 'servo_model' or 'commanded'",
+                                        doc="handle inertia compensation: 'servo_model' or 'commanded'")
     faults: FaultSettings = setting(factory=FaultSettings, doc="CAN faults of the simulated device")
 
     def __post_init__(self):

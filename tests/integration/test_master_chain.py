@@ -156,11 +156,23 @@ def test_clutch_reengages_without_jump():
         tick(m, tool, np.zeros(6))  # φ is re-indexed on the tool's pose at the start of this period
         p_after, R_after = m.virtual_pose()  # this period's encoders through the new φ
         assert np.linalg.norm(p_after - p_tool) < 1e-9 and np.allclose(R_after, R_tool, atol=1e-9)
-        worst = np.zeros(2)
+        # The handle is still moving at the drag speed: it stops at its acceleration limit, so the
+        # device trails the tool by at most its stopping distance v^2 / (2 a_max) plus the servo
+        # lag's tau v, and then tracks it to issue 3's bounds. The tool itself is not shoved: the
+        # handle's deceleration is removed from the load cell (the servo model's acceleration; the
+        # previous command's left a 3 N phantom force here, which dragged the tool along).
+        cfg, v_drag = m.cfg, np.linalg.norm([0.0, 2.0, 1.0]) / 20.0  # the hand's wrench / free_damping
+        stop = v_drag ** 2 / (2.0 * cfg.max_acceleration[0]) + m.tau_s * v_drag
+        worst, transient, phantom = np.zeros(2), 0.0, 0.0
         for i in range(300):
             tick(m, tool, np.zeros(6))
             p_v, _ = m.virtual_pose()
-            worst = np.maximum(worst, [abs(p_v[2] - 0.03), np.linalg.norm(p_v - tool.pose()[0])])
+            dist = np.linalg.norm(p_v - tool.pose()[0])
+            phantom = max(phantom, np.linalg.norm(m.F_hand_W[:3]))
+            transient = max(transient, dist)
+            if i >= 30:
+                worst = np.maximum(worst, [abs(p_v[2] - 0.03), dist])
+        assert transient <= stop and phantom <= 0.3
         assert worst[0] <= 50e-6 and worst[1] <= 100e-6
 
 

@@ -28,12 +28,13 @@ import pinocchio as pin
 from teleop.can import BusTiming, Capture, compute_cycle_load_pct
 from teleop.control.admittance import AdmittanceController, AdmittanceGains, Phi
 from teleop.control.clutch import Clutch
+from teleop.control.stability import LoopParams, critical_mass
 from teleop.errors import ConfigError
 from teleop.master.base import Master
 from teleop.master.cobot.database import FrameDatabase
 from teleop.master.cobot.driver import CobotDriver
 from teleop.master.cobot.kernels import (advance_prediction, dls_command, gantry_zxz_pose_jacobian, host_command,
-                                         host_feedback)
+                                         host_feedback, servo_acceleration)
 from teleop.master.cobot.model import GRAVITY_W, CobotModel, compute_servo_lag_s
 from teleop.master.cobot.observer import HISTORY, JointObserver
 from teleop.master.cobot.plant import CobotPlant, DeviceParams
@@ -128,6 +129,7 @@ class CobotMaster(Master):
                                       cfg.max_acceleration, cfg.observer_bandwidth_hz)
         self.nu_H_cmd = np.zeros(6)
         self.accel_H_cmd = np.zeros(6)
+        self.accel_H_model = np.zeros((HISTORY, 6))  # the servo model's handle acceleration per SYNC
         self.pred_p = np.zeros((HISTORY, 3))  # handle pose the commands predict, per SYNC counter
         self.pred_R = np.tile(np.eye(3), (HISTORY, 1, 1))
         self.p_H_est, self.R_H_est = p_H, R_H
@@ -243,8 +245,10 @@ class CobotMaster(Master):
             return _ZERO6
         feedback = self._constants()[0]
         p_m, R_m, self.J = self._kinematics(drv.joints_rad_m)
+        accel = (self.accel_H_model[drv.wrench_counter % HISTORY] if self.cfg.inertia_compensation == "servo_model"
+                 else self.accel_H_cmd)
         self.p_H_est, self.R_H_est, self.F_hand_W, f_v, self._p_v, self._R_v = host_feedback(
-            p_m, R_m, k, drv.joints_counter, self.pred_p, self.pred_R, drv.wrench_S, self.bias_S, self.accel_H_cmd,
+            p_m, R_m, k, drv.joints_counter, self.pred_p, self.pred_R, drv.wrench_S, self.bias_S, accel,
             self.nu_H_cmd, *feedback)
         return f_v if self.clutch.engaged and not self._reengage else _ZERO6
 
@@ -288,6 +292,8 @@ class CobotMaster(Master):
             advance_prediction(self.pred_p, self.pred_R, k, nu_H, self.dt_s)
         drv.send_command(qd, self.vmax)
         self.nu_H_cmd, self.accel_H_cmd = nu_H, a_H
+        self.accel_H_model[(k + 1) % HISTORY] = self.J @ servo_acceleration(obs.u, obs.qd_model, self.tau_s,
+                                                                            obs.amax)
         self._link_cycle_end()
         self.steps += 1
         return self.status
@@ -409,13 +415,21 @@ class CobotMaster(Master):
                 i, joints0[i], lo[i], hi[i])
 
     def _warn_light_tool(self, m_tool) -> None:
-        """Log a warning when the rendered tool (m_tool kg) is lighter than the handle behind the load
-        cell. The load cell feels that handle's inertia, compensated from the commanded motion; below
-        it, what the compensation misses outweighs the tool, and the loop is stable only with a
-        hand's damping on the handle (a scripted force alone ends on the tracking fault)."""
-        m_handle, s2 = self.model.handle_mass_kg, self.cfg.scale ** 2  # s^2 m at the handle
-        if m_tool is not None and m_tool * s2 < m_handle:
+        """Log a warning when the rendered tool (m_tool kg, s² m at the handle with φ's scale s) is
+        lighter than the lightest mass the loop renders stably without a hand on the handle, by the
+        linearized loop (:func:`teleop.control.stability.critical_mass`, on the x axis's gains and
+        this device's period, servo and inertia compensation). With "commanded" compensation that is
+        about 0.04 kg for the shipped 0.15 kg handle; with "servo_model", below a gram (issue 15)."""
+        if m_tool is None:
+            return
+        cfg, s2 = self.cfg, self.cfg.scale ** 2
+        m_min = critical_mass(LoopParams(
+            mass=1.0, handle_mass=self.model.handle_mass_kg, dt_s=self.dt_s, servo_bandwidth_hz=cfg.servo_bandwidth_hz,
+            read_window_s=min(cfg.read_window_s, 0.99 * self.dt_s), kp=cfg.kp[0], ki=cfg.ki[0], kd=cfg.kd[0],
+            compensation=cfg.inertia_compensation))
+        if m_tool * s2 < m_min:
             self.log.warning(
-                "cobot: the tool renders %.4g kg at the handle, lighter than the %.4g kg of handle behind the "
-                "load cell; it is stable only with a hand's damping on the handle. Render at least %.4g kg "
-                "(tool.mass_kg)", m_tool * s2, m_handle, m_handle / s2)
+                "cobot: the tool renders %.4g kg at the handle, below the %.4g kg this loop renders stably with no "
+                "hand on the %.4g kg handle (%s inertia compensation); it is stable only with a hand's damping. "
+                "Render at least %.4g kg (tool.mass_kg)", m_tool * s2, m_min, self.model.handle_mass_kg,
+                cfg.inertia_compensation, m_min / s2)

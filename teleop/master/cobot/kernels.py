@@ -87,6 +87,16 @@ def servo_advance(x, qd, u, h, tau, amax):
 
 
 @njit(cache=True)
+def servo_acceleration(u, qd, tau, amax):
+    """The first-order servos' joint acceleration (6,) under the command u (6,) at rates qd (6,):
+    (u - qd) / tau, each clipped to its limit amax (6,)."""
+    out = np.empty(u.shape[0])
+    for i in range(u.shape[0]):
+        out[i] = min(max((u[i] - qd[i]) / tau, -amax[i]), amax[i])
+    return out
+
+
+@njit(cache=True)
 def predict_kernel(x, qd, u_old, u_cmd, bias, vmax, amax, dt, window, tau):
     """The joint observer's prediction over one period (:meth:`.observer.JointObserver.predict`):
     the servo model (:func:`servo_advance`) under the old command u_old for ``window`` s, then

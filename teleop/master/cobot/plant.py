@@ -13,7 +13,7 @@ from dataclasses import dataclass
 import numpy as np
 import pinocchio as pin
 
-from teleop.master.cobot.kernels import distal_wrench_H, servo_advance
+from teleop.master.cobot.kernels import distal_wrench_H, servo_acceleration, servo_advance
 from teleop.master.cobot.model import GRAVITY_W, CobotModel, compute_servo_lag_s
 
 
@@ -69,7 +69,7 @@ class CobotPlant:
         self.t = t
 
     def joint_acceleration(self) -> np.ndarray:
-        return np.clip((self.qd_cmd - self.qd) / self.tau_s, -self.amax, self.amax)
+        return servo_acceleration(self.qd_cmd, self.qd, self.tau_s, self.amax)
 
     def sample_encoders(self) -> np.ndarray:
         """Joint readings (6,): quantized, the wrist angles wrapped to [-pi, pi)."""
