@@ -153,10 +153,13 @@ def run_scene(scene: Scene, progress=None, realtime: bool = False, operator=None
     if tremor is not None:
         metrics.update(tremor.result(scene.dt_s))
     s = result.summary
-    steps = s["steps"]
-    result.log = {k: v[:steps] for k, v in result.log.items()}  # Ctrl-C may land between two hooks
-    trocar = isinstance(scene.fixture, FixtureSpec) and scene.fixture.trocar_m is not None
-    exempt = ("blade_tilt_max_rad",) if trocar else ()  # the trocar tilts the blade
+    # Ctrl-C may land between two hooks: every series keeps the ticks all of them recorded
+    steps = min([s["steps"]] + [len(v) for v in result.log.values()])
+    s["steps"] = steps
+    result.log = {k: v[:steps] for k, v in result.log.items()}
+    builtin = isinstance(scene.fixture, FixtureSpec)
+    exempt = (("blade_tilt_max_rad",) if builtin and scene.fixture.trocar_m is not None else ()) \
+        + (("sideslip_max_m_per_s",) if builtin and not scene.fixture.knife_edge else ())  # what the fixture frees
     s["status"], s["status_reason"] = verdict(s["master_status"], steps, s.get("slave_statuses"), metrics, s["nan"],
                                               exempt)
     result.summary = {"scenario": scene.name, **s, "integrator": scene.integrator, "master": scene.master,

@@ -87,3 +87,18 @@ def test_realtime_warns_when_it_falls_behind_and_reports_its_factor(caplog):
         r = run_scene(scene, realtime=True, view=Slow())
     assert any("behind the wall clock" in m and "real time" in m for m in caplog.messages)
     assert r.summary["late_ticks"] > 100 and 0 < r.summary["realtime_factor"] < 0.5
+
+
+def test_a_scalpel_without_knife_edge_may_slip_sideways():
+    """Sideslip is a fixture tolerance only where the knife edge holds it (fuzzer seed 80917: a
+    scalpel fixture with knife_edge = false slid sideways at 0.25 m/s and was called violated)."""
+    import numpy as np
+
+    from teleop.runtime import run_scene
+    from teleop.scenario.random_scene import random_scene
+    from teleop.scenario.schema import parse_scene
+
+    scene = parse_scene(random_scene(np.random.default_rng(80917)), "<fuzz seed 80917>")
+    assert scene.fixture.knife_edge is False
+    s = run_scene(scene).summary
+    assert s["metrics"]["sideslip_max_m_per_s"] > 0.01 and s["status"] == "ok", s["status_reason"]
