@@ -116,9 +116,9 @@ class HeightSurface:
     def derivatives(self, u: float, v: float, upto: int = 3):
         """World (S (3,), S1 (2, 3), S2 (2, 2, 3), S3 (2, 2, 2, 3) or None), m per parameter unit^i.
 
-        S1[i] = dS/dc_i, S2[i, j] = d2S/dc_i dc_j, ... with c = (u, v).
+        S1[i] = dS/dc_i, S2[i, j] = d2S/dc_i dc_j, ... with c = (u, v); S3 only for ``upto`` = 3.
         """
-        f = self._f(u, v, upto)
+        f = self._f(u, v, max(upto, 2))
         kQ = self.k * self.Q
         e = kQ[:, 2]  # the height direction, scaled
         S = self.o + kQ @ np.array([u, v, f[0]])
