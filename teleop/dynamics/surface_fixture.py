@@ -26,7 +26,7 @@ directional derivative of that analytic Psi along zd by a central difference of 
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 
 import numpy as np
 
@@ -62,7 +62,7 @@ class SurfaceDepth(Constraint):
         self._foot = None  # the last foot (u, v): Newton's warm start
         self._cache = None
 
-    def _geometry(self, p, R, upto: int = 3):
+    def _geometry(self, p, R):
         """The tip's foot and the surface there, for (p, R); the last pose's result is reused (the
         row stack asks for G, b and h at one pose in turn)."""
         key = (*p.tolist(), *R.ravel().tolist())
@@ -84,15 +84,15 @@ class SurfaceDepth(Constraint):
 
     def foot(self, p, R):
         """(u, v) of the tip's foot on the surface."""
-        self._geometry(p, R, 2)
+        self._geometry(p, R)
         return self._foot
 
     def residual(self, p, R):
-        Rd, tip, S, S1, S2, S3, n, mu, N, r, A = self._geometry(p, R, 2)
+        Rd, tip, S, S1, S2, S3, n, mu, N, r, A = self._geometry(p, R)
         return np.array([float(n @ r) + self.depth, float(R[:, 0] @ n), float(R[:, 1] @ n)])
 
     def jacobian(self, p, R):
-        Rd, tip, S, S1, S2, S3, n, mu, N, r, A = self._geometry(p, R, 2)
+        Rd, tip, S, S1, S2, S3, n, mu, N, r, A = self._geometry(p, R)
         M = N.T @ np.linalg.solve(A, S1)  # n_dot = M v_tip
         G = np.empty((3, 6))
         G[0, :3], G[0, 3:] = n, cross(Rd, n)
@@ -103,7 +103,7 @@ class SurfaceDepth(Constraint):
         return G
 
     def bias(self, p, R, v, w):
-        Rd, tip, S, S1, S2, S3, n, mu, N, r, A = self._geometry(p, R, 3)
+        Rd, tip, S, S1, S2, S3, n, mu, N, r, A = self._geometry(p, R)
         v_t = v + cross(w, Rd)
         a_t = cross(w, cross(w, Rd))  # the tip's acceleration at nu_dot = 0
         cd = np.linalg.solve(A, S1 @ v_t)
@@ -113,14 +113,12 @@ class SurfaceDepth(Constraint):
         Ad = S1d @ S1.T + S1 @ S1d.T - np.einsum("ijx,x->ij", S2, rd) - np.einsum("ijx,x->ij", S2d, r)
         cdd = np.linalg.solve(A, S1d @ v_t + S1 @ a_t - Ad @ cd)
         S1dd = np.einsum("ikx,k->ix", S2, cdd) + np.einsum("iklx,k,l->ix", S3, cd, cd)
-        m = cross(S1[0], S1[1])
         md = cross(S1d[0], S1[1]) + cross(S1[0], S1d[1])
         mdd = cross(S1dd[0], S1[1]) + 2.0 * cross(S1d[0], S1d[1]) + cross(S1[0], S1dd[1])
         mud = float(n @ md)
         nd = (md - n * mud) / mu
         mudd = float(nd @ md) + float(n @ mdd)
         ndd = (mdd - 2.0 * nd * mud - n * mudd) / mu
-        del m
         out = np.empty(3)
         out[0] = float(nd @ v_t) + float(n @ a_t)
         for i in (1, 2):

@@ -15,7 +15,7 @@ from scipy.spatial.transform import Rotation
 from teleop.contact import SurfaceTissue, TissueBlock
 from teleop.dynamics.body import RigidBody
 from teleop.dynamics.registry import FIXTURE_TYPES, FrameMap
-from teleop.dynamics.rotations import rotation, skew
+from teleop.dynamics.rotations import rate_map, rotation, skew
 from teleop.dynamics.surface import HeightSurface
 from teleop.dynamics.surface_fixture import SurfaceScalpelSpec
 from teleop.dynamics.tool import ReferenceTool
@@ -138,7 +138,6 @@ def test_psi_jacobian_curvature_and_inverse(make, seed):
     np.testing.assert_allclose(z2, z, atol=1e-10)
     np.testing.assert_allclose(zd2, zd, atol=1e-9)
     # a velocity along psi keeps every row: G nu = 0 (the twist of qd in the chart)
-    from teleop.dynamics.rotations import rate_map
     R, E, _ = rate_map(chart, q[3:], qd[3:])
     nu = np.concatenate([qd[:3], R @ E @ qd[3:]])
     np.testing.assert_allclose(c.jacobian(q[:3], R) @ nu, 0.0, atol=1e-10)
