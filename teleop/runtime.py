@@ -11,7 +11,7 @@ from dataclasses import replace
 
 import numpy as np
 
-from teleop.contact import TissueBlock
+from teleop.contact import SurfaceTissue, TissueBlock
 from teleop.contact.cutting import CuttingModel
 from teleop.control.feedback import FeedbackPath
 from teleop.dynamics.constraints import RemoteCenter
@@ -21,7 +21,7 @@ from teleop.link.guard import MasterGuard, SlaveGuard, tdpa_params
 from teleop.loop import Hook
 from teleop.master import CobotMaster, IdealMaster
 from teleop.scenario.build import build_fixture, build_registration, build_tool, master_fixture_spec
-from teleop.scenario.metrics import EnergyDrift, MasterMetrics, SlaveMetrics, TremorProbe, make_metrics
+from teleop.scenario.metrics import EnergyDrift, MasterMetrics, SlaveMetrics, TremorProbe, make_metrics, tissue_surface
 from teleop.scenario.operators import make_operator
 from teleop.scenario.schema import FixtureSpec, Scene
 from teleop.session import RunResult, Session, tick_count, verdict
@@ -59,6 +59,9 @@ def make_slave(scene: Scene, registration, constraints_P):
             tissue = scene.tissue or TissueBlock()
             if "cutting" not in scene.effects:  # normal contact only: no cutting resistance
                 tissue = replace(tissue, cutting=CuttingModel(0.0, 0.0, 0.0, 0.0))
+            surface = tissue_surface(scene.fixture)
+            if surface is not None:  # the fixture's curved surface is the tissue's
+                tissue = SurfaceTissue(tissue, surface)
     except ConfigError as e:
         key, _, reason = str(e).partition(": ")
         raise SceneError(scene.path, key, reason) from None

@@ -75,10 +75,14 @@ class TissueBlock(Checked):
 
     def compute_contact(self, p_tip, R_tool, v_tip, w) -> ContactReport:
         """The contact at the blade tip (pure): see the module docstring."""
-        n = self.normal
+        return self.contact_law(self.compute_depth(p_tip), self.normal, R_tool, v_tip, w)
+
+    def contact_law(self, d: float, n, R_tool, v_tip, w) -> ContactReport:
+        """The contact of a tip ``d`` m deep under a surface of outward unit normal ``n`` (3,):
+        the normal model and the cutting model of the module docstring (any surface's tissue uses
+        this one law)."""
         v_tip = np.asarray(v_tip, dtype=float)
         w = np.asarray(w, dtype=float)
-        d = self.compute_depth(p_tip)
         if d <= 0.0:
             return ContactReport(np.zeros(6), 0.0, False, 0.0, 0.0, 0.0, 0.0)
         d_dot = -float(n @ v_tip)
@@ -95,4 +99,31 @@ class TissueBlock(Checked):
 
     def wrench(self, p_tip, R_tool, v_tip, w) -> np.ndarray:
         """World wrench (6,) on the tool at the tip: (N, N*m)."""
+        return self.compute_contact(p_tip, R_tool, v_tip, w).wrench
+
+
+class SurfaceTissue:
+    """Tissue under a curved surface (:class:`teleop.dynamics.surface.HeightSurface`, patient
+    frame): the tip's depth is its distance below the surface along the normal at its foot (the
+    closest surface point), and ``block``'s contact and cutting law acts along that normal. The
+    block's material settings are used; its plane (origin, normal) is not."""
+
+    def __init__(self, block: TissueBlock, surface):
+        self.block, self.surface = block, surface
+        self._foot = None  # Newton's warm start
+
+    def depth_and_normal(self, p_tip) -> tuple[float, np.ndarray]:
+        """(penetration m, clamped to [0, thickness], outward unit normal at the foot)."""
+        s, n, foot = self.surface.signed_distance(p_tip, self._foot)
+        self._foot = foot
+        return min(max(-s, 0.0), self.block.thickness_m), n
+
+    def compute_depth(self, p_tip) -> float:
+        return self.depth_and_normal(p_tip)[0]
+
+    def compute_contact(self, p_tip, R_tool, v_tip, w) -> ContactReport:
+        d, n = self.depth_and_normal(p_tip)
+        return self.block.contact_law(d, n, R_tool, v_tip, w)
+
+    def wrench(self, p_tip, R_tool, v_tip, w) -> np.ndarray:
         return self.compute_contact(p_tip, R_tool, v_tip, w).wrench

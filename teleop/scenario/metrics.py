@@ -287,6 +287,15 @@ class EnergyDrift(Hook):
         return {"energy_drift_rel_max": self.worst}
 
 
+def tissue_surface(spec):
+    """The curved tissue surface of a fixture type that has one (patient frame: a
+    :class:`teleop.dynamics.surface.HeightSurface`), or None: a type opts in with a
+    ``tissue_surface()`` method and a ``depth_m`` field (the cutting depth below it, m)."""
+    params = getattr(spec, "params", None)
+    hook = getattr(params, "tissue_surface", None)
+    return hook() if callable(hook) and hasattr(params, "depth_m") else None
+
+
 class SlaveMetrics(Hook):
     """The slave's accuracy, every tick, in the patient frame (``spec``: the scene's fixture):
 
@@ -298,13 +307,17 @@ class SlaveMetrics(Hook):
     * ``cut_length_m`` - the tip's path while below the surface;
     * ``rcm_error_max_m`` - max distance of the shaft from the trocar (``rcm``: RemoteCenter rows).
 
-    For a user's fixture type (no cutting plane) the depth and cut length stay 0 and
-    ``slave_fixture_residual_max`` (m or rad) is the largest |h| of its holonomic rows at the slave's tool.
+    For a user's fixture type ``slave_fixture_residual_max`` (m or rad) is the largest |h| of its
+    holonomic rows at the slave's tool; the depth and cut length stay 0 unless the type has a
+    tissue surface (:func:`tissue_surface`: a ``tissue_surface()`` method and a ``depth_m``), against
+    which the depth is measured along the normal at the tip's foot.
     """
 
     def __init__(self, spec, n: int, nq: int, rcm=(), constraints=()):
         plane = isinstance(spec, FixtureSpec)
-        self.depth = spec.depth_m if plane else 0.0
+        self.surface = tissue_surface(spec)
+        self._foot = None
+        self.depth = spec.depth_m if plane else (float(spec.params.depth_m) if self.surface is not None else 0.0)
         self.normal = _unit(spec.plane_normal) if plane else None
         self.origin = np.asarray(spec.plane_origin_m if plane else (0.0, 0.0, 0.0), dtype=float)
         self.rows = None if plane else RowStack(tuple(constraints))
@@ -317,7 +330,11 @@ class SlaveMetrics(Hook):
     def after_tick(self, i, t_s, loop) -> None:
         s, log = loop.slave.state, self.series
         log.ensure(i)
-        depth = -float(self.normal @ (s.tip - self.origin)) if self.normal is not None else 0.0
+        if self.surface is not None:
+            sd, _, self._foot = self.surface.signed_distance(s.tip, self._foot)
+            depth = -sd
+        else:
+            depth = -float(self.normal @ (s.tip - self.origin)) if self.normal is not None else 0.0
         log["track_m"][i] = float(np.linalg.norm(s.p - s.p_t))
         # error while the blade is in the tissue; a tiny floor marks "inside" for the cut length
         log["depth_err_m"][i] = max(abs(depth - self.depth), 1e-15) if depth > 0 else 0.0

@@ -30,6 +30,7 @@ from teleop.scenario.tables import (
     OperatorSpec, Phase, SpringSpec, ToolSpec, ViewerSpec,
 )
 from teleop.slave.arm import SlaveConfig
+from teleop.dynamics import surface_fixture  # noqa: F401 - registers the built-in 'surface_scalpel' type
 from teleop.dynamics.registry import FIXTURE_TYPES
 from teleop.typed import Checked, as_table, json_schema, setting, validate
 
