@@ -101,6 +101,7 @@ def measure(n_steps: int = 5000) -> dict:
     m.sim.close()
     m.sim = None  # the host alone: the feedback comes from the replay bus below
     m.bias_S, m.driver.joints_rad_m = ref.bias_S, frames[0][0].copy()
+    m.driver.encoder_step_max = None  # the replay wraps around its recording: a jump the device never makes
     m.driver.start(m.joints0)
     m.pred_p[:], m.pred_R[:] = m.p_H_est, m.R_H_est
     ch = f"bench-{uuid.uuid4().hex}"
