@@ -5,14 +5,11 @@ to the slave, measured by the fixture's own rows."""
 import re
 import subprocess
 import sys
-from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 import pytest
 
-from teleop.dynamics.constraints import PointDepth
-from teleop.dynamics.fixtures import Fixture
 from teleop.dynamics.registry import FIXTURE_TYPES, register_fixture
 from teleop.errors import SceneError
 from teleop.runtime import run_scene
@@ -37,11 +34,14 @@ def test_the_readme_block_runs_as_written(tmp_path):
     assert "class OnCylinder(Constraint)" in block and "Session(" in block and "register_fixture" in block
 
 
-@register_fixture("test_groove")
+PLUGIN = """
+from dataclasses import dataclass
+from teleop.dynamics.constraints import PointDepth
+from teleop.dynamics.fixtures import Fixture
+
+
 @dataclass(frozen=True)
 class Groove:
-    """The blade tip at a depth below a plane (built from the library's PointDepth row)."""
-
     origin_m: tuple = (0.5, 0.0, 0.2)
     depth_m: float = 0.004
     tip_m: tuple = (0.0, 0.0, 0.0)
@@ -49,6 +49,14 @@ class Groove:
     def build(self, frame):
         return Fixture("test_groove", (PointDepth(frame.point(self.origin_m), frame.direction((0, 0, 1)),
                                                   frame.length(self.depth_m), frame.body_point(self.tip_m)),), None)
+"""
+
+
+#: the blade tip at a depth below a plane (the library's PointDepth row); the same source is the
+#: installed plug-in below, so the in-process type and the plug-in cannot drift apart
+_ns: dict = {}
+exec(PLUGIN, _ns)  # noqa: S102 - a literal of this file, the plug-in's own source
+Groove = register_fixture("test_groove")(_ns["Groove"])
 
 
 def groove_scene(**fixture) -> dict:
@@ -126,22 +134,6 @@ def test_the_master_fixture_is_the_patient_fixture_through_the_one_map():
     assert FIXTURE_TYPES.get("test_groove") is Groove
 
 
-PLUGIN = """
-from dataclasses import dataclass
-from teleop.dynamics.constraints import PointDepth
-from teleop.dynamics.fixtures import Fixture
-
-
-@dataclass(frozen=True)
-class Groove:
-    origin_m: tuple = (0.5, 0.0, 0.2)
-    depth_m: float = 0.004
-    tip_m: tuple = (0.0, 0.0, 0.0)
-
-    def build(self, frame):
-        return Fixture("test_groove", (PointDepth(frame.point(self.origin_m), frame.direction((0, 0, 1)),
-                                                  frame.length(self.depth_m), frame.body_point(self.tip_m)),), None)
-"""
 
 
 def _installed_plugin(tmp_path) -> Path:

@@ -11,6 +11,7 @@ from teleop.dynamics import constraints as C
 from teleop.dynamics import fixtures
 from teleop.slave.projection import project_onto_fixture
 from teleop.dynamics.rows import RowStack
+from tests.user_rows import SineRow
 
 PLANE_O = np.array([0.5, 0.0, 0.2])
 R_CUT = np.array([[1.0, 0.0, 0.0], [0.0, -1.0, 0.0], [0.0, 0.0, -1.0]])
@@ -101,28 +102,10 @@ def test_onto_the_fixture_and_its_closest_pose(name, seed):
     assert np.allclose(np.concatenate([v1, w1]), N @ (N.T @ nu), atol=1e-12, rtol=0)
 
 
-class _Wave(C.Constraint):
-    """A user's own row, not polynomial: h = sin(5 (p_x - x0)) / 5 (m), zero at p_x = x0."""
-
-    rows, holonomic = 1, True
-
-    def __init__(self, x0):
-        self.x0 = x0
-
-    def jacobian(self, p, R):
-        return np.array([[np.cos(5.0 * (p[0] - self.x0)), 0, 0, 0, 0, 0]])
-
-    def residual(self, p, R):
-        return np.array([np.sin(5.0 * (p[0] - self.x0)) / 5.0])
-
-    def bias(self, p, R, v, w):
-        return np.array([-5.0 * np.sin(5.0 * (p[0] - self.x0)) * v[0] ** 2])
-
-
 def test_a_users_own_row_by_hand():
     """Onto a user's row x = x0 (Newton on sin, 3 steps from 1 mm: within 1e-12 of x0); y, z and R
     untouched, and the twist loses its x component."""
-    rows = RowStack((_Wave(0.3),))
+    rows = RowStack((SineRow(0.3),))
     p, R = np.array([0.301, 0.1, 0.2]), pin.exp3(np.array([0.1, 0.2, 0.3]))
     p1, R1, v1, w1 = project_onto_fixture(rows, p, R, np.array([1.0, 2.0, 3.0]), np.array([4.0, 5.0, 6.0]))
     assert abs(p1[0] - 0.3) < 1e-12 and np.array_equal(p1[1:], p[1:]) and np.array_equal(R1, R)

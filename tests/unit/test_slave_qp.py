@@ -8,6 +8,7 @@ import qpsolvers
 from teleop.dynamics import constraints as C
 from teleop.dynamics import fixtures
 from teleop.slave import SlaveArm, SlaveConfig, compute_target_twist, installed_solvers
+from tests.user_rows import SineRow
 
 PLANE_O = np.array([0.5, 0.0, 0.2])
 R_CUT = np.array([[1.0, 0.0, 0.0], [0.0, -1.0, 0.0], [0.0, 0.0, -1.0]])
@@ -106,30 +107,12 @@ def test_servo_lag_slows_the_response():
     assert np.linalg.norm(slow.tool_pose()[0] - p) < np.linalg.norm(fast.tool_pose()[0] - p)
 
 
-class _Bent(C.Constraint):
-    """A user's own row, not polynomial in the pose: h = sin(5 (p_x - x0)) / 5 (m), zero at x0."""
-
-    rows, holonomic = 1, True
-
-    def __init__(self, x0: float):
-        self.x0 = x0
-
-    def jacobian(self, p, R):
-        return np.array([[np.cos(5.0 * (p[0] - self.x0)), 0, 0, 0, 0, 0]])
-
-    def residual(self, p, R):
-        return np.array([np.sin(5.0 * (p[0] - self.x0)) / 5.0])
-
-    def bias(self, p, R, v, w):
-        return np.array([-5.0 * np.sin(5.0 * (p[0] - self.x0)) * v[0] ** 2])
-
-
 def test_a_users_own_constraint_enters_the_qp_and_holds():
     """The QP's rows and right-hand side are every constraint's own G J and -k_fixture h (a user's
     constraint next to built-in ones), and the arm, pulled off the user's row, stays on it while it
     follows the rest of the target."""
     start = PLANE_O + [-0.03, 0.0, -0.005]
-    cons = fixtures.scalpel(plane_origin=PLANE_O, depth=0.005).holonomic + (_Bent(start[0]),)
+    cons = fixtures.scalpel(plane_origin=PLANE_O, depth=0.005).holonomic + (SineRow(start[0]),)
     arm = _arm("daqp", cons=cons)
     qp = arm.qp
     lb, ub = -arm.limits.v_max, arm.limits.v_max
