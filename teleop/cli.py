@@ -336,6 +336,17 @@ def _error(message) -> int:
     return EXIT_BAD_INPUT
 
 
+def _caused_by_interrupt(e: BaseException) -> bool:
+    """True when a KeyboardInterrupt is in ``e``'s chain of causes."""
+    seen = set()
+    while e is not None and id(e) not in seen:
+        if isinstance(e, KeyboardInterrupt):
+            return True
+        seen.add(id(e))
+        e = e.__cause__ or e.__context__
+    return False
+
+
 def _terminate(signum, frame):
     raise KeyboardInterrupt  # SIGTERM ends a run as Ctrl-C does: its summary says "interrupted"
 
@@ -354,6 +365,11 @@ def main(argv=None) -> int:
     except MemoryError:
         return _error("out of memory: the run or file is too large for this machine")
     except KeyboardInterrupt:
+        print("teleop: interrupted (nothing written)", file=sys.stderr)
+        return EXIT_INTERRUPTED
+    except SystemError as e:  # numba wraps a Ctrl-C that lands inside a compiled call
+        if not _caused_by_interrupt(e):
+            raise
         print("teleop: interrupted (nothing written)", file=sys.stderr)
         return EXIT_INTERRUPTED
     finally:

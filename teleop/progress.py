@@ -26,9 +26,12 @@ def kernels_cold() -> bool:
         return False
 
 
-def notice_compile() -> None:
-    """The one-line notice before a cold first tick (logged: -q silences it)."""
-    if kernels_cold():
+def notice_compile(stream=None) -> None:
+    """The one-line notice before a cold first tick, where a person is looking: on a terminal (or
+    with -v). In a pipe it stays out of the way, so a refused scene is still one line on stderr."""
+    stream = stream or sys.stderr
+    looking = getattr(stream, "isatty", lambda: False)() or log.isEnabledFor(logging.INFO)
+    if looking and kernels_cold():
         log.warning("compiling kernels, once, about 30-60 s (cached for the next runs)")
 
 

@@ -17,7 +17,10 @@ from __future__ import annotations
 
 import json
 import logging
+import signal
+import threading
 import time
+from contextlib import contextmanager
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -227,6 +230,39 @@ class SlaveCounter(Hook):
         self.counts[st] = self.counts.get(st, 0) + 1
 
 
+class _StopFlag:
+    """Set by SIGINT or SIGTERM during a run; the loop reads it between ticks."""
+
+    def __init__(self):
+        self.set = False
+
+    def __bool__(self) -> bool:
+        return self.set
+
+
+@contextmanager
+def _stop_requests():
+    """Ctrl-C and SIGTERM set a flag the loop reads between ticks, instead of raising inside a
+    compiled kernel (numba turns a KeyboardInterrupt there into a SystemError). Main thread only;
+    elsewhere the signals keep their handlers. A second Ctrl-C while a tick hangs raises as usual."""
+    flag = _StopFlag()
+    if threading.current_thread() is not threading.main_thread():
+        yield flag
+        return
+
+    def request(signum, frame):
+        if flag.set:
+            raise KeyboardInterrupt
+        flag.set = True
+
+    previous = {sig: signal.signal(sig, request) for sig in (signal.SIGINT, signal.SIGTERM)}
+    try:
+        yield flag
+    finally:
+        for sig, handler in previous.items():
+            signal.signal(sig, handler)
+
+
 def _pace(deadline: float) -> int:
     """Wait for the wall-clock deadline (s, perf_counter): sleep, then spin the last 0.3 ms.
     Returns 1 when the tick is already late, else 0."""
@@ -268,27 +304,31 @@ class Session:
         with loop.master as master:
             status = master.status
             log.info("running %d ticks of %g s (master %s)", self.n, loop.dt, status)
-            try:
-                for i in range(self.n if status == "ok" else 0):
-                    status = loop.tick(i)
-                    if status != "ok":
-                        break
-                    if getattr(loop.operator, "stop", False):
-                        status = "stopped_by_operator"
-                        break
-                    if self.progress is not None and i % 1000 == 0:
-                        self.progress(i, self.n)
-                    if self.realtime:
-                        deadline = wall0 + (i + 1) * loop.dt
-                        late += _pace(deadline)
-                        lag = time.perf_counter() - deadline
-                        if lag > LAG_WARN_S and time.perf_counter() - warned > 1.0:
-                            warned = time.perf_counter()
-                            rtf = (i + 1) * loop.dt / (warned - wall0)
-                            log.warning("--realtime: %.0f ms behind the wall clock at t = %.2f s (running at "
-                                        "%.2fx real time; %d late ticks)", 1e3 * lag, (i + 1) * loop.dt, rtf, late)
-            except KeyboardInterrupt:
-                status = "interrupted"
+            with _stop_requests() as stop:
+                try:
+                    for i in range(self.n if status == "ok" else 0):
+                        if stop:
+                            status = "interrupted"
+                            break
+                        status = loop.tick(i)
+                        if status != "ok":
+                            break
+                        if getattr(loop.operator, "stop", False):
+                            status = "stopped_by_operator"
+                            break
+                        if self.progress is not None and i % 1000 == 0:
+                            self.progress(i, self.n)
+                        if self.realtime:
+                            deadline = wall0 + (i + 1) * loop.dt
+                            late += _pace(deadline)
+                            lag = time.perf_counter() - deadline
+                            if lag > LAG_WARN_S and time.perf_counter() - warned > 1.0:
+                                warned = time.perf_counter()
+                                rtf = (i + 1) * loop.dt / (warned - wall0)
+                                log.warning("--realtime: %.0f ms behind the wall clock at t = %.2f s (running at "
+                                            "%.2fx real time; %d late ticks)", 1e3 * lag, (i + 1) * loop.dt, rtf, late)
+                except KeyboardInterrupt:  # a Ctrl-C outside the main thread's handler
+                    status = "interrupted"
             stats = master.stats()
             link_stats = loop.link.stats()
             if link_stats:

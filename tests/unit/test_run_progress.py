@@ -29,11 +29,15 @@ def test_no_bar_in_a_pipe_or_when_quiet():
     assert progress.RunBar(10.0, 1e-3, enabled=False, stream=_Tty()).bar is None
 
 
-def test_a_cold_cache_says_so_once_in_one_line(monkeypatch, caplog):
+def test_a_cold_cache_says_so_once_in_one_line_on_a_terminal_and_not_in_a_pipe(monkeypatch, caplog):
     monkeypatch.setattr(progress, "kernels_cold", lambda: True)
     with caplog.at_level(logging.WARNING, logger="teleop"):
-        progress.notice_compile()
-    assert [m for m in caplog.messages if "compiling kernels, once" in m]
+        progress.notice_compile(stream=_Tty())
+    assert len([m for m in caplog.messages if "compiling kernels, once" in m]) == 1
+    caplog.clear()
+    with caplog.at_level(logging.WARNING, logger="teleop"):
+        progress.notice_compile(stream=io.StringIO())
+    assert not caplog.messages  # a pipe: a refused scene stays one line on stderr
     monkeypatch.undo()
     assert progress.kernels_cold() is False  # this session compiled them already: a warm cache
 
