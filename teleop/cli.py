@@ -51,6 +51,12 @@ def _summary_text(s: dict) -> str:
     ]
     for k, v in s["metrics"].items():
         lines.append(f"  {k:34s} {v:.4g}" if v is not None else f"  {k:34s} null")
+    op = s.get("operator") or {}
+    if "speed_limit_m_s" in op:  # an operator held to limits (the keyboard)
+        margin = op["workspace_margin_min_m"]
+        lines.append(f"limits     closest to the workspace's edge {1e3 * margin:.1f} mm   top speed "
+                     f"{1e3 * op['speed_max_m_s']:.0f} of {1e3 * op['speed_limit_m_s']:.0f} mm/s   braked on "
+                     f"{op['braked_ticks']} ticks" if margin is not None else "limits     no tick")
     for k in ("can_bus_load_pct", "can_frames_lost", "watchdog_trips", "late_ticks"):
         if k in s:
             v = s[k]
@@ -132,6 +138,13 @@ def cmd_run(args) -> int:
     from teleop.runtime import run_scene
 
     scene, capture = _scene_for(args)
+    if args.operator == "keyboard":
+        from teleop.scenario.keyboard import require_terminal
+        from teleop.session import MAX_TICKS
+
+        require_terminal()
+        if args.duration is None:  # open-ended: until x, Ctrl-C or MAX_TICKS
+            scene = scene.with_overrides(duration_s=MAX_TICKS * scene.dt_s)
     json_path = check_json_target(args.json) if args.json else None
     folder = RunFolder(args.out) if args.out else None
     view = bar = None
@@ -149,13 +162,10 @@ def cmd_run(args) -> int:
         from teleop.viz_bridge import RunView
 
         rv = RunView(view) if view is not None else None
-        if args.operator == "keyboard":
-            from teleop.scenario.build import master_fixture_spec
-            from teleop.scenario.keyboard import HELP, KeyboardOperator
+        if args.operator == "keyboard":  # real time, limited, until the person stops it
+            from teleop.scenario.keyboard import run_at_keyboard
 
-            print(HELP, file=sys.stderr)
-            with KeyboardOperator(master_fixture_spec(scene)) as keys:
-                result = run_scene(scene, realtime=args.realtime, operator=keys, view=rv)
+            result = run_at_keyboard(scene, view=rv, quiet=args.quiet)
         else:
             bar = RunBar(scene.duration_s, scene.dt_s, enabled=not args.quiet)
             result = run_scene(scene, progress=bar, realtime=args.realtime, view=rv)
@@ -275,10 +285,13 @@ def build_parser() -> argparse.ArgumentParser:
     view.add_argument("--viewer", action="store_true", help="show both sides live in Meshcat (prints the URL)")
     run.add_argument("--host", default="127.0.0.1",
                      help="address the viewer's web server binds (default 127.0.0.1: this machine only)")
-    run.add_argument("--realtime", action="store_true", help="pace ticks to the wall clock (default: simulated time)")
+    run.add_argument("--realtime", action="store_true", help="pace ticks to the wall clock (default: simulated time; "
+                                                               "always with --operator keyboard)")
     run.add_argument("--operator", choices=["script", "keyboard"], default="script",
-                     help="the scene's scripted operator (default) or you at the keyboard")
-    run.add_argument("--duration", type=float, help="simulated seconds (overrides the scene)")
+                     help="the scene's scripted operator (default) or you at the keyboard (in real time, until you "
+                          "press x)")
+    run.add_argument("--duration", type=float, help="simulated seconds (overrides the scene; a keyboard session "
+                                                    "runs until stopped unless given)")
     run.add_argument("--seed", type=int, help="random seed (overrides the scene)")
     run.add_argument("--integrator", help="integrator name (overrides the scene)")
     run.add_argument("--dt", type=float, help="control period in s (overrides the scene)")

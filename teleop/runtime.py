@@ -110,10 +110,13 @@ class _ViewHook(Hook):
         self.view.publish_tick(t_s, loop)
 
 
-def run_scene(scene: Scene, progress=None, realtime: bool = False, operator=None, view=None, hooks=()) -> RunResult:
-    """Run a scene. ``operator`` replaces the scene's (e.g. a keyboard); ``view`` gets every tick
-    and throttles itself; ``progress(i, n)`` is called every 1000 ticks; ``hooks`` more
-    :class:`~teleop.loop.Hook` s, after the scene's own."""
+def run_scene(scene: Scene, progress=None, realtime: bool = False, operator=None, view=None, hooks=(),
+              status_line=None) -> RunResult:
+    """Run a scene. ``operator`` replaces the scene's (e.g. a keyboard; one with ``stats()`` adds
+    them to the summary as "operator"); ``view`` gets every tick and throttles itself;
+    ``progress(i, n)`` is called every 1000 ticks; ``hooks`` more :class:`~teleop.loop.Hook` s,
+    after the scene's own; ``status_line`` a :class:`~teleop.statusline.StatusLine` (it watches the
+    session)."""
     n = tick_count(scene.duration_s, scene.dt_s)  # refuses a run past MAX_TICKS before building anything
     rng = np.random.default_rng(scene.seed)
     tool = build_tool(scene)
@@ -138,12 +141,14 @@ def run_scene(scene: Scene, progress=None, realtime: bool = False, operator=None
             hooks.append(tremor)
     if view is not None:
         hooks.append(_ViewHook(view))
-    hooks += list(extra_hooks)
+    hooks += list(extra_hooks) + ([status_line] if status_line is not None else [])
     master = make_master(scene, tool, rng)
     link = make_link(scene, rng) if slave is not None else None
     guard = make_guard(scene, reg, n)
     session = Session(tool, master, operator, scene.dt_s, scene.duration_s, slave=slave, feedback=feedback,
                       hooks=hooks, realtime=realtime, progress=progress, link=link, guard=guard)
+    if status_line is not None:
+        status_line.watch(session)
     result = session.run()
     metrics = {**master_metrics.result(), **energy_drift.result()}
     if guard is not None and "passivity" in result.summary:  # the drift at the slave's scale (m)
@@ -167,4 +172,6 @@ def run_scene(scene: Scene, progress=None, realtime: bool = False, operator=None
                                               exempt)
     result.summary = {"scenario": scene.name, **s, "integrator": scene.integrator, "master": scene.master,
                       "seed": scene.seed, "effects": list(scene.effects), "metrics": metrics}
+    if callable(getattr(operator, "stats", None)):
+        result.summary["operator"] = operator.stats()
     return result

@@ -4,9 +4,10 @@
     result = session.run()            # RunResult: .summary (JSON-able dict), .log (arrays)
 
 Simulated time by default: the loop advances ``dt_s`` a tick with no wall clock, so a run is a
-pure function of its inputs and seed. ``realtime`` paces each tick to the wall clock (late ticks
-are counted, never skipped). The run ends at the duration, on the first master-side status that is
-not "ok", or when the operator sets ``stop``.
+pure function of its inputs and seed. ``realtime`` paces each tick to the wall clock from the end
+of the first (which may compile kernels); late ticks are counted (``late_ticks``), never skipped.
+The run ends at the duration, on the first master-side status that is not "ok", or when the
+operator sets ``stop``.
 
 The run's ``status`` covers both sides (:func:`run_status`): the master side's fault if one ended
 the run; otherwise the worst slave status seen, when it is one of :data:`SLAVE_FAULTS`; otherwise
@@ -294,12 +295,13 @@ class Session:
         self.loop = BilateralLoop(tool, master, operator, dt_s, slave=slave, link=link, feedback=feedback,
                                   hooks=own + list(hooks), guard=guard)
         self.realtime, self.progress = realtime, progress
+        self.late_ticks = 0  # --realtime: ticks that ended past their wall-clock deadline (so far)
 
     def run(self) -> RunResult:
         """Run to the end (see the module docstring). Ctrl-C ends the run between ticks with status
         "interrupted": the result holds what was recorded up to then."""
-        loop, status, late = self.loop, "ok", 0
-        wall0 = time.perf_counter()
+        loop, status = self.loop, "ok"
+        wall0 = pace0 = time.perf_counter()
         warned = -1.0
         with loop.master as master:
             status = master.status
@@ -318,15 +320,18 @@ class Session:
                             break
                         if self.progress is not None and i % 1000 == 0:
                             self.progress(i, self.n)
-                        if self.realtime:
-                            deadline = wall0 + (i + 1) * loop.dt
-                            late += _pace(deadline)
+                        if self.realtime and i == 0:  # the first tick may compile or warm caches:
+                            pace0 = time.perf_counter() - loop.dt  # the wall clock starts after it
+                        elif self.realtime:
+                            deadline = pace0 + (i + 1) * loop.dt
+                            self.late_ticks += _pace(deadline)
                             lag = time.perf_counter() - deadline
                             if lag > LAG_WARN_S and time.perf_counter() - warned > 1.0:
                                 warned = time.perf_counter()
-                                rtf = (i + 1) * loop.dt / (warned - wall0)
+                                rtf = i * loop.dt / (warned - pace0 - loop.dt)
                                 log.warning("--realtime: %.0f ms behind the wall clock at t = %.2f s (running at "
-                                            "%.2fx real time; %d late ticks)", 1e3 * lag, (i + 1) * loop.dt, rtf, late)
+                                            "%.2fx real time; %d late ticks)", 1e3 * lag, (i + 1) * loop.dt, rtf,
+                                            self.late_ticks)
                 except KeyboardInterrupt:  # a Ctrl-C outside the main thread's handler
                     status = "interrupted"
             stats = master.stats()
@@ -334,7 +339,7 @@ class Session:
             if link_stats:
                 stats["link"] = link_stats
         self.wall_s = time.perf_counter() - wall0
-        return self._result(status, late, stats)
+        return self._result(status, self.late_ticks, stats)
 
     def _result(self, status: str, late: int, stats: dict) -> RunResult:
         steps, rec = self.recorder.n, self.recorder

@@ -1,63 +1,143 @@
 """A person at the keyboard as the operator: pushes and twists the handle, clutches, stops.
 
-Keys (forces in the fixture's task frame, torques about its axes):
+Keys (motions along the fixture's task frame, turns about its axes; a capital letter goes
+:data:`FAST` times faster):
 
-    w / s   push forward / back (x)        q / e   twist about z
-    a / d   push left / right (y)          i / k   twist about x
-    r / f   push up / down (z)             j / l   twist about y
-    space   clutch (toggle)                x, ESC  stop the run
+    w / s   forward / back (x)             q / e   turn about z
+    a / d   left / right (y)               i / k   turn about x
+    r / f   up / down (z)                  j / l   turn about y
+    arrows  as w / s / a / d               space   clutch (toggle)
+    x, ESC  stop the session (a clean stop: status "ok" when both sides did what was asked)
 
-A key holds its push for ``hold_s`` after the last press (keyboards auto-repeat), so holding a key
-gives a steady push. Input is read without blocking from a file descriptor (the terminal in raw
-mode by default; a pipe in tests).
+The hand the keys stand for holds the handle: a held key pushes it until it moves at the key's
+speed along that axis; a released key's axis is brought to rest for :data:`SETTLE_S`, then let go
+(a proportional-integral push on the tool's velocity in the task frame, axis by axis; an axis no
+key touched is left free, so a fixture that ties motions together, a rolling disk, still rolls). The push is scaled to the tool and the device
+(:func:`key_scale`): the speed crosses the workspace in :data:`KEY_CROSSING_S`, the gain brings the
+tool's own mass (largest inertia) to it in about :data:`KEY_REACH_S`, and the push never exceeds
+:data:`KEY_FORCE_SHARE` of the device's force (torque) range, whatever resists (a fixture's added
+inertia, damping, tissue). A key holds for ``hold_s`` after its last press (keyboards auto-repeat,
+after a first pause of up to half a second). Input is read without blocking from a file
+descriptor (the terminal in cbreak mode by default; a pipe in tests).
+
+:func:`run_at_keyboard` runs a scene with it, in real time, under the workspace and speed limits
+of :mod:`teleop.scenario.limits`, with a live status line (:mod:`teleop.statusline`), until the
+person stops it.
 """
 
 from __future__ import annotations
 
+import logging
 import os
 import select
+import sys
+from dataclasses import dataclass
 
 import numpy as np
 
+from teleop.errors import ConfigError
+from teleop.scenario.build import build_tool, master_fixture_spec
+from teleop.scenario.limits import Limits, LimitedOperator, device_workspace, limits_for
 from teleop.scenario.operators import Operator, task_frame
+from teleop.session import MAX_TICKS
+
+log = logging.getLogger(__name__)
 
 KEYMAP = {
     "w": (0, +1), "s": (0, -1), "a": (1, +1), "d": (1, -1), "r": (2, +1), "f": (2, -1),
     "i": (3, +1), "k": (3, -1), "j": (4, +1), "l": (4, -1), "q": (5, +1), "e": (5, -1),
 }
-HELP = "w/s a/d r/f: push x/y/z   i/k j/l q/e: twist x/y/z   space: clutch   x: stop"
+#: the arrow keys' escape sequences' last character -> the key they stand for
+ARROWS = {"A": "w", "B": "s", "C": "d", "D": "a"}
+HELP = ("w/s a/d r/f: move x/y/z   i/k j/l q/e: turn about x/y/z   capitals: faster   space: clutch   "
+        "x or ESC: stop")
+#: a held key's speed crosses the workspace's narrowest width in this long, s
+KEY_CROSSING_S = 20.0
+#: a held key brings the tool's own mass from rest to the key's speed in about this long, s
+KEY_REACH_S = 0.5
+#: the angular speed of a held turn key, rad/s
+KEY_SPIN_RAD_S = 0.5
+#: the share of the device's force (torque) range the hand may push with
+KEY_FORCE_SHARE = 0.1
+#: a capital letter goes this many times faster
+FAST = 2.0
+#: the speed limits, as multiples of a key's speeds (a capital's speed, with room to settle)
+SPEED_LIMIT_FACTOR = 2.5
+#: the hand's integral time, in multiples of its proportional time constant
+INTEGRAL_RATIO = 4.0
+#: a key pushes this long after its last press (covers the keyboard's first auto-repeat pause), s
+HOLD_S = 0.5
+#: after a key is released its axis is brought to rest for this long, then let go, s
+SETTLE_S = 1.0
+
+
+@dataclass(frozen=True)
+class KeyScale:
+    """The hand behind the keys: the speeds of a held key (m/s, rad/s), the gains on the velocity
+    error (N*s/m, N*m*s/rad) and the most it pushes (N, N*m)."""
+
+    speed_m_s: float
+    angular_speed_rad_s: float
+    gain_Ns_per_m: float
+    gain_Nms_per_rad: float
+    force_N: float
+    torque_Nm: float
+
+
+def key_scale(scene, workspace=None) -> KeyScale:
+    """The hand for ``scene``'s tool and device (see the module docstring): speed = the workspace's
+    narrowest width / KEY_CROSSING_S; gains = mass (largest principal inertia) / (KEY_REACH_S / 5),
+    no faster than 20 control periods; caps = KEY_FORCE_SHARE of ``cobot.max_force_N`` /
+    ``max_torque_Nm``."""
+    ws = workspace if workspace is not None else device_workspace(scene.cobot)
+    inertia = np.asarray(scene.tool.inertia_kgm2, float)
+    inertia = inertia.reshape(3, 3) if inertia.size == 9 else np.diag(inertia)
+    tau = max(KEY_REACH_S / 5.0, 20.0 * scene.dt_s)
+    return KeyScale(2.0 * float(ws.half.min()) / KEY_CROSSING_S, KEY_SPIN_RAD_S, scene.tool.mass_kg / tau,
+                    float(np.linalg.eigvalsh(inertia).max()) / tau, KEY_FORCE_SHARE * scene.cobot.max_force_N,
+                    KEY_FORCE_SHARE * scene.cobot.max_torque_Nm)
 
 
 class KeyboardOperator(Operator):
-    """Wrench from key presses. ``force_N`` and ``torque_Nm`` are the push per key."""
+    """Wrench from key presses through the hand of ``scale`` (:class:`KeyScale`); ``hold_s`` how
+    long a press holds its key (simulated s). ``target`` is the task-frame twist the hand is after
+    (6,: m/s, rad/s)."""
 
-    def __init__(self, fixture, fd: int | None = None, force_N: float = 2.0, torque_Nm: float = 0.02, hold_s: float = 0.25):
-        self.fixture = fixture
-        self.fd = fd
-        self.force, self.torque, self.hold = force_N, torque_Nm, hold_s
+    def __init__(self, fixture, scale: KeyScale, fd: int | None = None, hold_s: float = HOLD_S):
+        self.fixture, self.scale, self.fd, self.hold = fixture, scale, fd, hold_s
+        self.speeds = np.array([scale.speed_m_s] * 3 + [scale.angular_speed_rad_s] * 3)
+        self.gains = np.array([scale.gain_Ns_per_m] * 3 + [scale.gain_Nms_per_rad] * 3)
+        self.caps = np.array([scale.force_N] * 3 + [scale.torque_Nm] * 3)
         self.last_press = np.full(6, -np.inf)
         self.sign = np.zeros(6)
+        self.effort = np.zeros(6)  # the integral part of the push (task frame, N and N*m)
+        self.target = np.zeros(6)
         self.clutch_engaged = True
         self.stop = False
+        self._t = None
         self._tty = None
+        self._pending = ""  # an escape sequence cut by the end of a read
 
     def __enter__(self):
+        """Read the terminal on stdin in cbreak mode (keys one by one, no echo; Ctrl-C still a
+        signal) when no ``fd`` was given."""
         if self.fd is None:
-            import sys
-            import termios
+            import termios  # POSIX only: imported where a terminal is used
             import tty
 
-            self.fd = sys.stdin.fileno()
-            self._tty = termios.tcgetattr(self.fd)
-            tty.setcbreak(self.fd)
+            fd = require_terminal()
+            self._tty = termios.tcgetattr(fd)
+            self.fd = fd
+            tty.setcbreak(fd)
         return self
 
     def __exit__(self, *exc):
         self.close()
 
     def close(self) -> None:
+        """Give the terminal back as it was; safe to call twice."""
         if self._tty is not None:
-            import termios
+            import termios  # POSIX only
 
             termios.tcsetattr(self.fd, termios.TCSADRAIN, self._tty)
             self._tty = None
@@ -68,21 +148,115 @@ class KeyboardOperator(Operator):
             data = os.read(self.fd, 64)
             if not data:
                 return
-            for ch in data.decode(errors="ignore"):
-                self.press(ch, t)
+            self.feed(data.decode(errors="ignore"), t)
+
+    def feed(self, text: str, t: float) -> None:
+        """Act on typed characters: keys, arrows (ESC [ A ...), a lone ESC (stop)."""
+        text, self._pending = self._pending + text, ""
+        i = 0
+        while i < len(text):
+            ch = text[i]
+            if ch == "\x1b" and i + 1 < len(text) and text[i + 1] in "[O":
+                j = i + 2
+                while j < len(text) and not (text[j].isalpha() or text[j] == "~"):
+                    j += 1
+                if j == len(text):  # the rest of the sequence comes with the next read
+                    self._pending = text[i:]
+                    return
+                if text[j] in ARROWS:
+                    self.press(ARROWS[text[j]], t)
+                i = j + 1
+                continue
+            self.press(ch, t)
+            i += 1
 
     def press(self, ch: str, t: float) -> None:
-        if ch in KEYMAP:
-            axis, sign = KEYMAP[ch]
-            self.last_press[axis], self.sign[axis] = t, sign
+        if ch.lower() in KEYMAP:
+            axis, sign = KEYMAP[ch.lower()]
+            self.last_press[axis], self.sign[axis] = t, sign * (FAST if ch.isupper() else 1.0)
         elif ch == " ":
             self.clutch_engaged = not self.clutch_engaged
-        elif ch in ("x", "\x1b"):
+        elif ch in ("x", "X", "\x1b"):
             self.stop = True
 
     def wrench(self, t: float, p, R, v=None, w=None) -> np.ndarray:
+        """The hand's wrench (6,: N, N*m, world): a proportional-integral push toward the held keys'
+        twist in the task frame, each axis capped; zero with the clutch out."""
         self.poll(t)
-        active = (t - self.last_press) <= self.hold
-        local = np.where(active, self.sign, 0.0) * np.array([self.force] * 3 + [self.torque] * 3)
+        dt = 0.0 if self._t is None else max(0.0, t - self._t)
+        self._t = t
+        if not self.clutch_engaged:
+            self.effort[:] = 0.0
+            return np.zeros(6)
         Rf = task_frame(self.fixture, R)
+        v = np.zeros(3) if v is None else np.asarray(v, float)
+        w = np.zeros(3) if w is None else np.asarray(w, float)
+        twist = np.concatenate([Rf.T @ v, Rf.T @ w])
+        since = t - self.last_press
+        self.target = np.where(since <= self.hold, self.sign, 0.0) * self.speeds
+        engaged = since <= self.hold + SETTLE_S  # a released key's axis is stopped, then let go
+        err = np.where(engaged & np.isfinite(twist), self.target - twist, 0.0)
+        tau_i = INTEGRAL_RATIO * KEY_REACH_S / 5.0
+        self.effort = np.where(engaged, np.clip(self.effort + dt * self.gains * err / tau_i, -self.caps, self.caps), 0.0)
+        local = np.clip(self.gains * err + self.effort, -self.caps, self.caps)
         return np.concatenate([Rf @ local[:3], Rf @ local[3:]])
+
+
+def require_terminal() -> int:
+    """The file descriptor of stdin when it is a terminal; ConfigError otherwise."""
+    try:
+        fd = sys.stdin.fileno()
+        if os.isatty(fd):
+            return fd
+    except (OSError, ValueError):  # no file behind stdin (closed, or replaced)
+        pass
+    raise ConfigError("--operator keyboard: standard input is not a terminal (the keys are read from it; "
+                      "run teleop in a terminal)")
+
+
+def keyboard_operator(scene, fd: int | None = None) -> tuple[LimitedOperator, KeyScale]:
+    """The keyboard for ``scene``: the hand of :func:`key_scale`, held to the scene's limits
+    (speed limits SPEED_LIMIT_FACTOR times a key's speeds). Returns (operator, scale); the
+    operator's ``inner`` is the :class:`KeyboardOperator` (enter it to read the terminal)."""
+    p0, _ = build_tool(scene).pose()
+    scale = key_scale(scene)
+    limits: Limits = limits_for(scene, p0, SPEED_LIMIT_FACTOR * scale.speed_m_s,
+                                SPEED_LIMIT_FACTOR * scale.angular_speed_rad_s)
+    return LimitedOperator(KeyboardOperator(master_fixture_spec(scene), scale, fd=fd), limits), scale
+
+
+def describe(scale: KeyScale, limits: Limits, dt_s: float, duration_s: float) -> str:
+    """Two lines for the person at the keyboard: the keys' speeds, the limits, how it ends."""
+    size = " x ".join(f"{2e3 * h:.0f}" for h in limits.workspace.half)
+    longest = MAX_TICKS * dt_s
+    end = (f"runs until you press x (at most {longest:g} s: teleop.session.MAX_TICKS ticks)"
+           if duration_s >= longest else f"runs {duration_s:g} s or until you press x")
+    return (f"keyboard: a key moves the tool {1e3 * scale.speed_m_s:.0f} mm/s or turns it "
+            f"{scale.angular_speed_rad_s:g} rad/s (pushing up to {scale.force_N:.3g} N, {scale.torque_Nm:.3g} N*m); "
+            f"limits {1e3 * limits.speed_m_s:.0f} mm/s, {limits.angular_speed_rad_s:g} rad/s, workspace {size} mm\n"
+            f"keyboard: the session {end}; Ctrl-C ends it too (status 'interrupted')")
+
+
+def run_at_keyboard(scene, view=None, quiet: bool = False, fd: int | None = None, stream=None):
+    """Run ``scene`` with the person at the keyboard (stdin, or ``fd``), in real time, until they
+    press x or ESC (or Ctrl-C, or the scene's duration). Prints the keys and the limits, shows the
+    status line on a terminal. Returns the RunResult (its summary has "operator": the limits met)."""
+    from teleop.runtime import run_scene
+    from teleop.statusline import StatusLine, logging_above
+
+    stream = stream or sys.stderr
+    op, scale = keyboard_operator(scene, fd)
+    if not quiet:
+        print(HELP, file=stream)
+        print(describe(scale, op.limits, scene.dt_s, scene.duration_s), file=stream)
+    line = StatusLine(enabled=not quiet, stream=stream)
+    try:
+        with op.inner, logging_above(line):
+            result = run_scene(scene, realtime=True, operator=op, view=view, status_line=line)
+    finally:
+        line.close()
+    s = result.summary
+    if s["master_status"] == "ok" and s["steps"] >= MAX_TICKS:
+        log.warning("keyboard: the session reached its longest run, %d ticks (%g s, teleop.session.MAX_TICKS), "
+                    "and stopped", MAX_TICKS, MAX_TICKS * scene.dt_s)
+    return result
