@@ -10,6 +10,9 @@ Both limits act the same way, as a person's hand near a stop would:
 
 * the hand's push *toward* a limit fades to nothing across a zone before it (a wall zone of
   ``zone_m`` before each face; the last fifth below the speed limit), and
+* past a face all the same (a fixture can turn a push along a face into a slide through it: a
+  knife edge, a rolling disk), the hand's whole wrench fades out over :data:`PAST_FACE_SHARE` of
+  the zone, and
 * a brake, a damper of ``mass / brake_s`` (the tool's inertia over a fixed time, N*s/m; for the
   rotation ``R I R^T / brake_s``), acts on the velocity *past what is allowed*: toward a face at
   distance d the allowed speed is ``d / wall_s`` (negative outside: then the brake is a spring of
@@ -38,6 +41,8 @@ log = logging.getLogger(__name__)
 BRAKE_TICKS, BRAKE_MIN_S = 20, 0.02
 #: the speed (as a share of the limit) above which the hand's push along the motion fades
 SPEED_FADE_FROM = 0.8
+#: past a face, the hand's whole wrench fades out over this share of the wall zone
+PAST_FACE_SHARE = 0.1
 
 
 @dataclass(frozen=True)
@@ -123,10 +128,15 @@ def limits_for(scene, p0, speed_m_s: float, angular_speed_rad_s: float) -> Limit
                   4.0 * brake)
 
 
-def _fade(F: np.ndarray, n: np.ndarray, keep: float) -> np.ndarray:
-    """F with its component along unit n (when it pushes along n) scaled by ``keep`` in [0, 1]."""
-    along = float(F @ n)
-    return F - (1.0 - keep) * along * n if along > 0.0 else F
+def _fade(F: np.ndarray, n: np.ndarray, keep: float, M: np.ndarray | None = None) -> np.ndarray:
+    """F with what it does to the velocity along unit n (when it speeds it up) scaled by ``keep`` in
+    [0, 1]. ``M`` (3, 3) the inertia it acts on (None: isotropic): the rate along n is
+    n . M^-1 F, and the part taken away is along M n (the least change in the inertia's metric)."""
+    if M is None:
+        along = float(F @ n)
+        return F - (1.0 - keep) * along * n if along > 0.0 else F
+    along = float(n @ np.linalg.solve(M, F))
+    return F - (1.0 - keep) * along * (M @ n) if along > 0.0 else F
 
 
 def _capped(F: np.ndarray, cap: float) -> np.ndarray:
@@ -173,6 +183,9 @@ class LimitedOperator(Operator):
             if excess > 0.0:
                 brake_F -= c * excess * n
                 active.append("wall")
+        if d.min() < 0.0:  # past a face all the same (a fixture turned a push into a slide): let go
+            keep = max(0.0, 1.0 + float(d.min()) / (PAST_FACE_SHARE * lim.zone_m))
+            F, T = keep * F, keep * T
         speed = float(np.linalg.norm(v))
         if speed > SPEED_FADE_FROM * lim.speed_m_s:
             u = v / speed
@@ -182,10 +195,10 @@ class LimitedOperator(Operator):
                 active.append("speed")
         spin = float(np.linalg.norm(w))
         if spin > SPEED_FADE_FROM * lim.angular_speed_rad_s:
-            u = w / spin
-            T = _fade(T, u, max(0.0, (lim.angular_speed_rad_s - spin) / ((1 - SPEED_FADE_FROM) * lim.angular_speed_rad_s)))
+            u, I_W = w / spin, R @ lim.inertia_kgm2 @ R.T  # the inertia is not isotropic: faded in its metric
+            keep = max(0.0, (lim.angular_speed_rad_s - spin) / ((1 - SPEED_FADE_FROM) * lim.angular_speed_rad_s))
+            T = _fade(T, u, keep, I_W)
             if spin > lim.angular_speed_rad_s:
-                I_W = R @ lim.inertia_kgm2 @ R.T
                 T = T - _capped(I_W @ (u * (spin - lim.angular_speed_rad_s)) / lim.brake_s, lim.max_torque_Nm)
                 active.append("spin")
         F = F + _capped(brake_F, lim.max_force_N)

@@ -1,0 +1,105 @@
+"""Property: whatever keys are held, for however long, the keyboard's tool stays inside its
+workspace and under its speed limits (teleop.scenario.limits on teleop.scenario.keyboard).
+
+The tool's speeds are measured from the logged poses by finite differences (not from the tool's own
+twist, which the limits read), on an undamped free tool (nothing but the limits slows it) and on the
+scalpel fixture."""
+
+import numpy as np
+import pytest
+from hypothesis import HealthCheck, Phase, given, settings, strategies as st
+from scipy.spatial.transform import Rotation
+
+from teleop.master.ideal import IdealMaster
+from teleop.scenario.build import build_tool, master_fixture_spec
+from teleop.scenario.keyboard import FAST, SPEED_LIMIT_FACTOR, KeyboardOperator, KeyScale
+from teleop.scenario.limits import BRAKE_MIN_S, PAST_FACE_SHARE, Limits, LimitedOperator, Workspace
+from teleop.scenario.schema import load_scene
+from teleop.session import Session
+
+FREE_TOOL = """
+name = "free_tool"
+duration_s = 1.0
+dt_s = 0.001
+[tool]
+mass_kg = 0.1
+inertia_kgm2 = [0.0004, 0.0004, 0.00002]
+[fixture]
+type = "free"
+"""
+KEYS = "wsadrfikjlqeWSADRFIKJLQE"
+#: how far past a face (m) and over a limit (share) the tool may go. The wall is soft: past a face
+#: the hand is let go over PAST_FACE_SHARE of the zone, so a push a fixture turns into a slide
+#: through the face (a blade turned while it slid into one) settles within that; the brakes add a
+#: hair in the ticks they take to act.
+FACE_SLACK_M = 2e-4
+SPEED_TOLERANCE = 0.03
+
+
+@pytest.fixture(scope="module")
+def scenes(tmp_path_factory):
+    path = tmp_path_factory.mktemp("scene") / "free_tool.toml"
+    path.write_text(FREE_TOOL)
+    return {"free": load_scene(str(path)), "scalpel": load_scene("scalpel_fixture")}
+
+
+class HeldKeys(KeyboardOperator):
+    """Keys held by plan: (key, from s, to s), pressed every 30 ms while held (auto-repeat)."""
+
+    def __init__(self, fixture, scale, plan):
+        super().__init__(fixture, scale)
+        self.plan = plan
+
+    def poll(self, t):
+        for key, t0, t1 in self.plan:
+            if t0 <= t < t1 and round((t - t0) * 1e3) % 30 == 0:
+                self.press(key, t)
+
+
+def run_keys(scene, plan, half, speed, spin, T):
+    tool = build_tool(scene)
+    p0, _ = tool.pose()
+    scale = KeyScale(speed / SPEED_LIMIT_FACTOR, spin / SPEED_LIMIT_FACTOR, tool.body.mass_kg / 0.1,
+                     4e-4 / 0.1, 10.0, 0.5)
+    inertia = np.diag(scene.tool.inertia_kgm2)
+    limits = Limits(Workspace(p0, np.eye(3), np.asarray(half)), speed, spin, tool.body.mass_kg, inertia, 100.0, 5.0,
+                    zone_m=4 * BRAKE_MIN_S * speed, brake_s=BRAKE_MIN_S, wall_s=4 * BRAKE_MIN_S)
+    op = LimitedOperator(HeldKeys(master_fixture_spec(scene), scale, plan), limits)
+    result = Session(tool, IdealMaster(tool, scene.dt_s), op, scene.dt_s, T).run()
+    return result, limits
+
+
+plans = st.lists(st.tuples(st.sampled_from(KEYS), st.floats(0.0, 2.5), st.floats(0.05, 2.5)), min_size=1, max_size=5)
+
+
+# no shrinking: each example is a 1-4 s simulation, and a failing plan is short enough to read as drawn;
+# long: a dozen simulations take about a minute on the 2-core machine (the pinned case below is the quick one)
+@pytest.mark.long
+@settings(max_examples=12, deadline=None, phases=(Phase.explicit, Phase.reuse, Phase.generate),
+          suppress_health_check=[HealthCheck.function_scoped_fixture])
+@given(plan=plans, half=st.lists(st.floats(0.005, 0.04), min_size=3, max_size=3), speed=st.floats(0.02, 0.1),
+       spin=st.floats(0.5, 2.0), which=st.sampled_from(["free", "scalpel"]))
+def test_held_keys_never_take_the_tool_out_or_too_fast(scenes, plan, half, speed, spin, which):
+    scene = scenes[which]
+    plan = [(k, t0, t0 + d) for k, t0, d in plan]
+    T = min(4.0, max(t1 for _, _, t1 in plan) + 1.0)
+    result, limits = run_keys(scene, plan, half, speed, spin, T)
+    log, dt = result.log, scene.dt_s
+    assert result.summary["steps"] == round(T / dt) and not result.summary["nan"]
+    p, R = log["p_r"], log["R_r"]
+    margins = np.array([limits.workspace.margin(x) for x in p])
+    allowed = PAST_FACE_SHARE * limits.zone_m + FACE_SLACK_M
+    assert margins.min() > -allowed, f"{-margins.min() * 1e3:.3f} mm past a face (allowed {allowed * 1e3:.3f})"
+    v = np.linalg.norm(np.diff(p, axis=0), axis=1) / dt
+    assert v.max() <= speed * (1 + SPEED_TOLERANCE), f"{v.max():.4f} m/s over the limit {speed:.4f}"
+    w = np.linalg.norm(Rotation.from_matrix(np.einsum("nji,njk->nik", R[:-1], R[1:])).as_rotvec(), axis=1) / dt
+    assert w.max() <= spin * (1 + SPEED_TOLERANCE), f"{w.max():.4f} rad/s over the limit {spin:.4f}"
+
+
+def test_a_held_capital_runs_into_the_face_and_stays_there(scenes):
+    """The case the property draws at random, pinned: 3 s of 'W' into a 10 mm face from rest."""
+    result, limits = run_keys(scenes["free"], [("W", 0.0, 3.0)], [0.01, 0.05, 0.05], 0.05, 1.0, 3.0)
+    p = result.log["p_r"]
+    x = limits.workspace.axes[:, 0] @ (p[-1] - limits.workspace.center)
+    assert x == pytest.approx(0.01, abs=FACE_SLACK_M)  # at the face, not past it
+    assert FAST < SPEED_LIMIT_FACTOR  # a capital's speed is inside the limit
