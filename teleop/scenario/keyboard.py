@@ -12,11 +12,11 @@ Keys (motions along the fixture's task frame, turns about its axes; a capital le
 The hand the keys stand for holds the handle: a held key pushes it until it moves at the key's
 speed along that axis; a released key's axis is brought to rest for :data:`SETTLE_S`, then let go
 (a proportional-integral push on the tool's velocity in the task frame, axis by axis; an axis no
-key touched is left free, so a fixture that ties motions together, a rolling disk, still rolls). The push is scaled to the tool and the device
-(:func:`key_scale`): the speed crosses the workspace in :data:`KEY_CROSSING_S`, the gain brings the
-tool's own mass (largest inertia) to it in about :data:`KEY_REACH_S`, and the push never exceeds
-:data:`KEY_FORCE_SHARE` of the device's force (torque) range, whatever resists (a fixture's added
-inertia, damping, tissue). A key holds for ``hold_s`` after its last press (keyboards auto-repeat,
+key touched is left free, so a fixture that ties motions together, a rolling disk, still rolls).
+The push is scaled to the tool and the device (:func:`key_scale`): the speed crosses the
+workspace in :data:`KEY_CROSSING_S`, the gain brings the tool's own mass (largest inertia) to it
+in about :data:`KEY_REACH_S`, and the push never exceeds :data:`KEY_FORCE_SHARE` of the device's
+force (torque) range, whatever resists (a fixture's added inertia, damping, tissue). A key holds for ``hold_s`` after its last press (keyboards auto-repeat,
 after a first pause of up to half a second). Input is read without blocking from a file
 descriptor (the terminal in cbreak mode by default; a pipe in tests).
 
@@ -197,7 +197,8 @@ class KeyboardOperator(Operator):
         engaged = since <= self.hold + SETTLE_S  # a released key's axis is stopped, then let go
         err = np.where(engaged & np.isfinite(twist), self.target - twist, 0.0)
         tau_i = INTEGRAL_RATIO * KEY_REACH_S / 5.0
-        self.effort = np.where(engaged, np.clip(self.effort + dt * self.gains * err / tau_i, -self.caps, self.caps), 0.0)
+        grown = np.clip(self.effort + dt * self.gains * err / tau_i, -self.caps, self.caps)
+        self.effort = np.where(engaged, grown, 0.0)
         local = np.clip(self.gains * err + self.effort, -self.caps, self.caps)
         return np.concatenate([Rf @ local[:3], Rf @ local[3:]])
 

@@ -3,8 +3,9 @@ operator's wrench (any :class:`~teleop.scenario.operators.Operator`; the keyboar
 
 The **workspace** is the device's: the cobot's gantry travel (less its ``workspace_margin_m``)
 carried through the scene's φ (``[cobot]`` scale, offset, rotation) into the tool's space, an
-oriented box, less a wall zone (so the tool stops before the device's own end stops). The ideal master renders the same device perfectly, so it gets the same box; a tool
-that starts outside it (a scene placed elsewhere) gets the box grown to take it in.
+oriented box, less a wall zone (so the tool stops before the device's own end stops). The ideal
+master renders the same device perfectly, so it gets the same box; a tool that starts outside it
+(a scene placed elsewhere) gets the box grown to take it in.
 
 Both limits act the same way, as a person's hand near a stop would:
 
