@@ -14,9 +14,11 @@ speed along that axis; a released key's axis is brought to rest for :data:`SETTL
 (a proportional-integral push on the tool's velocity in the task frame, axis by axis; an axis no
 key touched is left free, so a fixture that ties motions together, a rolling disk, still rolls).
 The push is scaled to the tool and the device (:func:`key_scale`): the speed crosses the
-workspace in :data:`KEY_CROSSING_S`, the gain brings the tool's own mass (largest inertia) to it
-in about :data:`KEY_REACH_S`, and the push never exceeds :data:`KEY_FORCE_SHARE` of the device's
-force (torque) range, whatever resists (a fixture's added inertia, damping, tissue). A key holds for ``hold_s`` after its last press (keyboards auto-repeat,
+workspace in :data:`KEY_CROSSING_S`; the push never exceeds :data:`KEY_FORCE_SHARE` of the
+device's force (torque) range, and a tool that does not move gets all of it after
+:data:`KEY_STUCK_S` (the integral gain), whatever resists (a fixture's added inertia, damping,
+tissue); the proportional gain damps that critically on the tool's own mass (largest inertia),
+within what an explicit step of the lightest axis takes. A key holds for ``hold_s`` after its last press (keyboards auto-repeat,
 after a first pause of up to half a second). Input is read without blocking from a file
 descriptor (the terminal in cbreak mode by default; a pipe in tests).
 
@@ -28,6 +30,7 @@ person stops it.
 from __future__ import annotations
 
 import logging
+import math
 import os
 import select
 import sys
@@ -63,8 +66,8 @@ KEY_FORCE_SHARE = 0.1
 FAST = 2.0
 #: the speed limits, as multiples of a key's speeds (a capital's speed, with room to settle)
 SPEED_LIMIT_FACTOR = 2.5
-#: the hand's integral time, in multiples of its proportional time constant
-INTEGRAL_RATIO = 4.0
+#: a held key's axis that does not move gets the hand's whole push after this long, s
+KEY_STUCK_S = 2.0
 #: a key pushes this long after its last press (covers the keyboard's first auto-repeat pause), s
 HOLD_S = 0.5
 #: after a key is released its axis is brought to rest for this long, then let go, s
@@ -73,8 +76,9 @@ SETTLE_S = 1.0
 
 @dataclass(frozen=True)
 class KeyScale:
-    """The hand behind the keys: the speeds of a held key (m/s, rad/s), the gains on the velocity
-    error (N*s/m, N*m*s/rad) and the most it pushes (N, N*m)."""
+    """The hand behind the keys: the speeds of a held key (m/s, rad/s), the proportional gains on
+    the velocity error (N*s/m, N*m*s/rad), the most it pushes (N, N*m) and the integral gains
+    (N/m, N*m/rad)."""
 
     speed_m_s: float
     angular_speed_rad_s: float
@@ -82,20 +86,33 @@ class KeyScale:
     gain_Nms_per_rad: float
     force_N: float
     torque_Nm: float
+    integral_N_per_m: float
+    integral_Nm_per_rad: float
+
+
+def hand_gains(m_min: float, m_max: float, speed: float, cap: float, dt_s: float) -> tuple[float, float]:
+    """(proportional, integral) gains of one kind of axis (translation: masses in kg, m/s, N; turn:
+    inertias in kg*m^2, rad/s, N*m): the integral gives the whole ``cap`` to a tool stuck for
+    KEY_STUCK_S; the proportional gain damps it critically on the heaviest axis ``m_max`` (at least
+    m_max / (KEY_REACH_S / 5)), and at most half what an explicit step of the lightest ``m_min``
+    takes (m_min / dt), the integral then lowered to keep the damping critical."""
+    k_i = cap / (speed * KEY_STUCK_S)
+    k_p = min(max(m_max / (KEY_REACH_S / 5.0), 2.0 * math.sqrt(k_i * m_max)), 0.5 * m_min / dt_s)
+    return k_p, min(k_i, k_p * k_p / (4.0 * m_max))
 
 
 def key_scale(scene, workspace=None) -> KeyScale:
     """The hand for ``scene``'s tool and device (see the module docstring): speed = the workspace's
-    narrowest width / KEY_CROSSING_S; gains = mass (largest principal inertia) / (KEY_REACH_S / 5),
-    no faster than 20 control periods; caps = KEY_FORCE_SHARE of ``cobot.max_force_N`` /
-    ``max_torque_Nm``."""
+    narrowest width / KEY_CROSSING_S; caps = KEY_FORCE_SHARE of ``cobot.max_force_N`` /
+    ``max_torque_Nm``; gains from :func:`hand_gains` on the tool's mass and principal inertias."""
     ws = workspace if workspace is not None else device_workspace(scene.cobot)
     inertia = np.asarray(scene.tool.inertia_kgm2, float)
-    inertia = inertia.reshape(3, 3) if inertia.size == 9 else np.diag(inertia)
-    tau = max(KEY_REACH_S / 5.0, 20.0 * scene.dt_s)
-    return KeyScale(2.0 * float(ws.half.min()) / KEY_CROSSING_S, KEY_SPIN_RAD_S, scene.tool.mass_kg / tau,
-                    float(np.linalg.eigvalsh(inertia).max()) / tau, KEY_FORCE_SHARE * scene.cobot.max_force_N,
-                    KEY_FORCE_SHARE * scene.cobot.max_torque_Nm)
+    inertia = np.linalg.eigvalsh(inertia.reshape(3, 3) if inertia.size == 9 else np.diag(inertia))
+    speed, m = 2.0 * float(ws.half.min()) / KEY_CROSSING_S, scene.tool.mass_kg
+    force, torque = KEY_FORCE_SHARE * scene.cobot.max_force_N, KEY_FORCE_SHARE * scene.cobot.max_torque_Nm
+    kp, ki = hand_gains(m, m, speed, force, scene.dt_s)
+    kp_w, ki_w = hand_gains(float(inertia.min()), float(inertia.max()), KEY_SPIN_RAD_S, torque, scene.dt_s)
+    return KeyScale(speed, KEY_SPIN_RAD_S, kp, kp_w, force, torque, ki, ki_w)
 
 
 class KeyboardOperator(Operator):
@@ -107,6 +124,7 @@ class KeyboardOperator(Operator):
         self.fixture, self.scale, self.fd, self.hold = fixture, scale, fd, hold_s
         self.speeds = np.array([scale.speed_m_s] * 3 + [scale.angular_speed_rad_s] * 3)
         self.gains = np.array([scale.gain_Ns_per_m] * 3 + [scale.gain_Nms_per_rad] * 3)
+        self.integral = np.array([scale.integral_N_per_m] * 3 + [scale.integral_Nm_per_rad] * 3)
         self.caps = np.array([scale.force_N] * 3 + [scale.torque_Nm] * 3)
         self.last_press = np.full(6, -np.inf)
         self.sign = np.zeros(6)
@@ -196,8 +214,7 @@ class KeyboardOperator(Operator):
         self.target = np.where(since <= self.hold, self.sign, 0.0) * self.speeds
         engaged = since <= self.hold + SETTLE_S  # a released key's axis is stopped, then let go
         err = np.where(engaged & np.isfinite(twist), self.target - twist, 0.0)
-        tau_i = INTEGRAL_RATIO * KEY_REACH_S / 5.0
-        grown = np.clip(self.effort + dt * self.gains * err / tau_i, -self.caps, self.caps)
+        grown = np.clip(self.effort + dt * self.integral * err, -self.caps, self.caps)
         self.effort = np.where(engaged, grown, 0.0)
         local = np.clip(self.gains * err + self.effort, -self.caps, self.caps)
         return np.concatenate([Rf @ local[:3], Rf @ local[3:]])

@@ -11,9 +11,9 @@ Both limits act the same way, as a person's hand near a stop would:
 
 * the hand's push *toward* a limit fades to nothing across a zone before it (a wall zone of
   ``zone_m`` before each face; the last fifth below the speed limit), and
-* past a face all the same (a fixture can turn a push along a face into a slide through it: a
-  knife edge, a rolling disk), the hand's whole wrench fades out over :data:`PAST_FACE_SHARE` of
-  the zone, and
+* past a face or a speed limit all the same (a fixture can turn a push along a face into a slide
+  through it, a push into a turn: a knife edge, a rolling disk), the hand's whole wrench fades out
+  over :data:`PAST_LIMIT_SHARE` of the zone or the limit, and
 * a brake, a damper of ``mass / brake_s`` (the tool's inertia over a fixed time, N*s/m; for the
   rotation ``R I R^T / brake_s``), acts on the velocity *past what is allowed*: toward a face at
   distance d the allowed speed is ``d / wall_s`` (negative outside: then the brake is a spring of
@@ -42,8 +42,9 @@ log = logging.getLogger(__name__)
 BRAKE_TICKS, BRAKE_MIN_S = 20, 0.02
 #: the speed (as a share of the limit) above which the hand's push along the motion fades
 SPEED_FADE_FROM = 0.8
-#: past a face, the hand's whole wrench fades out over this share of the wall zone
-PAST_FACE_SHARE = 0.1
+#: past a face or a speed limit, the hand's whole wrench fades out over this share of the wall zone
+#: or the limit
+PAST_LIMIT_SHARE = 0.1
 
 
 @dataclass(frozen=True)
@@ -173,7 +174,7 @@ class LimitedOperator(Operator):
         w = np.zeros(3) if w is None else np.asarray(w, float)
         F, T = W[:3].copy(), W[3:].copy()
         c = lim.mass_kg / lim.brake_s
-        brake_F = np.zeros(3)
+        brake_F, brake_T = np.zeros(3), np.zeros(3)
         active = []
         d = lim.workspace.distances(p)
         for n, dk in zip(lim.workspace.normals(), d):
@@ -184,9 +185,6 @@ class LimitedOperator(Operator):
             if excess > 0.0:
                 brake_F -= c * excess * n
                 active.append("wall")
-        if d.min() < 0.0:  # past a face all the same (a fixture turned a push into a slide): let go
-            keep = max(0.0, 1.0 + float(d.min()) / (PAST_FACE_SHARE * lim.zone_m))
-            F, T = keep * F, keep * T
         speed = float(np.linalg.norm(v))
         if speed > SPEED_FADE_FROM * lim.speed_m_s:
             u = v / speed
@@ -200,9 +198,16 @@ class LimitedOperator(Operator):
             keep = max(0.0, (lim.angular_speed_rad_s - spin) / ((1 - SPEED_FADE_FROM) * lim.angular_speed_rad_s))
             T = _fade(T, u, keep, I_W)
             if spin > lim.angular_speed_rad_s:
-                T = T - _capped(I_W @ (u * (spin - lim.angular_speed_rad_s)) / lim.brake_s, lim.max_torque_Nm)
+                brake_T = -_capped(I_W @ (u * (spin - lim.angular_speed_rad_s)) / lim.brake_s, lim.max_torque_Nm)
                 active.append("spin")
+        # past a face or a speed limit all the same (a fixture turned the hand's push into a slide or
+        # a turn: a knife edge, a rolling disk): the hand is let go of over PAST_LIMIT_SHARE
+        past = max(-float(d.min()) / lim.zone_m, speed / lim.speed_m_s - 1.0, spin / lim.angular_speed_rad_s - 1.0)
+        if past > 0.0:
+            keep = max(0.0, 1.0 - past / PAST_LIMIT_SHARE)
+            F, T = keep * F, keep * T
         F = F + _capped(brake_F, lim.max_force_N)
+        T = T + brake_T
         self.active = tuple(dict.fromkeys(active))
         self.braked_ticks += bool(active)
         self.margin_min_m = min(self.margin_min_m, float(d.min()))

@@ -12,8 +12,8 @@ from scipy.spatial.transform import Rotation
 
 from teleop.master.ideal import IdealMaster
 from teleop.scenario.build import build_tool, master_fixture_spec
-from teleop.scenario.keyboard import FAST, SPEED_LIMIT_FACTOR, KeyboardOperator, KeyScale
-from teleop.scenario.limits import BRAKE_MIN_S, PAST_FACE_SHARE, Limits, LimitedOperator, Workspace
+from teleop.scenario.keyboard import FAST, SPEED_LIMIT_FACTOR, KeyboardOperator, KeyScale, hand_gains
+from teleop.scenario.limits import BRAKE_MIN_S, PAST_LIMIT_SHARE, Limits, LimitedOperator, Workspace
 from teleop.scenario.schema import load_scene
 from teleop.session import Session
 
@@ -29,7 +29,7 @@ type = "free"
 """
 KEYS = "wsadrfikjlqeWSADRFIKJLQE"
 #: how far past a face (m) and over a limit (share) the tool may go. The wall is soft: past a face
-#: the hand is let go over PAST_FACE_SHARE of the zone, so a push a fixture turns into a slide
+#: the hand is let go over PAST_LIMIT_SHARE of the zone, so a push a fixture turns into a slide
 #: through the face (a blade turned while it slid into one) settles within that; the brakes add a
 #: hair in the ticks they take to act.
 FACE_SLACK_M = 2e-4
@@ -59,9 +59,11 @@ class HeldKeys(KeyboardOperator):
 def run_keys(scene, plan, half, speed, spin, T):
     tool = build_tool(scene)
     p0, _ = tool.pose()
-    scale = KeyScale(speed / SPEED_LIMIT_FACTOR, spin / SPEED_LIMIT_FACTOR, tool.body.mass_kg / 0.1,
-                     4e-4 / 0.1, 10.0, 0.5)
     inertia = np.diag(scene.tool.inertia_kgm2)
+    key_speed, key_spin, m = speed / SPEED_LIMIT_FACTOR, spin / SPEED_LIMIT_FACTOR, tool.body.mass_kg
+    kp, ki = hand_gains(m, m, key_speed, 10.0, scene.dt_s)
+    kp_w, ki_w = hand_gains(2e-5, 4e-4, key_spin, 0.5, scene.dt_s)
+    scale = KeyScale(key_speed, key_spin, kp, kp_w, 10.0, 0.5, ki, ki_w)
     limits = Limits(Workspace(p0, np.eye(3), np.asarray(half)), speed, spin, tool.body.mass_kg, inertia, 100.0, 5.0,
                     zone_m=4 * BRAKE_MIN_S * speed, brake_s=BRAKE_MIN_S, wall_s=4 * BRAKE_MIN_S)
     op = LimitedOperator(HeldKeys(master_fixture_spec(scene), scale, plan), limits)
@@ -88,7 +90,7 @@ def test_held_keys_never_take_the_tool_out_or_too_fast(scenes, plan, half, speed
     assert result.summary["steps"] == round(T / dt) and not result.summary["nan"]
     p, R = log["p_r"], log["R_r"]
     margins = np.array([limits.workspace.margin(x) for x in p])
-    allowed = PAST_FACE_SHARE * limits.zone_m + FACE_SLACK_M
+    allowed = PAST_LIMIT_SHARE * limits.zone_m + FACE_SLACK_M
     assert margins.min() > -allowed, f"{-margins.min() * 1e3:.3f} mm past a face (allowed {allowed * 1e3:.3f})"
     v = np.linalg.norm(np.diff(p, axis=0), axis=1) / dt
     assert v.max() <= speed * (1 + SPEED_TOLERANCE), f"{v.max():.4f} m/s over the limit {speed:.4f}"

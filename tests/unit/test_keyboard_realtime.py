@@ -9,14 +9,14 @@ import numpy as np
 import pytest
 
 from teleop.runtime import run_scene
-from teleop.scenario.keyboard import (FAST, KEY_CROSSING_S, KEY_FORCE_SHARE, KeyboardOperator, KeyScale, describe,
-                                      key_scale, keyboard_operator)
+from teleop.scenario.keyboard import (FAST, KEY_CROSSING_S, KEY_FORCE_SHARE, KEY_STUCK_S, KeyboardOperator, KeyScale,
+                                      describe, key_scale, keyboard_operator)
 from teleop.scenario.schema import FixtureSpec, load_scene
 from teleop.session import MAX_TICKS
 from teleop.statusline import StatusLine, status_text
 
 SCALE = KeyScale(speed_m_s=0.05, angular_speed_rad_s=0.5, gain_Ns_per_m=1.0, gain_Nms_per_rad=0.004,
-                 force_N=10.0, torque_Nm=0.5)
+                 force_N=10.0, torque_Nm=0.5, integral_N_per_m=2.0, integral_Nm_per_rad=0.01)
 
 
 @pytest.fixture
@@ -35,12 +35,16 @@ def test_a_held_key_pushes_toward_its_speed_and_a_released_one_stops(pipe):
     # at rest: the proportional push, gain times the key's speed, along x and about z
     np.testing.assert_allclose(F, [1.0 * 0.05, 0, 0, 0, 0, 0.004 * 0.5])
     F = op.wrench(0.001, np.zeros(3), np.eye(3), np.array([0.05, 0, 0]), np.zeros(3))
-    assert abs(F[0]) < 1e-4  # at the key's speed it pushes no more (the integral is a hair)
+    assert F[0] == pytest.approx(0.0)  # at the key's speed it pushes no more (the integral: 0 over 1 ms)
+    for i in range(2, 1002):  # held still for a second: the integral adds 2 N/m x 0.05 m/s a second
+        F = op.wrench(i * 1e-3, np.zeros(3), np.eye(3), np.zeros(3), np.zeros(3))
+        op.press("w", i * 1e-3)
+    assert F[0] == pytest.approx(0.05 + 2.0 * 0.05 * 1.0, rel=1e-2)
     # released (past hold_s): the hand brakes the axis it moved
-    F = op.wrench(0.6, np.zeros(3), np.eye(3), np.array([0.05, 0, 0]), np.zeros(3))
+    F = op.wrench(1.6, np.zeros(3), np.eye(3), np.array([0.05, 0, 0]), np.zeros(3))
     assert F[0] < 0
     # then lets go: an axis no key holds is free
-    assert np.all(op.wrench(3.0, np.zeros(3), np.eye(3), np.array([0.05, 0, 0]), np.zeros(3)) == 0)
+    assert np.all(op.wrench(4.0, np.zeros(3), np.eye(3), np.array([0.05, 0, 0]), np.zeros(3)) == 0)
 
 
 def test_keys_capitals_arrows_clutch_and_stop(pipe):
@@ -70,12 +74,18 @@ def test_the_hand_is_scaled_to_the_tool_and_the_device():
     k = key_scale(scene)
     # the gantry's 0.8 m travel less 5 mm a side, times the scene's phi scale 1.5, crossed in 20 s
     assert k.speed_m_s == pytest.approx((0.8 - 2 * 0.005) * 1.5 / KEY_CROSSING_S)
-    # 0.1 kg brought to speed with a 0.1 s time constant; the largest of the inertias 4e-4 kg*m^2
-    assert k.gain_Ns_per_m == pytest.approx(0.1 / 0.1) and k.gain_Nms_per_rad == pytest.approx(4e-4 / 0.1)
     assert k.force_N == pytest.approx(KEY_FORCE_SHARE * 100.0) and k.torque_Nm == pytest.approx(KEY_FORCE_SHARE * 5.0)
+    # stuck, the whole 10 N after KEY_STUCK_S; critically damped on the 0.1 kg tool
+    assert k.integral_N_per_m == pytest.approx(10.0 / (k.speed_m_s * KEY_STUCK_S))
+    assert k.gain_Ns_per_m == pytest.approx(2 * np.sqrt(k.integral_N_per_m * 0.1))
+    # the turn: the lightest axis (2e-5 kg*m^2) takes at most 0.5 * 2e-5 / 1 ms; the integral is
+    # lowered to keep the heaviest (4e-4) critically damped
+    assert k.gain_Nms_per_rad == pytest.approx(0.5 * 2e-5 / 1e-3)
+    assert k.integral_Nm_per_rad == pytest.approx(0.01 ** 2 / (4 * 4e-4))
     heavy = key_scale(scene.with_overrides(["tool.mass_kg=2.0", "cobot.max_force_N=20.0", "cobot.scale=1.0"]))
-    assert heavy.gain_Ns_per_m == pytest.approx(20 * k.gain_Ns_per_m)
     assert heavy.force_N == pytest.approx(2.0) and heavy.speed_m_s == pytest.approx(k.speed_m_s / 1.5)
+    assert heavy.integral_N_per_m == pytest.approx(2.0 / (heavy.speed_m_s * KEY_STUCK_S))
+    assert heavy.gain_Ns_per_m == pytest.approx(2.0 / 0.1)  # the floor: its own mass to speed in 0.1 s
 
 
 def test_keyboard_drives_a_scene_and_x_is_a_clean_stop(pipe):
