@@ -74,7 +74,7 @@ class BilateralLoop:
             self._send_command(i, t)                                # master side ends here
             cmd, sg = self.link.receive_command(t), self.slave_guard           # slave side
             reply = self.slave.follow(cmd if sg is None else sg.command(cmd, t), t)
-            self.link.send_feedback(reply if sg is None else sg.reply(reply))
+            self.link.send_feedback(reply if sg is None else sg.reply(reply, np.concatenate((self.slave.state.v, self.slave.state.w))))
             msg = self.link.receive_feedback(t)                                # master again
             self.feedback_W = self.feedback.update(msg)
             if self.master_guard is not None:                       # TDPA: damp what it felt

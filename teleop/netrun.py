@@ -190,7 +190,7 @@ class SlaveHalf:
         sg = self.slave_guard
         reply = self.slave.follow(cmd if sg is None else sg.command(cmd, t), t, hold=lost)
         if sg is not None:
-            reply = sg.reply(reply)
+            reply = sg.reply(reply, np.concatenate((self.slave.state.v, self.slave.state.w)))
         if lost:
             self.slave.state.status = "link_lost"
             reply = ContactFeedback(reply.seq, reply.t_s, reply.wrench_P, "link_lost", reply.command_seq, reply.energy_J)
