@@ -74,7 +74,7 @@ class BilateralLoop:
             self._send_command(i, t)                                # master side ends here
             cmd, sg = self.link.receive_command(t), self.slave_guard           # slave side
             reply = self.slave.follow(cmd if sg is None else sg.command(cmd, t), t)
-            self.link.send_feedback(reply if sg is None else sg.reply(reply, np.concatenate((self.slave.state.v, self.slave.state.w))))
+            self.link.send_feedback(reply if sg is None else sg.reply(reply))
             msg = self.link.receive_feedback(t)                                # master again
             self.feedback_W = self.feedback.update(msg)
             if self.master_guard is not None:                       # TDPA: damp what it felt
@@ -89,7 +89,8 @@ class BilateralLoop:
         """The virtual tool (the observer's estimate) to the slave; a master whose estimate is not
         finite sends nothing (the slave holds) and reports it."""
         try:
-            energy = None if self.master_guard is None else self.master_guard.energy_J
+            mg = self.master_guard
+            energy = None if mg is None else mg.energy_after(np.concatenate(self.tool.twist()))
             self.link.send_command(ToolCommand(i, t, *self.master.virtual_estimate(),
                                                self.operator.clutch_engaged, energy))
         except MessageError:

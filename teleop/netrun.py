@@ -137,12 +137,15 @@ class MasterHalf:
             tool.state.qd = np.zeros(6)
             self.feedback.wrench_M, self.feedback._target = np.zeros(6), np.zeros(6)
             self.feedback_W = np.zeros(6)
+            if self.master_guard is not None:
+                self.master_guard.drop_force()
             st, st_m = "ok", master.command(p_r, R_r, _Z6, _Z6)
         else:
             v_r, w_r = tool.twist()
             st = tool.step(self.dt, f_v + self.feedback_W)
             st_m = master.command(p_r, R_r, np.concatenate((v_r, w_r)), tool.acceleration_W)
-        energy = None if self.master_guard is None else self.master_guard.energy_J
+        mg = self.master_guard
+        energy = None if mg is None else mg.energy_J if lost else mg.energy_after(np.concatenate(tool.twist()))
         try:  # sent even when lost: the heartbeat the slave listens for
             self.link.send_command(ToolCommand(i + 1, t, *master.virtual_estimate(),
                                                self.operator.clutch_engaged and not lost, energy))
@@ -190,7 +193,7 @@ class SlaveHalf:
         sg = self.slave_guard
         reply = self.slave.follow(cmd if sg is None else sg.command(cmd, t), t, hold=lost)
         if sg is not None:
-            reply = sg.reply(reply, np.concatenate((self.slave.state.v, self.slave.state.w)))
+            reply = sg.reply(reply)
         if lost:
             self.slave.state.status = "link_lost"
             reply = ContactFeedback(reply.seq, reply.t_s, reply.wrench_P, "link_lost", reply.command_seq, reply.energy_J)

@@ -38,8 +38,17 @@ class MasterGuard:
 
     @property
     def energy_J(self) -> np.ndarray:
-        """(6,) J: the master port's input energy, for the outgoing command."""
+        """(6,) J: the master port's input energy counted so far."""
         return self.port.energy_J
+
+    def energy_after(self, twist_M) -> np.ndarray:
+        """(6,) J: the input energy for the command sent this tick, with the work of the force
+        rendered last counted at the tool's ``twist_M`` (6,) after its step."""
+        return self.port.energy_after(twist_M)
+
+    def drop_force(self) -> None:
+        """The remote force is dropped (a lost link's safe state): nothing rendered any more."""
+        self.port.f_channel = self.port.f_rendered = np.zeros(6)
 
     def feedback(self, wrench_M, twist_M, msg: ContactFeedback | None, t_s: float) -> np.ndarray:
         """The felt wrench (6,: N, N*m, M) after damping, from the filtered feedback ``wrench_M``,
@@ -73,23 +82,10 @@ class SlaveGuard:
         return ToolCommand(cmd.seq, cmd.t_s, cmd.p_m + off[:3], exp3(off[3:]) @ cmd.R, v[:3], v[3:],
                            cmd.clutch, cmd.energy_J)
 
-    def reply(self, fb: ContactFeedback, twist_P) -> ContactFeedback:
-        """``fb`` with the slave port's input energy, after counting the tick's port power: its
-        wrench (at the tool frame origin, P) against the slave tool's measured ``twist_P`` (6,:
-        m/s, rad/s at the same origin, P axes), both mapped to M. Remembers the wrench for the
-        next tick."""
+    def reply(self, fb: ContactFeedback) -> ContactFeedback:
+        """``fb`` with the slave port's input energy; remembers its wrench for the next tick."""
         self.f_M = self.reg.wrench_to_master(fb.wrench_P)
-        self.port.measure(self.f_M, twist_to_master(self.reg, twist_P))
         return ContactFeedback(fb.seq, fb.t_s, fb.wrench_P, fb.status, fb.command_seq, self.port.energy_J)
-
-
-def twist_to_master(reg, twist_P) -> np.ndarray:
-    """A slave twist (6,: m/s, rad/s; P axes) in M units: the inverse of ``Registration.target``'s
-    twist (linear times ``scale``, both rotated back), so that ``wrench_to_master(F) . twist`` is
-    the slave's power times ``force_scale * scale`` on force axes, as the master port counts it."""
-    t = np.asarray(twist_P, dtype=float)
-    Rt = reg.X_PM_R.T
-    return np.concatenate((reg.scale * (Rt @ t[:3]), Rt @ t[3:]))
 
 
 def tdpa_params(link, dt_s: float, mass_kg: float, inertia_kgm2, enabled: bool) -> TdpaParams:

@@ -168,15 +168,38 @@ class MasterPassivity(_Port):
     unseen). ``E_out`` counts what the channel (after the controller) put into the master;
     ``E_in`` credits the slave only with what entered through the channel's own force, not the
     work the hand did against the controller's damping: ``min((-f(n-1) v)+, (-f_out(n-1) v)+)``.
-    The observer ``W = E_in_slave - E_out`` then holds the controller's past action; the controller
-    acts on the force about to be rendered, against its predicted output ``f v(n) dt``, with
-    ``alpha`` capped at ``alpha_max`` (a damper the tool's explicit step can take) except that it
-    may always remove a force pushing along the motion down to zero (``alpha <= f / v`` there)."""
+    The observer ``W = E_in_slave - E_out`` then holds the controller's past action (no separate
+    ``E_diss`` term: what the damping took is missing from ``E_out``). A negative observer is
+    dissipated on the force about to be rendered, ``alpha = -W / (dt v^2)``, capped at
+    ``alpha_max`` (a damper the tool's explicit step can take) except that a force pushing along
+    the motion may always be removed down to zero (``alpha <= f / v`` there): the cap alone let a
+    stiff wall's force, arriving late, throw the tool (1.8 mm shake at 1 s round trip with loss,
+    a blow-up at 10 ms)."""
 
     def __init__(self, params: TdpaParams, log_capacity: int = 0):
         super().__init__(params, log_capacity)
         self.f_channel = np.zeros(6)  # the channel's force last tick, before the controller
         self.f_rendered = np.zeros(6)  # the force rendered last tick, after it
+        self._counted = False  # the rendered force's work already counted (by energy_after)
+
+    def account(self, v_m) -> None:
+        """Count the work the force rendered last did on the master, now that it has moved it at
+        ``v_m`` (6,) m/s, rad/s; once per tick (:meth:`step` calls it if nobody did)."""
+        if self._counted:
+            return
+        v_m = np.asarray(v_m, dtype=float)
+        p_done = self.f_rendered * v_m
+        dt = self.params.dt_s
+        self.E_out = self.E_out + np.maximum(p_done, 0.0) * dt
+        self.E_in = self.E_in + np.minimum(np.maximum(-self.f_channel * v_m, 0.0), np.maximum(-p_done, 0.0)) * dt
+        self._counted = True
+
+    def energy_after(self, v_m) -> np.ndarray:
+        """(6,) J: ``E_in`` with the work of the force rendered last counted at the master's
+        velocity ``v_m`` after its step: what to stamp in the command sent that tick, so the
+        slave hears of the energy in the same tick it enters (no tick of lag at zero delay)."""
+        self.account(v_m)
+        return self.E_in.copy()
 
     def step(self, f_m: np.ndarray, v_m: np.ndarray, E_remote=None, t_s: float = 0.0) -> np.ndarray:
         """The force (6,) N, N*m to render on the master, from the channel's force ``f_m`` (6,) on
@@ -186,10 +209,8 @@ class MasterPassivity(_Port):
         p, dt = self.params, self.params.dt_s
         f_m, v_m = np.asarray(f_m, dtype=float), np.asarray(v_m, dtype=float)
         self._receive(E_remote)
-        p_done = self.f_rendered * v_m
-        self.E_out = self.E_out + np.maximum(p_done, 0.0) * dt
-        self.E_in = self.E_in + np.minimum(np.maximum(-self.f_channel * v_m, 0.0), np.maximum(-p_done, 0.0)) * dt
-        W = self.E_remote - self.E_out - np.maximum(f_m * v_m, 0.0) * dt  # with the output about to come
+        self.account(v_m)
+        W = self.E_remote - self.E_out
         alpha = np.zeros(6)
         if p.enabled:
             act = (W < 0.0) & (np.abs(v_m) > p.v_floor)
@@ -197,8 +218,8 @@ class MasterPassivity(_Port):
             alpha[act] = np.minimum(-W[act] / (dt * v_m[act] ** 2), cap)
         f_out = f_m - alpha * v_m
         self.E_diss, self.action = self.E_diss + alpha * v_m * v_m * dt, alpha
-        self.W = self.E_remote - self.E_out - np.maximum(f_out * v_m, 0.0) * dt
-        self.f_channel, self.f_rendered = f_m, f_out
+        self.W = W
+        self.f_channel, self.f_rendered, self._counted = f_m, f_out, False
         if self.log is not None:
             self.log.record(t_s, self)
         return f_out
@@ -210,21 +231,6 @@ class SlavePassivity(_Port):
     def __init__(self, params: TdpaParams, log_capacity: int = 0):
         super().__init__(params, log_capacity)
         self.offset = np.zeros(6)
-        self.v_des = np.zeros(6)  # this tick's channel velocity (before the correction)
-
-    def measure(self, f_s: np.ndarray, v_s: np.ndarray) -> None:
-        """Count the energy the environment gave back this tick, after the slave moved: its force
-        ``f_s`` (6,) N, N*m and the slave's **measured** twist ``v_s`` (6,) m/s, rad/s. The input
-        energy is credited per axis only where both the channel's velocity (``v_des``, what the
-        slave was asked to do) and the measured one say the environment pushed energy in, and by
-        the smaller of the two: ``E_in += min((f v_des)+, (f v_s)+) dt``. A position-controlled
-        slave lags its command (servo lag, acceleration limits, a lost command held then
-        jumped): a slave still pressed into a stiff wall while commanded away would otherwise
-        report ``f v_des`` it never received, and the master would render energy that never
-        entered (the loss-driven blow-up at 10 ms and the shake at 1 s on ``stiff_contact``)."""
-        f_s, v_s = np.asarray(f_s, dtype=float), np.asarray(v_s, dtype=float)
-        p_in = np.minimum(np.maximum(f_s * self.v_des, 0.0), np.maximum(f_s * v_s, 0.0))
-        self.E_in = self.E_in + p_in * self.params.dt_s
 
     def step(self, v_des: np.ndarray, f_s: np.ndarray, E_remote=None, t_s: float = 0.0) -> np.ndarray:
         """The velocity (6,) m/s, rad/s the slave should follow, from the channel's velocity
@@ -254,7 +260,7 @@ class SlavePassivity(_Port):
         else:
             diss = np.zeros(6)
         v = v_des + dv
-        self.v_des = v_des  # E_in waits for the measured flow (measure)
+        self.E_in = self.E_in + np.maximum(f_s * v_des, 0.0) * dt
         self.E_out, self.E_diss, self.action = E_out, self.E_diss + diss, dv
         self.W = W + diss
         self.offset = self.offset + dv * dt
