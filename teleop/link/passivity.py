@@ -15,18 +15,24 @@ Power into the channel, per axis and per tick (W, with m/s and N, or rad/s and N
 
 Each side splits its port power into the energy that entered the channel there, ``E_in``, and the
 energy that left it there, ``E_out`` (both non-decreasing, J), and sends ``E_in`` with every
-message (``energy_J``). Without delay ``p_m + p_s = 0`` (a lossless wire); with delay the channel
-may create energy. Two passivity observers split that, one per direction of flow::
+message (``energy_J``) as a cumulative sum, so a lost message loses nothing: the next one carries
+the whole sum. Without delay ``p_m + p_s = 0`` (a lossless wire); with delay the channel may
+create energy. Two passivity observers split that, one per direction of flow::
 
-    master (right to left): W_m(n) = E_in_s(n - D_sm) - E_out_m(n) + E_diss_m(n - 1)
+    master (right to left): W_m(n) = E_in_s(n - D_sm) - E_out_m(n)
     slave  (left to right): W_s(n) = E_in_m(n - D_ms) - E_out_s(n) + E_diss_s(n - 1)
 
-``E_in`` of the other side is the newest received (held when a message is late or lost, which
-is conservative: it only ever grows). A negative observer means the channel has put out more than
-it was given; the controller at that port dissipates exactly ``-W``, no more:
+``E_in`` of the other side is the largest received (held when a message is late or lost, which
+is conservative: it only ever grows, and a stale value is never taken for a newer one). At the
+master ``E_out`` is the work the rendered force (after the controller) did on the tool, counted
+after the step it acted in (see :class:`MasterPassivity`), so it needs no ``E_diss`` term. A
+negative observer means the channel has put out more than it was given; the controller at that
+port dissipates it:
 
 * master, impedance-type port: adaptive damping, ``f = f_m - alpha * v_m`` with
-  ``alpha = -W / (dt v_m^2)``, capped at ``alpha_max`` (N*s/m), not computed below ``v_floor``.
+  ``alpha = -W / (dt v_m^2)``, capped at ``max(alpha_max, f_m / v_m)`` (N*s/m: removing a force
+  that pushes along the motion is always allowed, reversing it only up to ``alpha_max``), not
+  computed below ``v_floor``.
 * slave, admittance-type port: a velocity correction, ``v_s = v_des + dv`` with
   ``dv = -W / (dt f_s)``, capped at ``dv_max`` (m/s), not computed below ``f_floor``.
 
