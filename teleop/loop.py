@@ -89,7 +89,8 @@ class BilateralLoop:
         """The virtual tool (the observer's estimate) to the slave; a master whose estimate is not
         finite sends nothing (the slave holds) and reports it."""
         try:
-            energy = None if self.master_guard is None else self.master_guard.energy_J
+            mg = self.master_guard
+            energy = None if mg is None else mg.energy_after(np.concatenate(self.tool.twist()))
             self.link.send_command(ToolCommand(i, t, *self.master.virtual_estimate(),
                                                self.operator.clutch_engaged, energy))
         except MessageError:

@@ -46,7 +46,9 @@ def cmd_side(args) -> int:
         Path(args.json).parent.mkdir(parents=True, exist_ok=True)
         Path(args.json).write_text(json.dumps(out, indent=2) + "\n")
     hb = out["heartbeat"]
+    ck = out["clock"]
     print(f"{args.role}: {out['status']}  steps={out['steps']}  late={out['late_ticks']}  "
+          f"real-time factor {ck['realtime_factor']:.2f} (behind at most {ck['behind_max_ms']:.0f} ms, load {ck['load_1min']:.1f})  "
           f"link lost {hb['lost_events']}x ({hb['lost_ticks']} ticks, detected within {hb['detect_latency_max_s'] * 1e3:.1f} ms)")
     return 0 if out["status"] == "ok" else 1
 

@@ -137,12 +137,15 @@ class MasterHalf:
             tool.state.qd = np.zeros(6)
             self.feedback.wrench_M, self.feedback._target = np.zeros(6), np.zeros(6)
             self.feedback_W = np.zeros(6)
+            if self.master_guard is not None:
+                self.master_guard.drop_force()
             st, st_m = "ok", master.command(p_r, R_r, _Z6, _Z6)
         else:
             v_r, w_r = tool.twist()
             st = tool.step(self.dt, f_v + self.feedback_W)
             st_m = master.command(p_r, R_r, np.concatenate((v_r, w_r)), tool.acceleration_W)
-        energy = None if self.master_guard is None else self.master_guard.energy_J
+        mg = self.master_guard
+        energy = None if mg is None else mg.energy_J if lost else mg.energy_after(np.concatenate(tool.twist()))
         try:  # sent even when lost: the heartbeat the slave listens for
             self.link.send_command(ToolCommand(i + 1, t, *master.virtual_estimate(),
                                                self.operator.clutch_engaged and not lost, energy))
@@ -249,18 +252,20 @@ def run_master(scene, connect: str | None, listen: str | None = None, session: s
     with link, master:
         _hello(master, link, timeout_s)
         print("master: running", flush=True)
-        wall0 = time.perf_counter()
+        wall0, behind = time.perf_counter(), 0.0
         for i in range(n):
             half.heart.tick_late_s = max(0.0, time.perf_counter() - (wall0 + i * scene.dt_s))
+            behind = max(behind, half.heart.tick_late_s)
             status = half.tick(i)
             if status != "ok":
                 break
             late += _pace(wall0 + (i + 1) * scene.dt_s)
+        clock = _clock(wall0, recorder.n, scene.dt_s, behind)
         link_stats = link.stats()
     ticks = recorder.log["tick_us"][: recorder.n]
     heart = half.heart.summary()
     out = {"side": "master", "status": status if status != "ok" else ("link_lost" if heart["lost_ticks"] else "ok"),
-           "steps": recorder.n, "late_ticks": late, "nan": bool(recorder.nan),
+           "steps": recorder.n, "late_ticks": late, "clock": clock, "nan": bool(recorder.nan),
            "tick_us": {"median": float(np.median(ticks)) if len(ticks) else 0.0,
                        "p99": float(np.percentile(ticks, 99)) if len(ticks) else 0.0},
            "heartbeat": heart, "zenoh": link_stats, "slave_statuses_heard": half.slave_status,
@@ -305,22 +310,24 @@ def run_slave(scene, listen: str | None, connect: str | None = None, session: st
             if link.last_receive_s is not None:
                 link.send_feedback(ContactFeedback(0, -1.0, _Z6, "hold", -1))
             time.sleep(0.001)
-        wall0 = time.perf_counter()
+        wall0, behind = time.perf_counter(), 0.0
         for i in range(cap):
             half.heart.tick_late_s = max(0.0, time.perf_counter() - (wall0 + i * scene.dt_s))
+            behind = max(behind, half.heart.tick_late_s)
             half.tick(i)
             tick_ns.append(half.tick_ns)
             steps = i + 1
             if half.last_seq >= n:
                 break
             late += _pace(wall0 + (i + 1) * scene.dt_s)
+        clock = _clock(wall0, steps, scene.dt_s, behind)
         link_stats = link.stats()
     heart = half.heart.summary()
     counts = counter.counts
     status = run_status("ok", steps, counts)
     if heart["lost_ticks"] and status in ("ok", "slave_link_lost", "slave_hold"):
         status = "link_lost"  # this side's own word for it (the lost ticks were counted as such)
-    out = {"side": "slave", "status": status, "steps": steps, "late_ticks": late,
+    out = {"side": "slave", "status": status, "steps": steps, "late_ticks": late, "clock": clock,
            "followed_last_command": half.last_seq >= n, "slave_statuses": counts, "heartbeat": heart,
            "zenoh": link_stats, "tick_us": {"median": float(np.median(tick_ns)) * 1e-3 if tick_ns else 0.0,
                                            "p99": float(np.percentile(tick_ns, 99)) * 1e-3 if tick_ns else 0.0},
@@ -328,6 +335,17 @@ def run_slave(scene, listen: str | None, connect: str | None = None, session: st
     if guard:
         out["passivity_slave"] = hooks[-1].summary()
     return out
+
+
+def _clock(wall0: float, steps: int, dt_s: float, behind_s: float) -> dict:
+    """How the wall clock kept up: ``wall_s`` the tick loop took (s), ``realtime_factor`` the
+    simulated time over it (1: real time), ``behind_max_ms`` the furthest a tick started behind
+    its deadline (ms; once behind, the ticks run back to back until caught up, so late_ticks
+    counts every one of those), ``load_1min`` the machine's load average at the end (the other
+    jobs' share of the cores: on 2 cores, a load of 4 leaves each process about half a core)."""
+    wall = time.perf_counter() - wall0
+    return {"wall_s": wall, "realtime_factor": steps * dt_s / wall if wall > 0 else 0.0,
+            "behind_max_ms": behind_s * 1e3, "load_1min": os.getloadavg()[0]}
 
 
 class _GuardLog:

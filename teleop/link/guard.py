@@ -38,8 +38,17 @@ class MasterGuard:
 
     @property
     def energy_J(self) -> np.ndarray:
-        """(6,) J: the master port's input energy, for the outgoing command."""
+        """(6,) J: the master port's input energy counted so far."""
         return self.port.energy_J
+
+    def energy_after(self, twist_M) -> np.ndarray:
+        """(6,) J: the input energy for the command sent this tick, with the work of the force
+        rendered last counted at the tool's ``twist_M`` (6,) after its step."""
+        return self.port.energy_after(twist_M)
+
+    def drop_force(self) -> None:
+        """The remote force is dropped (a lost link's safe state): nothing rendered any more."""
+        self.port.f_channel = self.port.f_rendered = np.zeros(6)
 
     def feedback(self, wrench_M, twist_M, msg: ContactFeedback | None, t_s: float) -> np.ndarray:
         """The felt wrench (6,: N, N*m, M) after damping, from the filtered feedback ``wrench_M``,

@@ -15,18 +15,24 @@ Power into the channel, per axis and per tick (W, with m/s and N, or rad/s and N
 
 Each side splits its port power into the energy that entered the channel there, ``E_in``, and the
 energy that left it there, ``E_out`` (both non-decreasing, J), and sends ``E_in`` with every
-message (``energy_J``). Without delay ``p_m + p_s = 0`` (a lossless wire); with delay the channel
-may create energy. Two passivity observers split that, one per direction of flow::
+message (``energy_J``) as a cumulative sum, so a lost message loses nothing: the next one carries
+the whole sum. Without delay ``p_m + p_s = 0`` (a lossless wire); with delay the channel may
+create energy. Two passivity observers split that, one per direction of flow::
 
-    master (right to left): W_m(n) = E_in_s(n - D_sm) - E_out_m(n) + E_diss_m(n - 1)
+    master (right to left): W_m(n) = E_in_s(n - D_sm) - E_out_m(n)
     slave  (left to right): W_s(n) = E_in_m(n - D_ms) - E_out_s(n) + E_diss_s(n - 1)
 
-``E_in`` of the other side is the newest received (held when a message is late or lost, which
-is conservative: it only ever grows). A negative observer means the channel has put out more than
-it was given; the controller at that port dissipates exactly ``-W``, no more:
+``E_in`` of the other side is the largest received (held when a message is late or lost, which
+is conservative: it only ever grows, and a stale value is never taken for a newer one). At the
+master ``E_out`` is the work the rendered force (after the controller) did on the tool, counted
+after the step it acted in (see :class:`MasterPassivity`), so it needs no ``E_diss`` term. A
+negative observer means the channel has put out more than it was given; the controller at that
+port dissipates it:
 
 * master, impedance-type port: adaptive damping, ``f = f_m - alpha * v_m`` with
-  ``alpha = -W / (dt v_m^2)``, capped at ``alpha_max`` (N*s/m), not computed below ``v_floor``.
+  ``alpha = -W / (dt v_m^2)``, capped at ``max(alpha_max, f_m / v_m)`` (N*s/m: removing a force
+  that pushes along the motion is always allowed, reversing it only up to ``alpha_max``), not
+  computed below ``v_floor``.
 * slave, admittance-type port: a velocity correction, ``v_s = v_des + dv`` with
   ``dv = -W / (dt f_s)``, capped at ``dv_max`` (m/s), not computed below ``f_floor``.
 
@@ -159,29 +165,70 @@ class _Port:
 
 
 class MasterPassivity(_Port):
-    """The master port: observer W_m and adaptive damping (impedance-type port)."""
+    """The master port: observer W_m and adaptive damping (impedance-type port).
+
+    The force rendered at tick n acts on the tool through its step at tick n + 1, so the port's
+    energy is counted when that step is done: the work of the force last rendered against the
+    velocity it produced, ``f_out(n-1) v(n) dt`` (a stiff wall's force arriving at a tool at rest
+    does its work in the step after it arrives; paired with the velocity before, it would go
+    unseen). ``E_out`` counts what the channel (after the controller) put into the master;
+    ``E_in`` credits the slave only with what entered through the channel's own force, not the
+    work the hand did against the controller's damping: ``min((-f(n-1) v)+, (-f_out(n-1) v)+)``.
+    The observer ``W = E_in_slave - E_out`` then holds the controller's past action (no separate
+    ``E_diss`` term: what the damping took is missing from ``E_out``). A negative observer is
+    dissipated on the force about to be rendered, ``alpha = -W / (dt v^2)``, capped at
+    ``alpha_max`` (a damper the tool's explicit step can take) except that a force pushing along
+    the motion may always be removed down to zero (``alpha <= f / v`` there): the cap alone let a
+    stiff wall's force, arriving late, throw the tool (1.8 mm shake at 1 s round trip with loss,
+    a blow-up at 10 ms)."""
+
+    def __init__(self, params: TdpaParams, log_capacity: int = 0):
+        super().__init__(params, log_capacity)
+        self.f_channel = np.zeros(6)  # the channel's force last tick, before the controller
+        self.f_rendered = np.zeros(6)  # the force rendered last tick, after it
+        self._counted = False  # the rendered force's work already counted (by energy_after)
+
+    def account(self, v_m) -> None:
+        """Count the work the force rendered last did on the master, now that it has moved it at
+        ``v_m`` (6,) m/s, rad/s; once per tick (:meth:`step` calls it if nobody did)."""
+        if self._counted:
+            return
+        v_m = np.asarray(v_m, dtype=float)
+        p_done = self.f_rendered * v_m
+        dt = self.params.dt_s
+        self.E_out = self.E_out + np.maximum(p_done, 0.0) * dt
+        self.E_in = self.E_in + np.minimum(np.maximum(-self.f_channel * v_m, 0.0), np.maximum(-p_done, 0.0)) * dt
+        self._counted = True
+
+    def energy_after(self, v_m) -> np.ndarray:
+        """(6,) J: ``E_in`` with the work of the force rendered last counted at the master's
+        velocity ``v_m`` after its step: what to stamp in the command sent that tick, so the
+        slave hears of the energy in the same tick it enters (no tick of lag at zero delay)."""
+        self.account(v_m)
+        return self.E_in.copy()
 
     def step(self, f_m: np.ndarray, v_m: np.ndarray, E_remote=None, t_s: float = 0.0) -> np.ndarray:
         """The force (6,) N, N*m to render on the master, from the channel's force ``f_m`` (6,) on
-        the master, the master's velocity ``v_m`` (6,) m/s, rad/s, and the slave's ``E_in``
-        ``E_remote`` (6,) J from the newest feedback (None: hold the last)."""
+        the master, the master's velocity ``v_m`` (6,) m/s, rad/s (after the step under the force
+        rendered last tick), and the slave's ``E_in`` ``E_remote`` (6,) J from the newest feedback
+        (None: hold the last)."""
         p, dt = self.params, self.params.dt_s
         f_m, v_m = np.asarray(f_m, dtype=float), np.asarray(v_m, dtype=float)
         self._receive(E_remote)
-        p_out = f_m * v_m
-        E_out = self.E_out + np.maximum(p_out, 0.0) * dt
-        W = self.E_remote - E_out + self.E_diss
+        self.account(v_m)
+        W = self.E_remote - self.E_out
         alpha = np.zeros(6)
         if p.enabled:
             act = (W < 0.0) & (np.abs(v_m) > p.v_floor)
-            alpha[act] = np.minimum(-W[act] / (dt * v_m[act] ** 2), np.broadcast_to(p.alpha_max, 6)[act])
-        diss = alpha * v_m * v_m * dt
-        self.E_in = self.E_in + np.maximum(-p_out, 0.0) * dt
-        self.E_out, self.E_diss, self.action = E_out, self.E_diss + diss, alpha
-        self.W = W + diss
+            cap = np.maximum(np.broadcast_to(p.alpha_max, 6)[act], f_m[act] / v_m[act])
+            alpha[act] = np.minimum(-W[act] / (dt * v_m[act] ** 2), cap)
+        f_out = f_m - alpha * v_m
+        self.E_diss, self.action = self.E_diss + alpha * v_m * v_m * dt, alpha
+        self.W = W
+        self.f_channel, self.f_rendered, self._counted = f_m, f_out, False
         if self.log is not None:
             self.log.record(t_s, self)
-        return f_m - alpha * v_m
+        return f_out
 
 
 class SlavePassivity(_Port):

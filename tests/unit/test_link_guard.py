@@ -50,14 +50,20 @@ def test_damping_cap_follows_the_tool():
 
 def test_master_guard_damps_the_deficit_and_stamps_energy():
     g = MasterGuard(TdpaParams(dt_s=DT, alpha_max=(1e6,) * 6))
-    # channel pushes the master along its motion: f v = 2 * 0.1 = 0.2 W out, nothing from the slave
-    out = g.feedback([2.0, 0, 0, 0, 0, 0], [0.1, 0, 0, 0, 0, 0], None, 0.0)
+    x = np.eye(6)[0]
+    # the channel pushes the master along its motion, nothing from the slave: rendered (nothing
+    # owed yet); the tool then moves at 0.1 m/s under it: f v = 0.2 W out for a tick
+    assert g.feedback(2.0 * x, 0.1 * x, None, 0.0)[0] == 2.0
+    out = g.feedback(2.0 * x, 0.1 * x, None, DT)
     W = -0.2 * DT  # observer before the controller
     alpha = -W / (DT * 0.1**2)
-    assert out[0] == pytest.approx(2.0 - alpha * 0.1) and out[0] == pytest.approx(0.0)
-    assert g.port.W[0] == pytest.approx(0.0, abs=1e-15) and g.energy_J[0] == 0.0
-    # now the master pushes against the force: energy enters the channel, stamped in the command
-    g.feedback([-1.0, 0, 0, 0, 0, 0], [0.5, 0, 0, 0, 0, 0], None, DT)
+    assert g.port.W[0] == pytest.approx(W)
+    assert out[0] == pytest.approx(2.0 - alpha * 0.1) and out[0] == pytest.approx(0.0, abs=1e-12)
+    assert g.energy_J[0] == 0.0
+    # now the channel's -1 N is rendered (damped: still in deficit) and the master pushes against
+    # it at 0.5 m/s: the slave is credited with the channel's own 0.5 W, not the damping's share
+    g.feedback(-1.0 * x, 0.5 * x, None, 2 * DT)
+    assert g.energy_after(0.5 * x)[0] == pytest.approx(0.5 * DT)
     assert g.energy_J[0] == pytest.approx(0.5 * DT)
 
 

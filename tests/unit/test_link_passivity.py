@@ -20,7 +20,8 @@ def test_compute_port_energy_splits_signs():
 
 
 def test_master_observer_against_hand_sum():
-    # f on the master and v of the master, axis 0; power into the channel p = -f v
+    # f on the master and v of the master, axis 0. The force rendered at one tick does its work
+    # with the velocity of the next: power into the channel p(k) = -f(k-1) v(k)
     f = [-2.0, -2.0, 1.0, 3.0, -1.0]
     v = [0.5, 1.0, 1.0, 2.0, -1.0]
     E_remote = [0.0, 1e-3, 1e-3, 2e-3, 2e-3]
@@ -28,31 +29,55 @@ def test_master_observer_against_hand_sum():
     for k in range(5):
         out = port.step(f[k] * E6, v[k] * E6, E_remote[k] * E6, t_s=k * DT)
         assert out[0] == f[k]
-    # by hand: p = 1, 2, -1, -6, -1 -> E_in = (1 + 2) dt, E_out = (1 + 6 + 1) dt
-    assert port.E_in[0] == pytest.approx(3e-3) and port.E_out[0] == pytest.approx(8e-3)
-    assert port.W[0] == pytest.approx(2e-3 - 8e-3)
-    log = port.log.arrays()
-    np.testing.assert_allclose(log["W_J"][:, 0], [0, 1e-3, 0, -5e-3, -6e-3], atol=1e-15)
+    # by hand: f(k-1) v(k) = -2, -2, 2, -3 -> E_in = (2 + 2 + 3) dt, E_out = 2 dt
+    assert port.E_in[0] == pytest.approx(7e-3) and port.E_out[0] == pytest.approx(2e-3)
+    log = port.log.arrays()  # W = E_remote - E_out after each tick
+    np.testing.assert_allclose(log["W_J"][:, 0], [0, 1e-3, 1e-3, 0, 0], atol=1e-15)
     np.testing.assert_allclose(log["t_s"], np.arange(5) * DT)
     assert np.all(port.E_in[1:] == 0) and port.dissipated_J == 0
 
 
+def test_energy_for_the_command_counts_the_step_just_done():
+    port = MasterPassivity(TdpaParams(dt_s=DT, enabled=False))
+    port.step(-3.0 * E6, np.zeros(6))  # -3 N rendered
+    assert port.energy_after(2.0 * E6)[0] == pytest.approx(6e-3)  # the tool moved at 2 m/s against it
+    port.step(np.zeros(6), 2.0 * E6)  # the same tick: counted once
+    assert port.E_in[0] == pytest.approx(6e-3)
+
+
 def test_master_controller_dissipates_exactly_the_deficit():
     port = MasterPassivity(TdpaParams(dt_s=DT, alpha_max=1e9))
-    port.step(-1.0 * E6, 1.0 * E6, 5e-3 * E6)  # 1 mJ in, 5 mJ announced by the slave
-    out = port.step(4.0 * E6, 2.0 * E6)  # 8 mJ out: W = 5 - 8 = -3 mJ before the controller
+    port.step(-1.0 * E6, 1.0 * E6, 5e-3 * E6)  # 5 mJ announced by the slave
+    assert port.step(4.0 * E6, 2.0 * E6)[0] == 4.0  # -1 N against 2 m/s: 2 mJ in; no deficit
+    assert port.E_in[0] == pytest.approx(2e-3)
+    out = port.step(4.0 * E6, 2.0 * E6)  # the 4 N gave 8 mJ: W = 5 - 8 = -3 mJ
     alpha = 3e-3 / (DT * 4.0)
+    assert port.W[0] == pytest.approx(-3e-3)
     assert out[0] == pytest.approx(4.0 - alpha * 2.0)
-    assert port.dissipated_J == pytest.approx(3e-3) and port.W[0] == pytest.approx(0.0, abs=1e-15)
+    assert port.dissipated_J == pytest.approx(3e-3)
     # below the velocity floor nothing is done, and the deficit is kept for later
     out = port.step(4.0 * E6, 1e-6 * E6)
     assert out[0] == 4.0 and port.W[0] < 0
 
 
-def test_master_damping_is_capped():
+def test_a_force_arriving_at_rest_is_seen_in_the_step_it_acts():
+    """A stiff wall's force reaching a tool at rest: no velocity yet (below the floor), so it is
+    rendered whole; its work shows in the next tick's observer, which then damps, capped."""
     port = MasterPassivity(TdpaParams(dt_s=DT, alpha_max=10.0))
-    out = port.step(100.0 * E6, 1.0 * E6)
-    assert out[0] == pytest.approx(100.0 - 10.0) and port.W[0] < 0
+    out = port.step(100.0 * E6, np.zeros(6))
+    assert out[0] == 100.0 and port.W[0] == 0.0
+    out = port.step(np.zeros(6), 1.0 * E6)  # the 100 N did 0.1 J on the tool in its step
+    assert port.E_out[0] == pytest.approx(0.1) and port.W[0] == pytest.approx(-0.1)
+    assert out[0] == pytest.approx(-10.0)  # alpha wants 100 N*s/m: reversing the force is capped
+
+
+def test_master_may_always_remove_a_force_along_the_motion():
+    port = MasterPassivity(TdpaParams(dt_s=DT, alpha_max=10.0))
+    assert port.step(100.0 * E6, 1.0 * E6)[0] == 100.0  # nothing owed yet
+    out = port.step(100.0 * E6, 1.0 * E6)  # it gave 0.1 J: alpha = f / v = 100 > the cap, allowed
+    assert port.W[0] == pytest.approx(-0.1) and out[0] == pytest.approx(0.0, abs=1e-12)
+    port.step(100.0 * E6, 1.0 * E6)
+    assert port.W[0] == pytest.approx(-0.1)  # nothing more went out
 
 
 def test_slave_observer_and_velocity_correction():
@@ -67,6 +92,42 @@ def test_slave_observer_and_velocity_correction():
     # the wall pushes the slave back: energy enters at the slave port
     port.step(-1.0 * E6, -5.0 * E6)
     assert port.E_in[0] == pytest.approx(5e-3)
+
+
+def test_a_lost_packet_loses_no_energy():
+    """Energy messages are cumulative: whatever is lost, the next message that arrives carries
+    the whole sum. The slave port counts a known power each tick and sends E_in through a channel
+    that loses half the messages; the master's received energy never runs ahead of what was
+    sent, and after the last delivered message it is the hand-computed sum."""
+    dt, n = DT, 400
+    ch = SimulatedChannel(ChannelSpec(round_trip_ms=20.0, loss=0.5), np.random.default_rng(3))
+    sp = SlavePassivity(TdpaParams(dt_s=dt, enabled=False))
+    mp = MasterPassivity(TdpaParams(dt_s=dt, enabled=False))
+    power = [(k % 7) * 0.5 for k in range(n)]  # W the environment gives back at tick k
+    sent = []
+    for k in range(n):
+        t = k * dt
+        sp.step(-1.0 * E6, -power[k] * E6)  # commanded away at 1 m/s, the wall pushing with p N
+        sent.append(sp.energy_J[0])
+        ch.send_feedback(ContactFeedback(k, t, np.zeros(6), "ok", k, sp.energy_J))
+        fb = ch.receive_feedback(t)
+        mp.step(np.zeros(6), np.zeros(6), None if fb is None else fb.energy_J, t)
+        assert mp.E_remote[0] <= sent[-1] + 1e-15
+        if fb is not None:
+            assert mp.E_remote[0] == sent[fb.seq]  # the newest arrived value, not a sum of what came
+    last = None
+    for k in range(n, n + 40):  # flush: the last messages arrive (10 ms one way), a few more sent
+        t = k * dt
+        ch.send_feedback(ContactFeedback(k, t, np.zeros(6), "ok", k, sp.energy_J))
+        fb = ch.receive_feedback(t)
+        if fb is not None:
+            mp.step(np.zeros(6), np.zeros(6), fb.energy_J, t)
+            last = fb
+    assert ch.stats()["feedback"]["lost"] > 150  # half of them lost
+    assert last is not None
+    hand = sum(power) * dt  # 0 + 0.5 + ... + 3 W repeating, each for one tick
+    assert hand == pytest.approx(sum((k % 7) * 0.5 for k in range(n)) * 1e-3)
+    assert mp.E_remote[0] == pytest.approx(hand, rel=1e-12)
 
 
 def test_received_energy_is_held_and_never_decreases():
@@ -105,7 +166,8 @@ def two_masses(rt_ms, guard, T=6.0, loss=0.0, seed=0, drift_gain=0.0):
         Fh = K_h * (0.03 * min(t, 1.0) - xm) - B_h * vm
         vm += DT * (Fh + f - b_m * vm) / m_m
         xm += DT * vm
-        ch.send_command(ToolCommand(k, t, [xm, 0, 0], np.eye(3), [vm, 0, 0], np.zeros(3), energy_J=mp.energy_J))
+        E_m = mp.energy_after(vm * E6)  # with the work the force just did
+        ch.send_command(ToolCommand(k, t, [xm, 0, 0], np.eye(3), [vm, 0, 0], np.zeros(3), energy_J=E_m))
         cm = ch.receive_command(t)
         if cm is not None:
             x_cmd, v_cmd = cm.p_m[0], cm.v_m_s[0]
