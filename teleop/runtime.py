@@ -44,7 +44,7 @@ def make_master(scene: Scene, tool, rng: np.random.Generator):
     if "servo_lag" not in scene.effects:
         cfg = replace(cfg, servo_bandwidth_hz=1e4)  # a 16 us lag: nothing at a 1 kHz tick
     p0, R0 = tool.pose()
-    return CobotMaster(cfg, scene.dt_s, rng, p0, R0, tool.body.mass_kg)
+    return CobotMaster(cfg, scene.dt_s, rng, p0, R0, tool.body.mass_kg, reference=tool)
 
 
 def make_slave(scene: Scene, registration, constraints_P):

@@ -12,7 +12,9 @@ b2 = R e_y,
 
 Their time derivatives follow from the foot's rate c_dot = A^-1 S_c^T v_t, A = S_c^T S_c -
 (p_t - S) . S_cc (the closest-point condition differentiated), so G needs S to second order and
-the velocity-product term d/dt(G) nu (the same expression with nu_dot = 0) to third order.
+the velocity-product term d/dt(G) nu (the same expression with nu_dot = 0) to third order. The
+foot's Newton search and the three rows are one compiled call
+(:func:`teleop.dynamics.kernels.surface.depth_rows`).
 
 Parametrization (the paper's psi, eq. 10-11), z = (u, v, heading) in (m, m, rad): the tip at
 S(u, v) - depth n(u, v), the tool's rotation R = F(u, v) Rx(pi) Rz(heading) with F = (t1, t2, n)
@@ -36,6 +38,7 @@ from teleop.dynamics.parametrizations import Parametrization, plane_frame
 from teleop.dynamics.registry import FrameMap, register_fixture
 from teleop.dynamics.rotations import (EulerChart, axis_rotation, cross, euler_from_rotation, inverse3,
                                        rate_map, rotation)
+from teleop.dynamics.kernels import surface as SK
 from teleop.dynamics.surface import HeightSurface
 from teleop.errors import ConfigError
 from teleop.typed import setting
@@ -57,75 +60,42 @@ class SurfaceDepth(Constraint):
 
     def __init__(self, surface: HeightSurface, depth: float, tip_B, name: str = "surface_depth"):
         self.surface, self.depth = surface, float(depth)
-        self.d = np.asarray(tip_B, dtype=float)
+        self.d = np.ascontiguousarray(tip_B, dtype=float)
         self.name = name
-        self._foot = None  # the last foot (u, v): Newton's warm start
-        self._cache = None
+        self._foot = np.zeros(3)  # (u, v, valid): the last foot, Newton's warm start
+        self._G, self._b, self._h = np.zeros((3, 6)), np.zeros(3), np.zeros(3)
+        self._key = None  # the pose (and twist) the arrays above belong to
+        self._zero3 = np.zeros(3)
 
-    def _geometry(self, p, R):
-        """The tip's foot and the surface there, for (p, R); the last pose's result is reused (the
-        row stack asks for G, b and h at one pose in turn)."""
-        key = (*p.tolist(), *R.ravel().tolist())
-        if self._cache is not None and self._cache[0] == key:
-            return self._cache[1]
-        Rd = R @ self.d
-        tip = p + Rd
-        u, v, ok = self.surface.closest(tip, self._foot)
-        if not ok:
-            u, v, ok = self.surface.closest(tip)
-        self._foot = (u, v) if ok else None
-        S, S1, S2, S3 = self.surface.derivatives(u, v, 3)
-        n, mu, N = HeightSurface.normal_and_derivatives(S1, S2)
-        r = tip - S
-        A = S1 @ S1.T - np.einsum("ijk,k->ij", S2, r)
-        out = (Rd, tip, S, S1, S2, S3, n, mu, N, r, A)
-        self._cache = (key, out)
-        return out
+    def _rows(self, p, R, v=None, w=None):
+        """(G, b, h) at the pose (and twist: b is zero without one), one compiled call
+        (:func:`teleop.dynamics.kernels.surface.depth_rows`); the last pose's result is reused (the
+        row stack asks for G, b and h in turn). Copies."""
+        p, R = np.ascontiguousarray(p, dtype=float), np.ascontiguousarray(R, dtype=float)
+        moving = v is not None
+        v = self._zero3 if v is None else np.ascontiguousarray(v, dtype=float)
+        w = self._zero3 if w is None else np.ascontiguousarray(w, dtype=float)
+        pose = (p.tobytes(), R.tobytes())
+        key = pose + ((v.tobytes(), w.tobytes()) if moving else ())
+        if self._key is None or (self._key != key if moving else self._key[:2] != pose):
+            SK.depth_rows(*self.surface.geometry(), self.d, self.depth, p, R, v, w, moving, self._foot,
+                          self._G, self._b, self._h)
+            self._key = key
+        return self._G.copy(), self._b.copy(), self._h.copy()
 
     def foot(self, p, R):
-        """(u, v) of the tip's foot on the surface."""
-        self._geometry(p, R)
-        return self._foot
+        """(u, v) of the tip's foot on the surface, or None when Newton found none."""
+        self._rows(p, R)
+        return (float(self._foot[0]), float(self._foot[1])) if self._foot[2] else None
 
     def residual(self, p, R):
-        Rd, tip, S, S1, S2, S3, n, mu, N, r, A = self._geometry(p, R)
-        return np.array([float(n @ r) + self.depth, float(R[:, 0] @ n), float(R[:, 1] @ n)])
+        return self._rows(p, R)[2]
 
     def jacobian(self, p, R):
-        Rd, tip, S, S1, S2, S3, n, mu, N, r, A = self._geometry(p, R)
-        M = N.T @ np.linalg.solve(A, S1)  # n_dot = M v_tip
-        G = np.empty((3, 6))
-        G[0, :3], G[0, 3:] = n, cross(Rd, n)
-        for i in (1, 2):
-            b = R[:, i - 1]
-            mb = M.T @ b
-            G[i, :3], G[i, 3:] = mb, cross(b, n) + cross(Rd, mb)
-        return G
+        return self._rows(p, R)[0]
 
     def bias(self, p, R, v, w):
-        Rd, tip, S, S1, S2, S3, n, mu, N, r, A = self._geometry(p, R)
-        v_t = v + cross(w, Rd)
-        a_t = cross(w, cross(w, Rd))  # the tip's acceleration at nu_dot = 0
-        cd = np.linalg.solve(A, S1 @ v_t)
-        S1d = np.einsum("ikx,k->ix", S2, cd)  # d/dt S_i
-        S2d = np.einsum("ijkx,k->ijx", S3, cd)  # d/dt S_ij
-        rd = v_t - S1.T @ cd
-        Ad = S1d @ S1.T + S1 @ S1d.T - np.einsum("ijx,x->ij", S2, rd) - np.einsum("ijx,x->ij", S2d, r)
-        cdd = np.linalg.solve(A, S1d @ v_t + S1 @ a_t - Ad @ cd)
-        S1dd = np.einsum("ikx,k->ix", S2, cdd) + np.einsum("iklx,k,l->ix", S3, cd, cd)
-        md = cross(S1d[0], S1[1]) + cross(S1[0], S1d[1])
-        mdd = cross(S1dd[0], S1[1]) + 2.0 * cross(S1d[0], S1d[1]) + cross(S1[0], S1dd[1])
-        mud = float(n @ md)
-        nd = (md - n * mud) / mu
-        mudd = float(nd @ md) + float(n @ mdd)
-        ndd = (mdd - 2.0 * nd * mud - n * mudd) / mu
-        out = np.empty(3)
-        out[0] = float(nd @ v_t) + float(n @ a_t)
-        for i in (1, 2):
-            b = R[:, i - 1]
-            bd = cross(w, b)
-            out[i] = float(cross(w, bd) @ n) + 2.0 * float(bd @ nd) + float(b @ ndd)
-        return out
+        return self._rows(p, R, v, w)[1]
 
 
 class SurfaceScalpel(Parametrization):

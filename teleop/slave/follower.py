@@ -23,6 +23,20 @@ b = -k_h h:
     [ Aq'      Hq] [qd] = [-gq],      s = -y / rho.
 
 When its qd lies within the bounds it is the QP's exact solution (no bound is active).
+
+Fixtures first. With a bound active, the weighted slack trades fixture for tracking: the QP's
+optimum relaxes the rows by about (tracking residual) / rho, a few um/s whenever the arm cannot
+follow its target (a target moving faster than the joints' acceleration box allows). The rows
+are meant to be hard whenever the bounds admit them, so when the solution's slack exceeds
+``cfg.relaxed_tol_mps`` the follower solves two more exact (DAQP) problems, lexicographically:
+
+1. the least fixture violation the bounds admit:
+   minimize 1/2 |s|^2 + 1/2 eps |qd - qd0|^2  s.t.  A qd + s = b, lb <= qd <= ub
+   (qd0 the first solution, eps = FIXTURE_FIRST_EPS: a tie-break only), giving s1;
+2. the original QP with the slack pinned to s1 (bounds s1 <= s <= s1): the best tracking among
+   the joint velocities that hold the fixture as well as the bounds allow.
+
+The rows stay relaxed only by what the bounds force (s1), and tracking gives way instead.
 """
 
 from __future__ import annotations
@@ -35,6 +49,11 @@ import pinocchio as pin
 from teleop.slave import kernels
 from teleop.dynamics.rows import RowStack
 from teleop.slave.solvers import make_solver
+
+#: the tie-break weight on |qd - qd0|^2 (per (rad/s)^2) in the fixture-first stage, against 1 per
+#: (m/s)^2 of fixture violation: small enough that the violation found is the least one to ~1e-9
+#: of its own size, large enough to keep the stage's Hessian positive definite
+FIXTURE_FIRST_EPS = 1e-9
 
 
 def compute_target_twist(p, R, p_t, R_t, v_t, w_t, k: float) -> tuple[np.ndarray, np.ndarray]:
@@ -98,7 +117,15 @@ class FollowerQP:
         # exact solution in finitely many steps. Only when both fail does the arm fall back.
         self.exact = None if cfg.solver == "daqp" else make_solver("daqp", n, m, eps=cfg.eps, max_iter=max(cfg.max_iter, 1000))
         self.used_solver = False  # whether the last solve() ran the QP solver
+        self.used_fixtures_first = False  # whether the last solve() took the fixture-first stages
         self.retries = 0  # solves the exact solver finished after cfg.solver failed
+        self.fixture_first = 0  # solves whose slack the fixture-first stage lowered
+        self._first = make_solver("daqp", n, m, eps=cfg.eps, max_iter=max(cfg.max_iter, 1000))
+        self._H1 = np.zeros((n, n))
+        self._H1[:nv, :nv] = FIXTURE_FIRST_EPS * np.eye(nv)
+        self._H1[nv:, nv:] = np.eye(m)
+        self._g1 = np.zeros(n)
+        self._lb2, self._ub2 = np.full(n, -np.inf), np.full(n, np.inf)
         self._z = np.zeros(n)
 
     def build(self, q, J, T, p_t, R_t, v_t, w_t, q_post, lb, ub):
@@ -141,15 +168,43 @@ class FollowerQP:
                 y = z[:m].copy()
                 return z[m:].copy(), y * self._minus_inv_rho, y, True
         self.used_solver = True
+        self.used_fixtures_first = False
         problem = self.problem()
         r = self.solver.solve(*problem)
         if not r.ok and self.exact is not None:
             r = self.exact.solve(*problem)
             self.retries += r.ok
         nv = self.nv
+        if r.ok and m and max(np.abs(r.x[nv:]).tolist()) > self.cfg.relaxed_tol_mps:
+            r = self._fixtures_first(problem, r)
         qd = np.minimum(np.maximum(r.x[:nv], lb), ub)  # solver tolerance only
         self.bound_margin = min(np.minimum(qd - lb, ub - qd).tolist())
         return qd, r.x[nv:], r.y_eq, r.ok and math.isfinite(np.vdot(qd, qd))
+
+    def _fixtures_first(self, problem, r):
+        """The two exact stages of the module docstring from the solution ``r`` (a QPResult) of
+        ``problem``; ``r`` itself when a stage fails or does not lower the slack."""
+        nv = self.nv
+        H, g, A, b, lb, ub = problem
+        self._g1[:nv] = -FIXTURE_FIRST_EPS * r.x[:nv]
+        r1 = self._first.solve(self._H1, self._g1, A, b, lb, ub)
+        if not r1.ok:
+            return r
+        s1 = b - A[:, :nv] @ np.minimum(np.maximum(r1.x[:nv], lb[:nv]), ub[:nv])
+        if not np.abs(s1).max() < np.abs(r.x[nv:]).max():
+            return r
+        self._lb2[:nv], self._ub2[:nv] = lb[:nv], ub[:nv]
+        self._lb2[nv:], self._ub2[nv:] = s1, s1
+        r2 = self.exact_solver().solve(H, g, A, b, self._lb2, self._ub2)
+        if not r2.ok:
+            return r
+        self.fixture_first += 1
+        self.used_fixtures_first = True
+        return r2
+
+    def exact_solver(self):
+        """The dense active-set solver (DAQP) of the exact stages."""
+        return self.exact if self.exact is not None else self.solver
 
     def compute_fallback(self, J, e, lb, ub, hold: bool, qd_prev) -> np.ndarray:
         """Damped least squares toward the target (or a stop), clipped into the bounds (rad/s)."""

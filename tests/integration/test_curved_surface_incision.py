@@ -8,7 +8,7 @@ import pytest
 from teleop.runtime import run_scene
 from teleop.scenario.schema import load_scene
 
-pytestmark = pytest.mark.long  # ~1 min of CPU each (the surface's rows run in Python)
+pytestmark = pytest.mark.long  # the whole 7 s scene each (the cobot's CAN simulation too)
 
 
 def test_cut_over_the_dome_ideal_master():
@@ -26,15 +26,24 @@ def test_cut_over_the_dome_ideal_master():
     assert np.all(r.log["slave_depth_err_m"] > 0)  # in the tissue all along
 
 
-def test_cut_over_the_dome_on_the_cobot_master_side():
-    """The cobot renders the whole cut: its status is ok and it tracks the reference tool."""
+def test_cut_over_the_dome_on_the_cobot():
+    """The cobot renders the whole cut (its status ok, it tracks the reference tool) and the slave,
+    following the admittance model's output, meets issue 4's bounds as on the ideal master, its
+    fixture rows never relaxed."""
     r = run_scene(load_scene("curved_surface_incision").with_overrides(master="cobot"))
-    s = r.summary
+    s, m = r.summary, r.summary["metrics"]
     assert s["master_status"] == "ok" and not s["nan"] and s["steps"] == 7000
     assert s["tracking_error_max_m"] < 1e-3
+    assert "fixtures_relaxed" not in s["slave_statuses"]
+    assert m["tip_tracking_rms_m"] <= 1e-4
+    assert m["cut_depth_error_max_m"] <= 5e-5
+    assert m["cut_direction_error_max_rad"] <= 1e-3
+    assert m["slave_fixture_residual_max"] <= 1e-6
+    assert 0.04 < m["cut_length_m"] < 0.06  # the ideal master's 49.6 mm: no limit cycle along it
 
 
-@pytest.mark.xfail(strict=True, reason="open: the slave fed the cobot's virtual tool relaxes its fixture rows")
-def test_cut_over_the_dome_on_the_cobot():
+@pytest.mark.xfail(strict=True, reason="open: fixture_rate_max compares the blade-normal rows' rad/s, read "
+                   "from the wrist's 0.5 mrad encoders (0.022), with a 0.01 tolerance")
+def test_cut_over_the_dome_on_the_cobot_status_ok():
     s = run_scene(load_scene("curved_surface_incision").with_overrides(master="cobot")).summary
     assert s["status"] == "ok" and not s["nan"]

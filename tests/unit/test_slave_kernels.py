@@ -95,6 +95,9 @@ def test_the_follower_solves_the_qp_it_is_defined_by(stack, seed, angle, bound):
     x = np.concatenate([qd, s])
     assert np.all(qd >= lb - 1e-9) and np.all(qd <= ub + 1e-9)
     assert np.abs(A @ x - b).max(initial=0.0) <= 1e-6 * (1.0 + np.abs(b).max(initial=0.0))
+    if qp.used_fixtures_first:  # relaxed against the bounds: the fixture-first stages' problems
+        _check_fixtures_first(qp, nv, m, H, g, A, b, lbx, ubx, qd, s, y)
+        return
     fx = 0.5 * x @ H @ x + g @ x
     for ref in ("daqp", "quadprog"):
         xr = qpsolvers.solve_qp(H, g, A=A if m else None, b=b if m else None, lb=lbx, ub=ubx, solver=ref)
@@ -118,6 +121,30 @@ def test_the_follower_solves_the_qp_it_is_defined_by(stack, seed, angle, bound):
         free = ~(at_lb | at_ub)
         assert np.abs(mu[:nv][free]).max(initial=0.0) <= scale
         assert np.all(mu[:nv][at_lb & ~at_ub] >= -scale) and np.all(mu[:nv][at_ub & ~at_lb] <= scale)
+
+
+def _check_fixtures_first(qp, nv, m, H, g, A, b, lbx, ubx, qd, s, y):
+    """The lexicographic answer when the bounds force the rows to relax (teleop.slave.follower,
+    "Fixtures first"), against quadprog: (1) the slack is the least violation |A_q qd - b| any qd
+    in the box admits; (2) among the qd that hold the rows to that slack, qd tracks best (the QP's
+    objective, the slack pinned, meets its KKT conditions)."""
+    H1 = np.zeros_like(H)
+    H1[:nv, :nv] = 1e-9 * np.eye(nv)
+    H1[nv:, nv:] = np.eye(m)
+    x1 = qpsolvers.solve_qp(H1, np.zeros(nv + m), A=A, b=b, lb=lbx, ub=ubx, solver="quadprog")
+    least = np.linalg.norm(x1[nv:])
+    assert np.linalg.norm(s) <= least * (1.0 + 1e-6) + 1e-9, (np.linalg.norm(s), least)
+    assert np.linalg.norm(s) < qp.cfg.relaxed_tol_mps or least > 0.0
+    # the slack pinned, a convex QP in qd alone: A_q qd = b - s within the box, optimal by its
+    # KKT conditions with the follower's multipliers y (when the rows are infeasible the pinned set
+    # is a face of the box, too thin for quadprog to solve as a problem of its own)
+    Hq, gq, Aq = H[:nv, :nv], g[:nv], A[:, :nv]
+    assert np.abs(Aq @ qd + s - b).max() <= 1e-9 * (1.0 + np.abs(b).max())
+    mu = Hq @ qd + gq + Aq.T @ y
+    scale = 1e-5 * (1.0 + np.abs(gq).max() + np.abs(Hq @ qd).max())
+    at_lb, at_ub = np.isclose(qd, lbx[:nv], atol=1e-7), np.isclose(qd, ubx[:nv], atol=1e-7)
+    assert np.abs(mu[~(at_lb | at_ub)]).max(initial=0.0) <= scale
+    assert np.all(mu[at_lb & ~at_ub] >= -scale) and np.all(mu[at_ub & ~at_lb] <= scale)
 
 
 @pytest.mark.parametrize("bad", [np.nan, np.inf])

@@ -54,18 +54,42 @@ def test_registered_as_a_fixture_type():
     assert FIXTURE_TYPES.get("surface_scalpel") is SurfaceScalpelSpec
 
 
-def test_spline_pieces_match_scipy_derivatives():
+ORDERS = [(0, 0), (1, 0), (0, 1), (2, 0), (1, 1), (0, 2), (3, 0), (2, 1), (1, 2), (0, 3)]
+
+
+def test_compiled_spline_matches_scipy_derivatives():
+    """The compiled evaluation from scipy's knots and coefficients (Cox-de Boor) against scipy's
+    own fitpack evaluation, every partial to third order."""
     s = spec().surface()
     rng = np.random.default_rng(0)
-    orders = [(0, 0), (1, 0), (0, 1), (2, 0), (1, 1), (0, 2), (3, 0), (2, 1), (1, 2), (0, 3)]
     for _ in range(50):
         u, v = rng.uniform(X[0], X[-1]), rng.uniform(Y[0], Y[-1])
-        ours = s._f(u, v, 3)
-        ref = [float(s.spline(u, v, dx=a, dy=b, grid=False)) for a, b in orders]
-        for k, (a, b) in enumerate(orders):  # the pieces' round-off grows as 1/cell^order (cells ~1 cm)
-            assert ours[k] == pytest.approx(ref[k], rel=1e-7, abs=1e-11 * 100.0 ** (a + b))
+        F = s.height_partials(u, v, 3)
+        for a, b in ORDERS:
+            ref = float(s.spline(u, v, dx=a, dy=b, grid=False))
+            assert F[a, b] == pytest.approx(ref, rel=1e-10, abs=1e-13 * 100.0 ** (a + b))
     # the quintic interpolant reproduces the paraboloid dome
-    assert abs(s._f(0.013, -0.021, 0)[0] - dome(0.013, -0.021)) < 1e-12
+    assert abs(s.height_partials(0.013, -0.021, 0)[0, 0] - dome(0.013, -0.021)) < 1e-12
+
+
+@settings(max_examples=40, deadline=None)
+@given(seed=seeds, degree=st.sampled_from([4, 5]), nx=st.integers(6, 14), ny=st.integers(6, 11))
+def test_compiled_spline_matches_scipy_on_random_grids(seed, degree, nx, ny):
+    """Uneven grids and random heights, both degrees, at random points and on the knots and the
+    grid's edges: the compiled partials equal scipy's to rounding."""
+    rng = np.random.default_rng(seed)
+    x = np.cumsum(rng.uniform(0.2, 1.0, nx)) * 0.01
+    y = np.cumsum(rng.uniform(0.2, 1.0, ny)) * 0.01
+    s = HeightSurface(x, y, rng.normal(size=(nx, ny)) * 0.01, degree=degree)
+    tx, ty, _ = s.spline.tck
+    pts = [(rng.uniform(x[0], x[-1]), rng.uniform(y[0], y[-1])) for _ in range(10)]
+    pts += [(float(a), float(b)) for a, b in zip(np.unique(tx), np.resize(np.unique(ty), np.unique(tx).size))]
+    for u, v in pts:
+        F = s.height_partials(u, v, 3)
+        for a, b in ORDERS:
+            ref = float(s.spline(u, v, dx=a, dy=b, grid=False))
+            scale = float(np.abs(s.spline(x, y, dx=a, dy=b)).max())  # the order's magnitude on the grid
+            assert abs(F[a, b] - ref) <= 1e-9 * scale + 1e-300, (u, v, a, b, F[a, b], ref)
 
 
 def test_foot_and_depth_against_scipy_minimizer_on_the_dome():

@@ -76,8 +76,11 @@ class CobotMaster(Master):
     """
 
     def __init__(self, cfg: CobotConfig, dt_s: float, rng: np.random.Generator, p0, R0,
-                 tool_mass_kg: float | None = None):
+                 tool_mass_kg: float | None = None, reference=None):
         self.cfg, self.dt_s, self.rng = cfg, float(dt_s), rng
+        #: the reference tool (pose(), twist()) whose state goes to the slave, or None: the observer's
+        #: estimate of the device (see virtual_estimate)
+        self.reference = reference
         self.log = logging.getLogger(__name__)
         self.model = CobotModel()
         #: joints -> (p, R, J) of the handle: the compiled closed form for the shipped gantry + Z-X-Z
@@ -370,9 +373,16 @@ class CobotMaster(Master):
         return self._virtual_state(self.observer.x, self.observer.rates)[2:]
 
     def virtual_estimate(self):
-        """(p, R, v, w) of the virtual tool from the joint observer: its pose and twist (m, -, m/s,
-        rad/s) estimated below the encoders' 25 µm / 0.5 mrad resolution, for the slave's target.
-        The raw read-outs (:meth:`virtual_pose`) stay what the metrics use, as in the paper."""
+        """(p, R, v, w) for the slave's target (m, -, m/s, rad/s): the admittance model's output,
+        the reference tool's state after this period's step, when the master was given it
+        (``reference``); otherwise the virtual tool from the joint observer (its pose and twist
+        estimated below the encoders' 25 µm / 0.5 mrad resolution). The observer's estimate carries
+        the device loop's corrections (PID on quantized encoders, its own 20 Hz filter); fed to the
+        slave, the cut's steep stick closed a loop through them and limit-cycled the tool at 6-9 Hz
+        (README, "the slave behind the cobot"). The raw read-outs (:meth:`virtual_pose`) stay what
+        the metrics use, as in the paper."""
+        if self.reference is not None:
+            return (*self.reference.pose(), *self.reference.twist())
         return self._virtual_state(self.observer.x, self.observer.rates)
 
     def hand_state(self):
