@@ -90,7 +90,7 @@ FIXTURE_TOLERANCES = {
     "depth_error_max_m": 1e-3, "blade_tilt_max_rad": 0.1, "sideslip_max_m_per_s": 0.01,
     "height_error_max_m": 1e-3, "upright_error_max_rad": 0.1,
     "sphere_deviation_max_m": 1e-3, "normal_angle_error_max_rad": 0.1,
-    "fixture_residual_max": 1e-3, "fixture_rate_max": 0.01,  # a user's fixture type, by its own rows
+    "fixture_residual_max": 1e-3, "fixture_rate_max": 0.01,  # a user's type: holonomic rows by residual, the others by rate
 }
 SLAVE_FIXTURE_TOLERANCES = {"cut_depth_error_max_m": 1e-3, "rcm_error_max_m": 2e-3, "slave_fixture_residual_max": 1e-3}
 

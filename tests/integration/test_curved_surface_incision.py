@@ -42,8 +42,10 @@ def test_cut_over_the_dome_on_the_cobot():
     assert 0.04 < m["cut_length_m"] < 0.06  # the ideal master's 49.6 mm: no limit cycle along it
 
 
-@pytest.mark.xfail(strict=True, reason="open: fixture_rate_max compares the blade-normal rows' rad/s, read "
-                   "from the wrist's 0.5 mrad encoders (0.022), with a 0.01 tolerance")
 def test_cut_over_the_dome_on_the_cobot_status_ok():
+    """Its rows judged each at its own level: the blade-normal rows by their residual (rad), the
+    knife edge by its rate; the normal rows' rate is the wrist encoders' noise, reported apart."""
     s = run_scene(load_scene("curved_surface_incision").with_overrides(master="cobot")).summary
-    assert s["status"] == "ok" and not s["nan"]
+    assert s["status"] == "ok" and not s["nan"], s["status_reason"]
+    m = s["metrics"]
+    assert m["fixture_residual_max"] <= 1e-3 and m["fixture_rate_max"] <= 1e-2

@@ -12,21 +12,7 @@ from teleop.scenario.schema import list_scenes, load_scene
 pytestmark = pytest.mark.long  # the whole scenes, 5-20 s simulated each
 
 
-#: open (issue 15): the dome's cut on the cobot is the ideal master's (tip tracking 8 um, depth
-#: 6e-10 m, cut 49.6 mm) but its fixture type is judged by its own rows' rates, and the two rows
-#: that hold the blade along the normal are in rad/s: the wrist's 0.5 mrad encoders through the
-#: observer read 0.022 rad/s there, past fixture_rate_max's 0.01 (its translational rows: 1 mm/s)
-MASTER_OPEN = {"curved_surface_incision"}
-
-
-def _cases():
-    for name in list_scenes():
-        marks = [pytest.mark.xfail(strict=True, reason="fixture_rate_max on the cobot: rad/s rows read from 0.5 mrad encoders (open)")] \
-            if name in MASTER_OPEN else []
-        yield pytest.param(name, marks=marks, id=name)
-
-
-@pytest.mark.parametrize("name", list(_cases()))
+@pytest.mark.parametrize("name", list_scenes())
 def test_scene_runs_on_the_cobot(name):
     scene = load_scene(name).with_overrides(master="cobot")
     s = run_scene(scene).summary

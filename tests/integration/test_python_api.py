@@ -75,7 +75,8 @@ def test_a_scene_names_a_user_fixture_type_and_both_sides_hold_it():
     assert s["status"] == "ok", s
     assert m["slave_fixture_residual_max"] < 1e-9  # the slave's tool on the groove (m)
     assert m["fixture_residual_max"] < 1e-9        # the master's virtual tool on it (m) ...
-    assert m["fixture_rate_max"] < 1e-9            # ... and moving along it (m/s)
+    assert m["fixture_holonomic_rate_max"] < 1e-9  # ... and moving along it (m/s)
+    assert m["fixture_rate_max"] == 0.0            # a groove has no velocity-level row
     assert r.log["slave_q"].shape[0] == s["steps"]
 
 
