@@ -5,7 +5,9 @@
 same fixture rows, evaluates the tissue at the blade tip and answers with a
 :class:`~teleop.link.messages.ContactFeedback`: the contact wrench at the slave tool frame's origin,
 in the patient frame. No command (a late or lost message) holds the last target; a command with the
-clutch out holds the arm where it is. Plain arguments only: no scene, no runtime.
+clutch out holds the arm where it is. A tick the arm ends with a joint at a position limit
+(:meth:`teleop.slave.limits.JointLimits.at_limit`) and no worse status says ``joint_limit``.
+Plain arguments only: no scene, no runtime.
 """
 
 from __future__ import annotations
@@ -79,7 +81,10 @@ class SlaveSide:
             self._target = (self._target[0], self._target[1], np.zeros(3), np.zeros(3))
         p_t, R_t, v_t, w_t = self._target
         F = s.contact_P if s.ticks else None
-        s.status = self.arm.hold(F) if hold else self.arm.step(p_t, R_t, v_t, w_t, F)
+        status = self.arm.hold(F) if hold else self.arm.step(p_t, R_t, v_t, w_t, F)
+        if status in ("ok", "saturated") and self.arm.limits.at_limit(self.arm.q, self.arm.dt):
+            status = "joint_limit"  # a joint at its stop: the task goes on with the others, reported
+        s.status = status
         p, R = self.arm.tool_pose()
         v, w = self.arm.tool_twist()
         d = R @ self.tip_B
