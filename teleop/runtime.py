@@ -110,10 +110,14 @@ class _ViewHook(Hook):
         self.view.publish_tick(t_s, loop)
 
 
-def run_scene(scene: Scene, progress=None, realtime: bool = False, operator=None, view=None, hooks=()) -> RunResult:
+def run_scene(scene: Scene, progress=None, realtime: bool = False, operator=None, view=None, hooks=(),
+              simulated_link: bool | None = None) -> RunResult:
     """Run a scene. ``operator`` replaces the scene's (e.g. a keyboard); ``view`` gets every tick
     and throttles itself; ``progress(i, n)`` is called every 1000 ticks; ``hooks`` more
-    :class:`~teleop.loop.Hook` s, after the scene's own."""
+    :class:`~teleop.loop.Hook` s, after the scene's own; ``simulated_link`` forces the link
+    (:func:`make_link`: True, the simulated channel of the scene's [link] table even when it asks
+    for nothing, as the fault campaign's link loss needs). The scene's ``heartbeat_ms`` watches a
+    link that can lose messages (:mod:`teleop.link.heartbeat`)."""
     n = tick_count(scene.duration_s, scene.dt_s)  # refuses a run past MAX_TICKS before building anything
     rng = np.random.default_rng(scene.seed)
     tool = build_tool(scene)
@@ -140,10 +144,11 @@ def run_scene(scene: Scene, progress=None, realtime: bool = False, operator=None
         hooks.append(_ViewHook(view))
     hooks += list(extra_hooks)
     master = make_master(scene, tool, rng)
-    link = make_link(scene, rng) if slave is not None else None
+    link = make_link(scene, rng, simulated_link) if slave is not None else None
     guard = make_guard(scene, reg, n)
     session = Session(tool, master, operator, scene.dt_s, scene.duration_s, slave=slave, feedback=feedback,
-                      hooks=hooks, realtime=realtime, progress=progress, link=link, guard=guard)
+                      hooks=hooks, realtime=realtime, progress=progress, link=link, guard=guard,
+                      heartbeat_s=scene.link.heartbeat_ms * 1e-3)
     result = session.run()
     metrics = {**master_metrics.result(), **energy_drift.result()}
     if guard is not None and "passivity" in result.summary:  # the drift at the slave's scale (m)
@@ -163,8 +168,9 @@ def run_scene(scene: Scene, progress=None, realtime: bool = False, operator=None
     builtin = isinstance(scene.fixture, FixtureSpec)
     exempt = (("blade_tilt_max_rad",) if builtin and scene.fixture.trocar_m is not None else ()) \
         + (("sideslip_max_m_per_s",) if builtin and not scene.fixture.knife_edge else ())  # what the fixture frees
+    lost_m = s.get("heartbeat", {}).get("master", {}).get("lost_ticks", 0)
     s["status"], s["status_reason"] = verdict(s["master_status"], steps, s.get("slave_statuses"), metrics, s["nan"],
-                                              exempt)
+                                              exempt, lost_m)
     result.summary = {"scenario": scene.name, **s, "integrator": scene.integrator, "master": scene.master,
                       "seed": scene.seed, "effects": list(scene.effects), "metrics": metrics}
     return result
