@@ -199,8 +199,10 @@ class Injector:
                 return
 
 
-def run_one(scene_name: str, fault: str, t_inject: float, seed: int) -> dict:
-    scene = load_scene(scene_name).with_overrides(master="cobot", duration_s=t_inject + WINDOW_S)
+def run_one(scene_name: str, fault: str, t_inject: float, seed: int, window_s: float = WINDOW_S) -> dict:
+    """One run of ``scene_name`` on the cobot, ``fault`` injected at ``t_inject`` (s), watched for
+    ``window_s`` (s) after it; returns its row (see the module docstring)."""
+    scene = load_scene(scene_name).with_overrides(master="cobot", duration_s=t_inject + window_s)
     inj = Injector(fault, t_inject, np.random.default_rng(seed), scene.fixture)
     result = run_scene(scene, view=inj, simulated_link=True if fault == "link_loss" else None)
     t0 = inj.injected_at
