@@ -76,7 +76,7 @@ class Columns(dict):
 #: (a joint bound active, the target still met) is reported in the counts only; relaxed fixture rows
 #: (DEGRADED: "fixtures_relaxed") fail the run only on more than RELAXED_SHARE_MAX of its ticks (the
 #: fixture tolerances still hold the result); any other fault fails it on one tick.
-SLAVE_FAULTS = ("joint_limit", "hold", "link_lost", "tracking_error", "fixtures_relaxed", "infeasible_fallback",
+SLAVE_FAULTS = ("hold", "link_lost", "tracking_error", "fixtures_relaxed", "joint_limit", "infeasible_fallback",
                 "invalid_target")
 DEGRADED = ("fixtures_relaxed",)
 #: the share of ticks the slave may spend with its fixtures relaxed (DEGRADED) in an "ok" run
