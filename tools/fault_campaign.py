@@ -199,10 +199,11 @@ class Injector:
                 return
 
 
-def run_one(scene_name: str, fault: str, t_inject: float, seed: int, window_s: float = WINDOW_S) -> dict:
-    """One run of ``scene_name`` on the cobot, ``fault`` injected at ``t_inject`` (s), watched for
-    ``window_s`` (s) after it; returns its row (see the module docstring)."""
-    scene = load_scene(scene_name).with_overrides(master="cobot", duration_s=t_inject + window_s)
+def run_one(scene_name: str, fault: str, t_inject: float, seed: int, window_s: float = WINDOW_S, sets=()) -> dict:
+    """One run of ``scene_name`` on the cobot (with the scene settings ``sets``, "key=value"),
+    ``fault`` injected at ``t_inject`` (s), watched for ``window_s`` (s) after it; returns its row
+    (see the module docstring)."""
+    scene = load_scene(scene_name).with_overrides(list(sets), master="cobot", duration_s=t_inject + window_s)
     inj = Injector(fault, t_inject, np.random.default_rng(seed), scene.fixture)
     result = run_scene(scene, view=inj, simulated_link=True if fault == "link_loss" else None)
     t0 = inj.injected_at
@@ -222,7 +223,7 @@ def run_one(scene_name: str, fault: str, t_inject: float, seed: int, window_s: f
     return row
 
 
-def run_campaign(scenes, trials: int, seed: int, t_range=(0.6, 2.0), progress=None, faults=FAULTS) -> list[dict]:
+def run_campaign(scenes, trials: int, seed: int, t_range=(0.6, 2.0), progress=None, faults=FAULTS, sets=()) -> list[dict]:
     """Every fault of ``faults`` in every scene, ``trials`` times; the draws depend on neither
     ``faults`` nor the other scenes (a subset reruns the same instants)."""
     rows = []
@@ -234,7 +235,7 @@ def run_campaign(scenes, trials: int, seed: int, t_range=(0.6, 2.0), progress=No
                 t, run_seed = float(rng.uniform(t_range[0], hi)), int(rng.integers(0, 2**31))
                 if fault not in faults:
                     continue
-                rows.append(run_one(name, fault, t, run_seed))
+                rows.append(run_one(name, fault, t, run_seed, sets=sets))
                 if progress is not None:
                     progress(rows[-1])
     return rows
@@ -288,6 +289,8 @@ def main(argv=None) -> int:
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--t-min", type=float, default=0.6, help="earliest injection, s of run time (default 0.6)")
     ap.add_argument("--t-max", type=float, default=2.0, help="latest injection, s (default 2.0; the cuts run to 5.5)")
+    ap.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
+                    help="a scene setting for every run, as teleop run's --set (e.g. slave.fallback=\"hold\")")
     ap.add_argument("--json", help="write every run's row here")
     args = ap.parse_args(argv)
     scenes = args.scenes or blade_scenes()
@@ -301,10 +304,11 @@ def main(argv=None) -> int:
               f" detect {row['t_detect_s']}  safe {row['t_safe_s']}  depth+ {row['depth_excess_um']:.1f} um"
               f"  F {row['force_max_N']:.1f} N", file=sys.stderr, flush=True)
 
-    rows = run_campaign(scenes, args.trials, args.seed, (args.t_min, args.t_max), progress=show, faults=args.faults)
+    rows = run_campaign(scenes, args.trials, args.seed, (args.t_min, args.t_max), progress=show, faults=args.faults,
+                        sets=args.set)
     summary = summarize(rows)
     print(f"scenes: {', '.join(scenes)}; {args.trials} trial(s) per fault and scene, injected in "
-          f"[{args.t_min}, {args.t_max}] s; seed {args.seed}")
+          f"[{args.t_min}, {args.t_max}] s; seed {args.seed}" + (f"; settings {args.set}" if args.set else ""))
     print(table(summary))
     skipped = sorted({(r["scene"], r["status"]) for r in rows if not r["injected"]})
     for name, status in skipped:
