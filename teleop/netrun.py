@@ -13,19 +13,11 @@ answers every hello. Both then run on their own clocks; the master ticks ``durat
 times, the slave until it has followed the master's last command (or, if the master is gone, for
 as long again plus ``GRACE_S``).
 
-Heartbeat: every tick each side sends a message, so silence means a lost link. A side that has
-heard nothing for ``link.heartbeat_ms`` (20 ms by default) goes to its **safe state** at once:
-
-* master: the reference tool holds still (zero velocity, no step), the remote force is dropped
-  (the feedback filter emptied); the device is commanded to hold the tool's pose;
-* slave: no command is followed, the arm holds its pose with zero velocity (the QP under the
-  fixture rows), its replies say ``link_lost``.
-
-When messages come again, each side resumes from where it held: the master's tool from rest, the
-force feedback from zero through its low-pass; the slave from its held pose toward the next
-command. Each side counts lost-link events, lost ticks and the detection latency (time from the
-last message heard to the safe state, s) in its summary; a run with any lost tick is
-``link_lost``, not "ok".
+Heartbeat and safe states: :mod:`teleop.link.heartbeat`, the same as the in-process run's (a side
+that has heard nothing for ``link.heartbeat_ms``, 20 ms by default, goes to its safe state at once;
+the master also while the slave's replies say ``link_lost``), on the wall clock here. Each side
+counts lost-link events, lost ticks and the detection latency (time from the last message heard to
+the safe state, s) in its summary; a run with any lost tick is ``link_lost``, not "ok".
 """
 
 from __future__ import annotations
@@ -44,6 +36,7 @@ import numpy as np
 from teleop.control.feedback import FeedbackPath
 from teleop.dynamics.constraints import RemoteCenter
 from teleop.errors import TeleopError
+from teleop.link.heartbeat import HeartbeatState, follow_or_hold, hold_master
 from teleop.link.messages import ContactFeedback, MessageError, ToolCommand
 from teleop.runtime import make_guard, make_master, make_slave
 from teleop.scenario.build import build_fixture, build_registration, build_tool, master_fixture_spec
@@ -53,61 +46,8 @@ from teleop.session import GuardRecorder, MasterRecorder, SlaveCounter, _pace, r
 
 GRACE_S = 2.0          # the slave's run beyond the scene's duration when the master is gone (s)
 CONNECT_TIMEOUT_S = 120.0  # the first message must come within this (s): a loaded machine is slow
-RESUME_WINDOW = 100  # ticks after a resume in which the position steps are watched
 _Z6 = np.zeros(6)
 _Z3 = np.zeros(3)
-
-
-class HeartbeatState:
-    """One side's view of the link: lost or not, with counts for the summary."""
-
-    def __init__(self, link, timeout_s: float):
-        self.link, self.timeout_s = link, timeout_s
-        self.lost = False
-        self.events = self.ticks_lost = self.resumed = 0
-        self.latency_s: list[float] = []  # last message heard -> safe state, per event (s)
-        self.late_at_detect_s: list[float] = []  # how late the detecting tick itself ran (s)
-        self.tick_late_s = 0.0  # set by the run loop before each tick: its lateness (s)
-        self.speed_lost_max = self.speed_lost_last = 0.0  # the side's speed while lost (m/s or rad/s)
-        self.jump_after_resume_m = self.step_max_m = 0.0  # position step per tick (m)
-        self._prev = None
-        self._since_resume = 10**9
-
-    def update(self) -> bool:
-        """Check the heartbeat; True while the link is lost."""
-        now = self.link.clock()
-        alive = self.link.alive(now, self.timeout_s)
-        if not alive and not self.lost:
-            self.lost, self.events = True, self.events + 1
-            last = self.link.last_receive_s
-            self.latency_s.append(now - last if last is not None else float("inf"))
-            self.late_at_detect_s.append(self.tick_late_s)
-        elif alive and self.lost:
-            self.lost, self.resumed = False, self.resumed + 1
-        self.ticks_lost += self.lost
-        return self.lost
-
-    def motion(self, p, speed: float) -> None:
-        """After the tick: the side's position ``p`` (3,) m and speed, for the safe-state and
-        no-jump figures (the largest step within ``RESUME_WINDOW`` ticks of a resume)."""
-        if self.lost:
-            self.speed_lost_max, self.speed_lost_last = max(self.speed_lost_max, speed), speed
-            self._since_resume = -1
-        if self._prev is not None:
-            step = float(np.linalg.norm(p - self._prev))
-            self.step_max_m = max(self.step_max_m, step)
-            if 0 <= self._since_resume < RESUME_WINDOW:
-                self.jump_after_resume_m = max(self.jump_after_resume_m, step)
-        self._since_resume += 1
-        self._prev = np.array(p, dtype=float)
-
-    def summary(self) -> dict:
-        return {"lost_events": self.events, "lost_ticks": self.ticks_lost, "resumed": self.resumed,
-                "detect_latency_max_s": max(self.latency_s, default=0.0), "lost_at_end": self.lost,
-                "detect_latency_s": self.latency_s[:20], "detect_tick_late_s": self.late_at_detect_s[:20],
-                "heartbeat_s": self.timeout_s, "speed_while_lost_max": self.speed_lost_max,
-                "speed_while_lost_last": self.speed_lost_last, "step_max_m": self.step_max_m,
-                "step_after_resume_max_m": self.jump_after_resume_m}
 
 
 class MasterHalf:
@@ -118,7 +58,8 @@ class MasterHalf:
         self.tool, self.master, self.operator, self.dt = tool, master, operator, dt_s
         self.link, self.feedback, self.master_guard, self.hooks = link, feedback, guard, hooks
         self.slave = self.slave_guard = None
-        self.heart = HeartbeatState(link, heartbeat_s)
+        self.heart = HeartbeatState(heartbeat_s)
+        self.peer_lost = False  # the newest reply says the slave hears nothing
         self.hand_W, self.feedback_W = np.zeros(6), np.zeros(6)
         self.tick_ns, self.status, self.command_errors = 0, "ok", 0
         self.slave_status: dict[str, int] = {}
@@ -128,18 +69,14 @@ class MasterHalf:
         for h in self.hooks:
             h.before_tick(i, t, self)
         t0 = time.perf_counter_ns()
-        lost = self.heart.update()
+        lost = self.heart.update(self.link.clock(), self.link.last_receive_s, self.peer_lost)
         self.hand_W = self.operator.wrench(t, *master.hand_state())
         master.set_clutch(self.operator.clutch_engaged)
         f_v = master.sense(self.hand_W)
         p_r, R_r = tool.pose()
         if lost:                                   # safe state: the tool holds, no remote force
-            tool.state.qd = np.zeros(6)
-            self.feedback.wrench_M, self.feedback._target = np.zeros(6), np.zeros(6)
+            st, st_m = "ok", hold_master(tool, master, self.feedback, p_r, R_r, self.master_guard)
             self.feedback_W = np.zeros(6)
-            if self.master_guard is not None:
-                self.master_guard.drop_force()
-            st, st_m = "ok", master.command(p_r, R_r, _Z6, _Z6)
         else:
             v_r, w_r = tool.twist()
             st = tool.step(self.dt, f_v + self.feedback_W)
@@ -154,6 +91,7 @@ class MasterHalf:
         msg = self.link.receive_feedback(t)
         if msg is not None and msg.t_s >= 0:
             self.slave_status[msg.status] = self.slave_status.get(msg.status, 0) + 1
+            self.peer_lost = msg.status == "link_lost"
         if not lost:
             self.feedback_W = self.feedback.update(msg)
             if self.master_guard is not None:
@@ -172,31 +110,23 @@ class SlaveHalf:
     def __init__(self, slave, link, guard, hooks, heartbeat_s, dt_s):
         self.slave, self.link, self.slave_guard, self.hooks = slave, link, guard, hooks
         self.master_guard = None
-        self.heart = HeartbeatState(link, heartbeat_s)
+        self.heart = HeartbeatState(heartbeat_s)
         self.dt, self.tick_ns, self.last_seq = dt_s, 0, 0
         self.pending = None  # the first command, taken while answering hellos
 
     def tick(self, i: int) -> None:
         t = i * self.dt
         t0 = time.perf_counter_ns()
-        lost = self.heart.update()
+        lost = self.heart.update(self.link.clock(), self.link.last_receive_s)
         cmd = self.link.receive_command(t)
         if cmd is None and self.pending is not None:
             cmd = self.pending
         self.pending = None
         if cmd is not None and cmd.t_s < 0:
             cmd = None  # a hello
-        if lost:
-            cmd = None                              # safe state: hold the pose, zero velocity
-        if cmd is not None:
+        if cmd is not None and not lost:
             self.last_seq = cmd.seq
-        sg = self.slave_guard
-        reply = self.slave.follow(cmd if sg is None else sg.command(cmd, t), t, hold=lost)
-        if sg is not None:
-            reply = sg.reply(reply)
-        if lost:
-            self.slave.state.status = "link_lost"
-            reply = ContactFeedback(reply.seq, reply.t_s, reply.wrench_P, "link_lost", reply.command_seq, reply.energy_J)
+        reply = follow_or_hold(self.slave, self.slave_guard, cmd, t, lost)  # lost: hold, say link_lost
         self.link.send_feedback(reply)
         self.tick_ns = time.perf_counter_ns() - t0
         self.heart.motion(self.slave.state.p, float(np.linalg.norm(self.slave.arm.qd)))

@@ -111,12 +111,15 @@ class _ViewHook(Hook):
 
 
 def run_scene(scene: Scene, progress=None, realtime: bool = False, operator=None, view=None, hooks=(),
-              status_line=None) -> RunResult:
+              status_line=None, simulated_link: bool | None = None) -> RunResult:
     """Run a scene. ``operator`` replaces the scene's (e.g. a keyboard; one with ``stats()`` adds
     them to the summary as "operator"); ``view`` gets every tick and throttles itself;
     ``progress(i, n)`` is called every 1000 ticks; ``hooks`` more :class:`~teleop.loop.Hook` s,
     after the scene's own; ``status_line`` a :class:`~teleop.statusline.StatusLine` (it watches the
-    session)."""
+    session); ``simulated_link`` forces the link (:func:`make_link`: True, the simulated channel of
+    the scene's [link] table even when it asks for nothing, as the fault campaign's link loss
+    needs). The scene's ``heartbeat_ms`` watches a link that can lose messages
+    (:mod:`teleop.link.heartbeat`)."""
     n = tick_count(scene.duration_s, scene.dt_s)  # refuses a run past MAX_TICKS before building anything
     rng = np.random.default_rng(scene.seed)
     tool = build_tool(scene)
@@ -143,10 +146,11 @@ def run_scene(scene: Scene, progress=None, realtime: bool = False, operator=None
         hooks.append(_ViewHook(view))
     hooks += list(extra_hooks) + ([status_line] if status_line is not None else [])
     master = make_master(scene, tool, rng)
-    link = make_link(scene, rng) if slave is not None else None
+    link = make_link(scene, rng, simulated_link) if slave is not None else None
     guard = make_guard(scene, reg, n)
     session = Session(tool, master, operator, scene.dt_s, scene.duration_s, slave=slave, feedback=feedback,
-                      hooks=hooks, realtime=realtime, progress=progress, link=link, guard=guard)
+                      hooks=hooks, realtime=realtime, progress=progress, link=link, guard=guard,
+                      heartbeat_s=scene.link.heartbeat_ms * 1e-3)
     if status_line is not None:
         status_line.watch(session)
     result = session.run()
@@ -168,8 +172,9 @@ def run_scene(scene: Scene, progress=None, realtime: bool = False, operator=None
     builtin = isinstance(scene.fixture, FixtureSpec)
     exempt = (("blade_tilt_max_rad",) if builtin and scene.fixture.trocar_m is not None else ()) \
         + (("sideslip_max_m_per_s",) if builtin and not scene.fixture.knife_edge else ())  # what the fixture frees
+    lost_m = s.get("heartbeat", {}).get("master", {}).get("lost_ticks", 0)
     s["status"], s["status_reason"] = verdict(s["master_status"], steps, s.get("slave_statuses"), metrics, s["nan"],
-                                              exempt)
+                                              exempt, lost_m)
     result.summary = {"scenario": scene.name, **s, "integrator": scene.integrator, "master": scene.master,
                       "seed": scene.seed, "effects": list(scene.effects), "metrics": metrics}
     if callable(getattr(operator, "stats", None)):

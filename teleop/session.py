@@ -77,7 +77,7 @@ class Columns(dict):
 #: (a joint bound active, the target still met) is reported in the counts only; relaxed fixture rows
 #: (DEGRADED: "fixtures_relaxed") fail the run only on more than RELAXED_SHARE_MAX of its ticks (the
 #: fixture tolerances still hold the result); any other fault fails it on one tick.
-SLAVE_FAULTS = ("hold", "link_lost", "tracking_error", "fixtures_relaxed", "infeasible_fallback",
+SLAVE_FAULTS = ("hold", "link_lost", "tracking_error", "fixtures_relaxed", "joint_limit", "infeasible_fallback",
                 "invalid_target")
 DEGRADED = ("fixtures_relaxed",)
 #: the share of ticks the slave may spend with its fixtures relaxed (DEGRADED) in an "ok" run
@@ -96,13 +96,15 @@ SLAVE_FIXTURE_TOLERANCES = {"cut_depth_error_max_m": 1e-3, "rcm_error_max_m": 2e
 
 
 def verdict(master_status: str, steps: int, slave_counts: dict | None = None, metrics: dict | None = None,
-            nan: bool = False, exempt=()) -> tuple[str, str]:
+            nan: bool = False, exempt=(), master_link_lost: int = 0) -> tuple[str, str]:
     """The run's one-word status and a one-line reason, first match wins: "interrupted" (Ctrl-C),
     "no_ticks", the master side's fault, "nan", "slave_<status>" (the worst slave fault, see
     SLAVE_FAULTS), "fixture_violated" (the master side past FIXTURE_TOLERANCES),
     "slave_fixture_violated" (SLAVE_FIXTURE_TOLERANCES), "slave_off_target" (the slave's tool
     farther than SLAVE_TARGET_MAX_M from its target), else "ok". ``exempt``: metric names the
-    scene's fixture does not hold (a trocar's fixture lets the blade tilt)."""
+    scene's fixture does not hold (a trocar's fixture lets the blade tilt). ``master_link_lost``:
+    the ticks the master spent in its lost-link safe state (:mod:`teleop.link.heartbeat`): the run
+    is "link_lost" unless the slave did worse than ``link_lost``."""
     counts, metrics = slave_counts or {}, metrics or {}
     if master_status == "interrupted":
         return "interrupted", f"stopped by Ctrl-C or SIGTERM after {steps} ticks: a partial run"
@@ -115,6 +117,8 @@ def verdict(master_status: str, steps: int, slave_counts: dict | None = None, me
     total = max(1, sum(counts.values()))
     worst = [s for s in SLAVE_FAULTS if counts.get(s, 0) and (
         s not in DEGRADED or counts[s] / total > RELAXED_SHARE_MAX)]
+    if master_link_lost and (not worst or SLAVE_FAULTS.index(worst[-1]) <= SLAVE_FAULTS.index("link_lost")):
+        return "link_lost", f"the master lost the link to the slave on {master_link_lost} ticks (held in its safe state)"
     if worst:
         s = worst[-1]
         return f"slave_{s}", f"the slave was {s!r} on {counts[s]} of {total} ticks"
@@ -129,9 +133,9 @@ def verdict(master_status: str, steps: int, slave_counts: dict | None = None, me
 
 
 def run_status(master_status: str, steps: int, slave_counts: dict | None, metrics: dict | None = None,
-               nan: bool = False) -> str:
+               nan: bool = False, master_link_lost: int = 0) -> str:
     """The run's one-word verdict (:func:`verdict`)."""
-    return verdict(master_status, steps, slave_counts, metrics, nan)[0]
+    return verdict(master_status, steps, slave_counts, metrics, nan, master_link_lost=master_link_lost)[0]
 
 
 @dataclass
@@ -282,7 +286,8 @@ class Session:
     ``progress(i, n)`` is called every 1000 ticks."""
 
     def __init__(self, tool, master, operator, dt_s: float, duration_s: float, slave=None, link=None,
-                 feedback=None, hooks=(), realtime: bool = False, progress=None, guard=None):
+                 feedback=None, hooks=(), realtime: bool = False, progress=None, guard=None,
+                 heartbeat_s: float | None = None):
         if not (dt_s > 0 and duration_s >= 0 and np.isfinite(dt_s) and np.isfinite(duration_s)):
             raise ConfigError(f"dt_s must be > 0 and duration_s >= 0, both finite, got {dt_s!r}, {duration_s!r}")
         self.n = tick_count(duration_s, dt_s)
@@ -293,7 +298,7 @@ class Session:
         if self.guard_recorder is not None:
             own.append(self.guard_recorder)
         self.loop = BilateralLoop(tool, master, operator, dt_s, slave=slave, link=link, feedback=feedback,
-                                  hooks=own + list(hooks), guard=guard)
+                                  hooks=own + list(hooks), guard=guard, heartbeat_s=heartbeat_s)
         self.realtime, self.progress = realtime, progress
         self.late_ticks = 0  # --realtime: ticks that ended past their wall-clock deadline (so far)
 
@@ -348,8 +353,10 @@ class Session:
             log.update({k: v[:steps] for k, v in self.guard_recorder.log.items()})
         ticks = log["tick_us"]
         counts = self.slave_counter.counts if self.slave_counter is not None else None
+        hearts = (self.loop.master_heart, self.loop.slave_heart)
+        lost_m = hearts[0].ticks_lost if hearts[0] is not None else 0
         summary = {
-            "status": run_status(status, steps, counts, nan=rec.nan),
+            "status": run_status(status, steps, counts, nan=rec.nan, master_link_lost=lost_m),
             "master_status": status,
             "steps": steps,
             "dt_s": self.loop.dt,
@@ -375,5 +382,7 @@ class Session:
             summary["late_ticks"] = late
         if self.guard_recorder is not None:
             summary["passivity"] = self.guard_recorder.summary()
+        if "link" in stats and hearts[0] is not None:  # a link that can lose messages: its heartbeat
+            summary["heartbeat"] = {"master": hearts[0].summary(), "slave": hearts[1].summary()}
         summary.update({k: v for k, v in stats.items() if k != "master_status"})
         return RunResult(summary, log)

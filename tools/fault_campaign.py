@@ -12,26 +12,32 @@ Faults (one per run, injected after the tick whose time first reaches the drawn 
 * ``corrupted_frames``: every frame arrives with one payload bit flipped;
 * ``silent_device``: the device stops sending;
 * ``slave_joint_limit``: one slave joint's limits close around its position (a joint at its stop);
-* ``slave_solver_failure``: the slave's QP solver fails on every tick from then on.
-
-Not injected: a network link loss (the run loop's link is the in-process lockstep link; the Zenoh
-link is not in the loop yet).
+* ``slave_solver_failure``: the slave's QP solver fails on every tick from then on;
+* ``link_loss``: the master-slave link is cut (:meth:`teleop.link.channel.SimulatedChannel.cut`):
+  every message of one way (commands or feedback, drawn) or of both is lost from then on. These
+  runs use the scene's link as the simulated channel of its ``[link]`` table (at the defaults a
+  zero-delay channel, which reproduces the lockstep run exactly).
 
 The injection hooks are the device simulator's :meth:`CobotSimulator.inject_sensor_fault` and its
-``faults`` settings; the slave faults are applied from here, on the run's objects, without a hook
-in ``teleop.slave``: the arm's ``limits`` are replaced, and its QP's ``solve`` is wrapped to report
-failure.
+``faults`` settings, and the channel's ``cut``; the slave faults are applied from here, on the
+run's objects, without a hook in ``teleop.slave``: the arm's ``limits`` are replaced, and its QP's
+``solve`` is wrapped to report failure.
 
-Per run: detected (a status other than "ok": the master's latched fault, or a slave status other
-than "ok" and "saturated", which the fault-free cuts report on many ticks),
-the time from injection to detection, the time to the safe state, and whether anything unsafe
-happened from the injection until the safe state (or the end of the run): the slave's blade tip
-deeper than the fixture's depth by more than ``DEPTH_TOL_M``, or a tissue contact force above
-``FORCE_LIMIT_N``. Safe state: for a master-side fault, the device at rest (every joint rate below
-``SAFE_RATE``) with the slave holding still (tip speed below ``SAFE_TIP_M_S``), the link running
-at zero velocity for up to ``POST_CYCLES`` periods after the fault; for a slave fault, the tick
-the slave's own fallback (QP failure) or bound (joint limit) takes over, which is the tick it is
-detected: the master goes on (the run's status names the slave's fault at the end).
+Per run: detected (the status that names the fault: the master's latched fault; the slave's
+``joint_limit`` or ``infeasible_fallback``, see ``SLAVE_DETECTS``; a side's heartbeat losing the
+link, :mod:`teleop.link.heartbeat`), the time from injection to detection, the time to the safe
+state, and whether anything unsafe happened from the injection until the safe state (or the end
+of the run): the slave's blade tip deeper than the fixture's depth by more than ``DEPTH_TOL_M``, or
+a tissue contact force above ``FORCE_LIMIT_N``. Times count from the last tick before the fault
+acts (a fault detected on the next tick took 1 ms). Safe state: for a master-side fault, the
+device at rest (every joint rate below ``SAFE_RATE``) with the slave holding still (tip speed below
+``SAFE_TIP_M_S``), the link running at zero velocity for up to ``POST_CYCLES`` periods after the
+fault; for a slave fault, the tick the slave's own fallback (QP failure) or bound (joint limit)
+takes over, which is the tick it is detected: the master goes on (the run's status names the
+slave's fault at the end, and the blade is watched to the end of the run, as the cut goes on);
+for a link loss, issue 12's safe states: the master's tool at zero velocity and its remote force
+zero, with the slave holding still (its joints held, or its tool held under a clutch-out command);
+``t_device_rest_s`` adds when the device's gantry, following the held tool, fell below 1 mm/s.
 """
 
 from __future__ import annotations
@@ -40,6 +46,7 @@ import argparse
 import json
 import math
 import sys
+import zlib
 from dataclasses import replace
 
 import numpy as np
@@ -48,17 +55,21 @@ from teleop.runtime import run_scene
 from teleop.scenario.schema import list_scenes, load_scene
 
 FAULTS = ("sensor_nan", "sensor_stuck", "encoder_jump", "lost_frames", "corrupted_frames", "silent_device",
-          "slave_joint_limit", "slave_solver_failure")
+          "slave_joint_limit", "slave_solver_failure", "link_loss")
+#: the slave statuses that detect a slave fault (a status the fault-free cuts also report, such as
+#: "saturated" or a few ticks of "fixtures_relaxed", does not)
+SLAVE_DETECTS = {"slave_joint_limit": ("joint_limit",), "slave_solver_failure": ("infeasible_fallback",)}
+LINK_WAYS = (("command", "feedback"), ("command",), ("feedback",))  #: a link loss cuts one of these
 DEPTH_TOL_M = 50e-6  #: the blade past the fixture's depth by more than this is unsafe, m
 FORCE_LIMIT_N = 20.0  #: a tissue contact force above this is unsafe, N
 SAFE_RATE = np.array([1e-3] * 3 + [1e-2] * 3)  #: device at rest: joint rates below, m/s x3, rad/s x3
 SAFE_TIP_M_S = 1e-3  #: slave holding still: blade tip speed below, m/s
 POST_CYCLES = 200  #: hold periods run after a master-side fault to watch the safe state
-SAFE_WITHIN_S = 0.05  #: the stated target: safe state within this time of the injection, s
+SAFE_WITHIN_S = 0.05  #: the stated target: detection and safe state within this time of the injection, s
+#: a link loss is detected within the heartbeat (20 ms of silence, ``[link] heartbeat_ms``) plus a
+#: tick to the first lost message and a tick for the master to read the slave's "link_lost", s
+DETECT_WITHIN_S = {"link_loss": 0.022}
 WINDOW_S = 0.4  #: a run lasts this long past the injection (a master fault ends it sooner), s
-#: slave statuses that do not detect a fault: "saturated" (a joint on a bound) is common in the
-#: fault-free cuts, so a joint limit that shows only as "saturated" is not detected
-NOT_A_FAULT = ("ok", "saturated")
 
 
 def blade_scenes() -> list[str]:
@@ -85,34 +96,46 @@ class Injector:
         self.depth_excess_m = 0.0  # worst blade depth past the fixture's, from injection to safe state
         self.force_max_N = 0.0
         self.detail = ""
+        self.ways = ""  # a link loss: the way(s) cut
+        self.device_rest_at = None  # a link loss: the device's gantry below SAFE_RATE (s of run time)
         self._tip_prev = None
 
     # -- the view interface run_scene calls ---------------------------------------------------------
     def publish_tick(self, t_s: float, loop) -> None:
         if self.injected_at is None and t_s + 1e-12 >= self.t_inject:
             self.status_before = loop.slave.state.status
-            self._inject(loop)
+            self._inject(loop, t_s)
             self.injected_at = t_s
             self._tip_prev = loop.slave.state.tip.copy()
             return
         if self.injected_at is None:
             return
-        if self.safe_at is None:
-            self._watch(loop)
+        speed = self._watch(loop) if self.safe_at is None or self.fault.startswith("slave_") else None
         if self.detected_at is None:
             if loop.master.status != "ok":  # any master-side fault ends the run: hold, watch the rest
                 self.detected_at, self.detail = t_s, loop.master.status
                 self._hold_after_fault(loop, t_s)
-            elif self.fault.startswith("slave_") and loop.slave.state.status not in NOT_A_FAULT:
+            elif loop.slave.state.status in SLAVE_DETECTS.get(self.fault, ()):
                 # a slave fault: its fallback / bound acts in this very tick
                 self.detected_at = self.safe_at = t_s
                 self.detail = f"slave {loop.slave.state.status}"
+            elif self.fault == "link_loss" and (loop.master_heart.lost or loop.slave_heart.lost):
+                sides = [n for n, h in (("master", loop.master_heart), ("slave", loop.slave_heart)) if h.lost]
+                self.detected_at, self.detail = t_s, f"heartbeat {' and '.join(sides)} ({self.ways} cut)"
+        if self.fault == "link_loss" and self.detected_at is not None:
+            if self.safe_at is None:  # issue 12's safe states: the tool held, no remote force; the slave still
+                held = loop.master_heart.lost and not np.any(loop.tool.qd) and not np.any(loop.feedback_W)
+                if held and speed < SAFE_TIP_M_S:
+                    self.safe_at = t_s
+            m = loop.master
+            if self.device_rest_at is None and m.joints() is not None and np.all(np.abs(m.sim.plant.qd[:3]) < SAFE_RATE[:3]):
+                self.device_rest_at = t_s  # the device's gantry has stopped following the held tool
 
     def close(self) -> None:
         pass
 
     # -- faults -------------------------------------------------------------------------------------
-    def _inject(self, loop) -> None:
+    def _inject(self, loop, t_s: float) -> None:
         m, rng, f = loop.master, self.rng, self.fault
         sim = m.sim
         if f in ("sensor_nan", "sensor_stuck"):
@@ -134,6 +157,10 @@ class Injector:
             q_min[j] = max(q_min[j], arm.q[j] - lim.margin_rad - 1e-4)
             q_max[j] = min(q_max[j], arm.q[j] + lim.margin_rad + 1e-4)
             arm.limits = replace(lim, q_min=q_min, q_max=q_max)
+        elif f == "link_loss":
+            ways = LINK_WAYS[int(rng.integers(0, len(LINK_WAYS)))]
+            loop.link.cut(t_s + 0.5 * loop.dt, ways)  # from the next tick's messages on
+            self.ways = "+".join(ways)
         elif f == "slave_solver_failure":
             qp = loop.slave.arm.qp
             solve = qp.solve
@@ -172,39 +199,43 @@ class Injector:
                 return
 
 
-def run_one(scene_name: str, fault: str, t_inject: float, seed: int) -> dict:
-    scene = load_scene(scene_name).with_overrides(master="cobot", duration_s=t_inject + WINDOW_S)
+def run_one(scene_name: str, fault: str, t_inject: float, seed: int, window_s: float = WINDOW_S, sets=()) -> dict:
+    """One run of ``scene_name`` on the cobot (with the scene settings ``sets``, "key=value"),
+    ``fault`` injected at ``t_inject`` (s), watched for ``window_s`` (s) after it; returns its row
+    (see the module docstring)."""
+    scene = load_scene(scene_name).with_overrides(list(sets), master="cobot", duration_s=t_inject + window_s)
     inj = Injector(fault, t_inject, np.random.default_rng(seed), scene.fixture)
-    result = run_scene(scene, view=inj)
+    result = run_scene(scene, view=inj, simulated_link=True if fault == "link_loss" else None)
     t0 = inj.injected_at
     if t0 is None:  # the run ended before the instant: nothing was injected
         return {"scene": scene_name, "fault": fault, "injected": False, "t_inject_s": None,
                 "status": result.summary["status"], "detected": False, "detected_as": "", "unsafe": False}
     row = {"injected": True,
         "scene": scene_name, "fault": fault, "t_inject_s": t0, "status": result.summary["status"],
-        "detected": inj.detected_at is not None, "detected_as": inj.detail,
+        "detected": inj.detected_at is not None, "detected_as": inj.detail, "ways_cut": inj.ways,
         "slave_status_before": inj.status_before,
         "t_detect_s": None if inj.detected_at is None else inj.detected_at - t0,
         "t_safe_s": None if inj.safe_at is None else inj.safe_at - t0,
+        "t_device_rest_s": None if inj.device_rest_at is None else inj.device_rest_at - t0,
         "depth_excess_um": 1e6 * inj.depth_excess_m, "force_max_N": inj.force_max_N,
     }
     row["unsafe"] = bool(row["depth_excess_um"] > 1e6 * DEPTH_TOL_M or row["force_max_N"] > FORCE_LIMIT_N)
     return row
 
 
-def run_campaign(scenes, trials: int, seed: int, t_range=(0.6, 2.0), progress=None, faults=FAULTS) -> list[dict]:
-    """Every fault of ``faults`` in every scene, ``trials`` times; the draws do not depend on
-    ``faults`` (a subset reruns the same instants)."""
-    rng = np.random.default_rng(seed)
+def run_campaign(scenes, trials: int, seed: int, t_range=(0.6, 2.0), progress=None, faults=FAULTS, sets=()) -> list[dict]:
+    """Every fault of ``faults`` in every scene, ``trials`` times; the draws depend on neither
+    ``faults`` nor the other scenes (a subset reruns the same instants)."""
     rows = []
-    for name in scenes:
+    for name in scenes:  # each scene's own stream: a subset of scenes reruns the same instants
+        rng = np.random.default_rng([seed, zlib.crc32(name.encode())])
         hi = min(t_range[1], load_scene(name).duration_s - WINDOW_S)
         for fault in FAULTS:
             for _ in range(trials):
                 t, run_seed = float(rng.uniform(t_range[0], hi)), int(rng.integers(0, 2**31))
                 if fault not in faults:
                     continue
-                rows.append(run_one(name, fault, t, run_seed))
+                rows.append(run_one(name, fault, t, run_seed, sets=sets))
                 if progress is not None:
                     progress(rows[-1])
     return rows
@@ -231,6 +262,10 @@ def summarize(rows) -> list[dict]:
             "force_max_N": max(x["force_max_N"] for x in r),
             "detected_as": sorted({x["detected_as"] for x in r}),
         })
+        rest = [x["t_device_rest_s"] for x in r if x.get("t_device_rest_s") is not None]
+        if rest:
+            out[-1]["device_rest_ms_median"] = 1e3 * float(np.median(rest))
+            out[-1]["device_rest_ms_max"] = 1e3 * max(rest)
     return out
 
 
@@ -254,6 +289,8 @@ def main(argv=None) -> int:
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--t-min", type=float, default=0.6, help="earliest injection, s of run time (default 0.6)")
     ap.add_argument("--t-max", type=float, default=2.0, help="latest injection, s (default 2.0; the cuts run to 5.5)")
+    ap.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
+                    help="a scene setting for every run, as teleop run's --set (e.g. slave.fallback=\"hold\")")
     ap.add_argument("--json", help="write every run's row here")
     args = ap.parse_args(argv)
     scenes = args.scenes or blade_scenes()
@@ -267,10 +304,11 @@ def main(argv=None) -> int:
               f" detect {row['t_detect_s']}  safe {row['t_safe_s']}  depth+ {row['depth_excess_um']:.1f} um"
               f"  F {row['force_max_N']:.1f} N", file=sys.stderr, flush=True)
 
-    rows = run_campaign(scenes, args.trials, args.seed, (args.t_min, args.t_max), progress=show, faults=args.faults)
+    rows = run_campaign(scenes, args.trials, args.seed, (args.t_min, args.t_max), progress=show, faults=args.faults,
+                        sets=args.set)
     summary = summarize(rows)
     print(f"scenes: {', '.join(scenes)}; {args.trials} trial(s) per fault and scene, injected in "
-          f"[{args.t_min}, {args.t_max}] s; seed {args.seed}")
+          f"[{args.t_min}, {args.t_max}] s; seed {args.seed}" + (f"; settings {args.set}" if args.set else ""))
     print(table(summary))
     skipped = sorted({(r["scene"], r["status"]) for r in rows if not r["injected"]})
     for name, status in skipped:
@@ -278,7 +316,12 @@ def main(argv=None) -> int:
     if args.json:
         with open(args.json, "w", encoding="utf-8") as f:
             json.dump({"rows": rows, "summary": summary}, f, indent=1)
+    for s in summary:
+        if "device_rest_ms_max" in s:
+            print(f"{s['fault']}: the device's gantry below 1 mm/s after {s['device_rest_ms_median']:.0f} ms "
+                  f"(median), {s['device_rest_ms_max']:.0f} ms (max)")
     ok = all(s["detected"] == s["injected"] and s["reached_safe"] == s["injected"] and s["unsafe"] == 0
+             and s["detect_ms_max"] <= 1e3 * DETECT_WITHIN_S.get(s["fault"], SAFE_WITHIN_S)
              and s["safe_ms_max"] <= 1e3 * SAFE_WITHIN_S for s in summary)
     return 0 if ok else 1
 

@@ -37,6 +37,13 @@ class Link(ABC):
         """Counters for the run's summary (messages sent, delivered, dropped, ...)."""
         return {}
 
+    def last_heard_s(self, side: str) -> float | None:
+        """For the heartbeat (:mod:`teleop.link.heartbeat`): the time (s, the receive calls'
+        clock) the last message reached ``side`` ("master": a feedback, "slave": a command), even
+        one not newer; None before the first, or on a link that cannot lose one (the lockstep
+        link, whose heartbeat never trips)."""
+        return None
+
     def close(self) -> None:
         """Release what the link holds."""
 

@@ -22,6 +22,11 @@ which keeps only newer sequence numbers, and returns the newest in-order one (or
 default spec (zero delay, no jitter, loss or bandwidth limit) a message sent at t is received at
 t: exactly :class:`LockstepLink`.
 
+**A cut** (:meth:`SimulatedChannel.cut`, the fault campaign's link loss): from an instant on,
+every message of the chosen way(s) is lost, those already in flight included (counted ``cut``).
+The heartbeat (:mod:`teleop.link.heartbeat`) reads :meth:`SimulatedChannel.last_heard_s`, the
+arrival time of the last message each side received.
+
 All draws come from the Generator given (three per message per direction, always, so a run is
 deterministic and a change of loss does not shift the jitter stream).
 """
@@ -121,6 +126,9 @@ class _Way:
         self.sent = self.lost = self.dropped_queue = self.bursts = self.superseded = 0
         self.max_age_s = 0.0
         self.age_sum_s = 0.0
+        self.cut_s = math.inf  # from this send / arrival time (s) on, every message is lost
+        self.cut = 0
+        self.last_arrival_s = None  # arrival time (s) of the last message received
 
     def send(self, msg) -> None:
         self.sent += 1
@@ -135,6 +143,9 @@ class _Way:
             self.lost += 1
             return
         t = msg.t_s
+        if t >= self.cut_s - _EPS_S:
+            self.cut += 1
+            return
         if math.isfinite(self.bw):
             while self.leaving and self.leaving[0] <= t:
                 self.leaving.popleft()
@@ -151,7 +162,11 @@ class _Way:
     def receive(self, t_s: float):
         box = self.box
         while self.flight and self.flight[0][0] <= t_s + _EPS_S:
-            msg = heapq.heappop(self.flight)[2]
+            arrival, _, msg = heapq.heappop(self.flight)
+            if arrival >= self.cut_s - _EPS_S:  # in flight when the link was cut
+                self.cut += 1
+                continue
+            self.last_arrival_s = arrival
             if box.pending is not None and msg.seq > box.pending.seq:
                 self.superseded += 1
             box.put(msg)
@@ -166,6 +181,7 @@ class _Way:
         d = self.box.delivered
         return {"sent": self.sent, "delivered": d, "lost": self.lost, "dropped_queue": self.dropped_queue,
                 "dropped_old": self.box.dropped_old, "superseded": self.superseded, "in_flight": len(self.flight), "bursts": self.bursts,
+                "cut": self.cut,
                 "max_age_s": self.max_age_s, "mean_age_s": self.age_sum_s / d if d else 0.0}
 
 
@@ -193,8 +209,22 @@ class SimulatedChannel(Link):
     def receive_feedback(self, t_s: float) -> ContactFeedback | None:
         return self._fb.receive(t_s)
 
+    def last_heard_s(self, side: str) -> float | None:
+        """Arrival time (s) of the last command the slave received (``side="slave"``) or of the
+        last feedback the master received (``"master"``); None before the first."""
+        return (self._cmd if side == "slave" else self._fb).last_arrival_s
+
+    def cut(self, t_s: float, ways=("command", "feedback")) -> None:
+        """Lose every message of ``ways`` ("command", "feedback" or both) sent or arriving at or
+        after ``t_s`` (s) from now on: the link is gone (the fault campaign's link loss)."""
+        for way in ways:
+            if way not in ("command", "feedback"):
+                raise ValueError(f"SimulatedChannel.cut: way {way!r}: expected 'command' or 'feedback'")
+            (self._cmd if way == "command" else self._fb).cut_s = float(t_s)
+
     def stats(self) -> dict:
-        """``{"command": {...}, "feedback": {...}}``: sent, delivered, lost (loss and bursts),
+        """``{"command": {...}, "feedback": {...}}``: sent, delivered, lost (loss and bursts), cut
+        (lost to :meth:`cut`),
         dropped_queue (bandwidth queue full), dropped_old (reordered or stale), superseded (arrived in the same receive as a newer one),
         in_flight, bursts
         (times the bad state was entered), max_age_s and mean_age_s (receive time - send time of

@@ -30,7 +30,7 @@ class MessageError(TeleopError):
 
 #: slave statuses a ContactFeedback may carry (the slave's own plus the link's safe states)
 SLAVE_STATUSES = ("ok", "saturated", "tracking_error", "fixtures_relaxed", "infeasible_fallback",
-                  "invalid_target", "hold", "link_lost")
+                  "invalid_target", "hold", "link_lost", "joint_limit")
 
 
 def _packed(parts, sizes, names) -> tuple:

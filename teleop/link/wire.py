@@ -36,7 +36,7 @@ import numpy as np
 from teleop.link.messages import SLAVE_STATUSES, ContactFeedback, MessageError, ToolCommand
 
 MAGIC = b"TLNK"
-WIRE_VERSION = 1
+WIRE_VERSION = 2
 TYPE_COMMAND = 1
 TYPE_FEEDBACK = 2
 

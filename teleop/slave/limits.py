@@ -67,6 +67,14 @@ class JointLimits:
                         self.q_max, float(self.margin_rad), self.v_max, self.a_max, lb, ub)
         return lb, ub
 
+    def at_limit(self, q: np.ndarray, dt: float) -> np.ndarray:
+        """Per joint (bool, nv): at a position limit, i.e. within one tick at its velocity limit
+        (v_max dt, rad) of q_min + margin or q_max - margin, or past it. There the tick's
+        no-crossing cap (room / dt in :func:`teleop.slave.kernels.velocity_bounds`) is tighter than
+        the velocity limit: the stop, not the joint's speed, decides how far it may move."""
+        room = self.v_max * dt + self.margin_rad
+        return (q - self.q_min < room) | (self.q_max - q < room)
+
     def clip_position(self, q: np.ndarray) -> np.ndarray:
         """q clipped into [q_min, q_max] (rad)."""
         return np.clip(q, self.q_min, self.q_max)

@@ -5,7 +5,14 @@
 same fixture rows, evaluates the tissue at the blade tip and answers with a
 :class:`~teleop.link.messages.ContactFeedback`: the contact wrench at the slave tool frame's origin,
 in the patient frame. No command (a late or lost message) holds the last target; a command with the
-clutch out holds the arm where it is. Plain arguments only: no scene, no runtime.
+clutch out holds the arm where it is. A tick the arm ends with a joint at a position limit
+(:meth:`teleop.slave.limits.JointLimits.at_limit`) it reached during the run (a joint the start
+pose put on its stop is not reported while it stays there; once it leaves, it is watched like the
+others) says ``joint_limit`` instead of what the
+follower reported, unless that was worse (a solver fallback, an invalid target); when the stop made
+the follower relax its fixture rows, the slave holds its joints from the next tick (the safe
+state, as on a lost link) until a command comes with the clutch open.
+Plain arguments only: no scene, no runtime.
 """
 
 from __future__ import annotations
@@ -17,6 +24,10 @@ from teleop.dynamics.rotations import cross
 from teleop.link.messages import ContactFeedback, ToolCommand
 from teleop.slave.projection import project_onto_fixture
 from teleop.slave.qp import SlaveArm
+
+
+#: the follower's statuses a joint at its position limit explains (it is reported instead)
+_LIMIT_EXPLAINS = ("ok", "saturated", "tracking_error", "fixtures_relaxed")
 
 
 class SlaveState:
@@ -47,11 +58,16 @@ class SlaveSide:
         self.state = SlaveState()
         self._target = None
         self._seq = 0
+        self._stopped = False  # held at a joint limit that cost the fixture, until the clutch opens
+        self._resting = np.zeros(arm.nv, dtype=bool)  # joints the start pose put on a stop (set by reset)
 
     def reset(self, p_M, R_M) -> str:
         """Place the arm at the mapped master pose (inverse kinematics); returns its status."""
         p, R, _, _ = self.reg.target(p_M, R_M, np.zeros(3), np.zeros(3))
-        return self.arm.reset((p, R))
+        status = self.arm.reset((p, R))
+        self._resting = self.arm.limits.at_limit(self.arm.q, self.arm.dt)
+        self._stopped = False
+        return status
 
     def stats(self) -> dict:
         """Counters for the run's summary: ``slave_qp_retries``, the ticks whose QP the exact
@@ -79,7 +95,21 @@ class SlaveSide:
             self._target = (self._target[0], self._target[1], np.zeros(3), np.zeros(3))
         p_t, R_t, v_t, w_t = self._target
         F = s.contact_P if s.ticks else None
-        s.status = self.arm.hold(F) if hold else self.arm.step(p_t, R_t, v_t, w_t, F)
+        if cmd is not None and not cmd.clutch:
+            self._stopped = False  # the operator let go: follow again
+        if hold or self._stopped:
+            status = self.arm.hold(F)
+            status = "joint_limit" if self._stopped and not hold else status
+        else:
+            status = self.arm.step(p_t, R_t, v_t, w_t, F)
+            at = self.arm.limits.at_limit(self.arm.q, self.arm.dt)
+            self._resting &= at  # a joint that leaves the stop it started on is watched from then on
+            if status in _LIMIT_EXPLAINS and np.any(at & ~self._resting):
+                # a joint at its stop: the task goes on with the other joints while they keep the
+                # fixture; when it cost the fixture (rows relaxed), the joints hold from the next tick
+                self._stopped = status == "fixtures_relaxed"
+                status = "joint_limit"
+        s.status = status
         p, R = self.arm.tool_pose()
         v, w = self.arm.tool_twist()
         d = R @ self.tip_B

@@ -1,7 +1,9 @@
-"""The fault-injection campaign (tools/fault_campaign.py) on the straight cut, cobot master: each
-single fault at a seeded random time is detected, the safe state comes within SAFE_WITHIN_S, and
-nothing unsafe happens before it (the blade never past the fixture's depth by more than 50 um, no
-contact force above the stated bound)."""
+"""The fault-injection campaign (tools/fault_campaign.py), cobot master: each single fault at a
+seeded random time is detected within its stated time (DETECT_WITHIN_S, else SAFE_WITHIN_S), the
+safe state comes within SAFE_WITHIN_S, and nothing unsafe happens before it (the blade never past
+the fixture's depth by more than 50 um, no contact force above the stated bound). The default run
+holds five kinds on the straight cut; the long run every kind, there and on the laparoscopic cut
+(the remote centre of motion)."""
 
 import sys
 from pathlib import Path
@@ -12,16 +14,17 @@ import pytest
 sys.path.insert(0, str(Path(__file__).resolve().parents[2] / "tools"))
 import fault_campaign as fc  # noqa: E402  (a tool, not a package: imported from its folder)
 
-FAST = ("sensor_nan", "corrupted_frames", "slave_solver_failure")
+FAST = ("sensor_nan", "corrupted_frames", "slave_solver_failure", "slave_joint_limit", "link_loss")
 
 
-def check(fault: str, seed: int) -> dict:
+def check(fault: str, seed: int, scene: str = "straight_incision", window_s: float = fc.WINDOW_S,
+          safe_within_s: float = fc.SAFE_WITHIN_S) -> dict:
     t = float(np.random.default_rng(seed).uniform(0.6, 0.9))
-    row = fc.run_one("straight_incision", fault, t, seed)
+    row = fc.run_one(scene, fault, t, seed, window_s)
     print(f"\n{fault}: detected as {row['detected_as']} after {row['t_detect_s']} s, safe after {row['t_safe_s']} s, "
           f"blade past depth {row['depth_excess_um']:.2f} um, force {row['force_max_N']:.1f} N")
-    assert row["detected"] and row["t_detect_s"] <= fc.SAFE_WITHIN_S
-    assert row["t_safe_s"] is not None and row["t_safe_s"] <= fc.SAFE_WITHIN_S
+    assert row["detected"] and row["t_detect_s"] <= fc.DETECT_WITHIN_S.get(fault, fc.SAFE_WITHIN_S)
+    assert row["t_safe_s"] is not None and row["t_safe_s"] <= safe_within_s
     assert row["depth_excess_um"] <= 1e6 * fc.DEPTH_TOL_M and row["force_max_N"] <= fc.FORCE_LIMIT_N
     assert not row["unsafe"] and row["status"] != "ok"  # the run's status names the fault
     return row
@@ -29,27 +32,47 @@ def check(fault: str, seed: int) -> dict:
 
 @pytest.mark.parametrize("fault", FAST)
 def test_fault_detected_and_safe(fault):
-    check(fault, 11)
+    # the slave's faults and a link loss leave the run going: watched for 0.1 s here (the long
+    # run and the campaign for 0.4 s)
+    row = check(fault, 11, window_s=0.1 if fault.startswith("slave_") or fault == "link_loss" else fc.WINDOW_S)
+    if fault == "slave_joint_limit":
+        assert row["detected_as"] == "slave joint_limit" and row["t_detect_s"] <= 0.0011  # the next tick
+    if fault == "link_loss":
+        assert row["detected_as"].startswith("heartbeat") and row["status"] == "link_lost"
 
 
 @pytest.mark.long
-@pytest.mark.parametrize("fault", [f for f in fc.FAULTS if f not in FAST and f != "slave_joint_limit"])
+@pytest.mark.parametrize("fault", [f for f in fc.FAULTS if f not in FAST or f.startswith("slave_")])
 def test_every_other_fault_detected_and_safe(fault):
     check(fault, 12)
 
 
+MASTER_SIDE = [f for f in fc.FAULTS if not f.startswith("slave_") and f != "link_loss"]
+#: open (README): after a master-side fault on the laparoscopic cut the slave first closes the
+#: millimetres it lags its target; the campaign measured the safe state up to 115 ms there
+LAPAROSCOPIC_MASTER_SAFE_S = 0.12
+
+
 @pytest.mark.long
-def test_a_slave_joint_limit_stays_safe():
-    """A slave joint pinned at its position: the follower holds the fixture with the other joints.
-    It is detected only when the follower's status escalates past "saturated" (which fault-free
-    cuts report too): in the campaign, 1 run of 12 (an open gap, README). Detected or not, it must
-    stay safe: blade within 50 um of the depth, force bounded."""
-    t = float(np.random.default_rng(12).uniform(0.6, 0.9))
-    row = fc.run_one("straight_incision", "slave_joint_limit", t, 12)
-    print(f"\nslave_joint_limit: detected {row['detected']} ({row['detected_as']}), blade past depth "
-          f"{row['depth_excess_um']:.2f} um, force {row['force_max_N']:.1f} N")
-    assert not row["unsafe"] and row["depth_excess_um"] <= 1e6 * fc.DEPTH_TOL_M
-    assert row["force_max_N"] <= fc.FORCE_LIMIT_N
+@pytest.mark.parametrize("fault", fc.FAULTS)
+def test_every_fault_on_the_laparoscopic_cut(fault):
+    check(fault, 13, "laparoscopic_incision",
+          safe_within_s=LAPAROSCOPIC_MASTER_SAFE_S if fault in MASTER_SIDE else fc.SAFE_WITHIN_S)
+
+
+@pytest.mark.long
+@pytest.mark.xfail(strict=True, reason="open: the slave's lag on the laparoscopic cut delays its hold (README)")
+def test_a_master_fault_on_the_laparoscopic_cut_is_safe_within_50_ms():
+    check("lost_frames", 13, "laparoscopic_incision")  # 53 ms today
+
+
+@pytest.mark.long
+@pytest.mark.parametrize("seed, ways", [(12, "command"), (13, "feedback")])
+def test_a_link_loss_of_one_way_is_detected(seed, ways):
+    """The default run cuts both ways (seed 11); a cut of the commands alone is detected by the
+    slave (and the master from its replies), of the feedback alone by the master."""
+    row = check("link_loss", seed)
+    assert row["ways_cut"] == ways
 
 
 def test_the_campaign_summary_counts_what_it_ran():
