@@ -4,13 +4,14 @@ Each kernel here only chains the kernels of :mod:`.motion` and :mod:`.rows` in t
 Python integrators chain them (:class:`teleop.dynamics.integrators.Parametric` and
 :class:`~teleop.dynamics.integrators.EnergyConsistent` on an affine psi); it holds no formula of
 its own. Why: a Python-to-numba call costs about 1-3 us of dispatch, and every array a kernel
-returns costs a boxing (one ``_numba_unpickle`` of its type); the split path made five calls and
-returned sixteen arrays per step, about 20 us of the 50 us step on the paper's rolling disk.
-Here a step is one call returning two arrays, the packed output and the pose terms at its end.
+returns costs a boxing (one ``_numba_unpickle`` of its type); on the paper's rolling disk the split
+path made five calls returning sixteen arrays per step. Here a step is one call returning two
+arrays, the packed output and the pose terms at its end.
 
 Inputs shared by the kernels: the chart (R0 (3, 3), axes (3,) int64), the compiled rows (``table``
 (k, 2) int64, ``params`` (k, NPAR), ``m`` rows in all, as in :func:`.rows.stack_rows`) and ``body``,
-the packed constants of :func:`body_pack`. Tested against the split path they replace
+the packed constants of :func:`body_pack`. The pose terms come back as one (5, 3, 3) array:
+R, E_B, E_B^-1, dE, E_W. Tested against the split path they replace
 (tests/unit/test_fused_steps.py): the same trajectories to rounding.
 """
 
@@ -29,20 +30,14 @@ from teleop.dynamics.kernels.motion import (
 )
 from teleop.dynamics.kernels.rows import stack_rows
 
-#: layout of :func:`body_pack`: J (0:9), J^-1 (9:18), 1/m, m, coriolis (0 or 1), rank rtol, fx (22:27)
-BODY_LEN = 27
-
 
 def body_pack(J, J_inv, mass: float, coriolis: bool, rtol: float, fx) -> np.ndarray:
-    """The body's constants (BODY_LEN,) for the fused kernels: inertia J (3, 3) kg*m^2 and its
+    """The body's constants (27,) for the fused kernels: inertia J (3, 3) kg*m^2 and its
     inverse, mass kg, the gyroscopic switch, the Delassus rank tolerance and the compiled effects
-    fx (5,) of :func:`teleop.dynamics.effects.effect_params`."""
+    fx (5,) of :func:`teleop.dynamics.effects.effect_params`. Layout: J (0:9), J^-1 (9:18), 1/m (18),
+    m (19), coriolis 0 or 1 (20), rtol (21), fx (22:27)."""
     return np.concatenate([np.ravel(J), np.ravel(J_inv), [1.0 / mass, mass, float(coriolis), rtol],
                            np.asarray(fx, dtype=float)])
-
-
-#: the pose terms' slots in the (5, 3, 3) array the kernels return: R, E_B, E_B^-1, dE, E_W
-POSE_SLOTS = ("R", "E_B", "E_inv", "dE", "E_W")
 
 
 @njit(cache=True)
