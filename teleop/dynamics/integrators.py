@@ -29,6 +29,7 @@ import pinocchio as pin
 
 from teleop.dynamics.body import Kinematics
 from teleop.dynamics.kernels.motion import flat_advance, left_pinv, split_end, split_twist
+from teleop.dynamics.kernels.steps import flat_parametric_step, flat_split_step
 from teleop.dynamics.multipliers import RANK_RTOL
 from teleop.dynamics.model import ConstrainedBody
 from teleop.dynamics.rotations import EulerChart, chart_conditioning, euler_from_rotation, rechart
@@ -176,6 +177,9 @@ class Parametric(Integrator):
             self._pinv = np.linalg.pinv(self._P)
         if parametrization.flat:  # psi(z) = psi(0) + P z
             self._q0 = parametrization.psi(state.chart, np.zeros(parametrization.dim))
+        #: one kernel call per step (kernels.steps) where psi is affine and the model all compiled
+        self._fused = bool(parametrization.flat and model.fused)
+        self._nonholonomic = bool(model.nonholonomic)
         state.z, state.zd = parametrization.from_q(state.chart, state.q, state.qd)
 
     def _jac(self, chart, z):
@@ -198,6 +202,8 @@ class Parametric(Integrator):
         state.qd = P @ state.zd
 
     def step(self, model, state, h, operator_W):
+        if self._fused:
+            return self._fused_step(model, state, h, operator_W)
         param, chart = self.param, state.chart
         ev = model.evaluate(chart, state.q, state.qd, state.t, operator_W)
         if param.flat:
@@ -225,6 +231,22 @@ class Parametric(Integrator):
             pt = model.pose_terms(state.chart, state.q)
             state.zd, state.qd = model.project_parameter_rates(pt, state.qd, P, Pinv)
         return ev
+
+    def _unpack(self, model, state, out, mats):
+        """The state and the start's evaluation from a fused kernel's (out, mats), as views."""
+        k = self._P.shape[1]
+        o = 12 + 2 * k
+        state.q, state.qd, state.z, state.zd = out[0:6], out[6:12], out[12:12 + k], out[12 + k:o]
+        model.keep_pose_terms(state.chart, state.q, mats)
+        return model.evaluation(out[o:], None)
+
+    def _fused_step(self, model, state, h, operator_W):
+        """The flat step (:meth:`step`, :meth:`_flat_step`) in one call of
+        :func:`kernels.steps.flat_parametric_step`."""
+        F = model.operator_wrench(operator_W)
+        out, mats = flat_parametric_step(*model.fused_args(state.chart), self._P, self._pinv, self._q0, state.q,
+                                         state.qd, state.z, state.zd, F, h, self._nonholonomic)
+        return self._unpack(model, state, out, mats)
 
 
 class EnergyConsistent(Parametric):
@@ -271,6 +293,12 @@ class EnergyConsistent(Parametric):
         """Steps 1-3 of the class docstring, then the correction's terms at both ends.
         Returns the start's evaluation and (a0, b0, K, a, b) of :func:`kernels.motion.energy_rates`;
         the non-conservative wrench is held at the start's over the step."""
+        if self._fused:
+            F = model.operator_wrench(operator_W)
+            out, mats = flat_split_step(*model.fused_args(state.chart), self._P, self._pinv, self._q0, state.q,
+                                        state.qd, state.z, state.zd, F, h)
+            ev = self._unpack(model, state, out, mats)
+            return ev, tuple(out[-5:].tolist())
         param, chart = self.param, state.chart
         ev = model.evaluate(chart, state.q, state.qd, state.t, operator_W)
         pt0, body = ev.pose, model.body

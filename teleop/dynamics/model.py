@@ -29,6 +29,7 @@ from teleop.dynamics.body import (
 from teleop.dynamics.constraints import stack_bias, stack_jacobian
 from teleop.dynamics.effects import effect_params, total_wrench
 from teleop.dynamics.kernels import motion as K
+from teleop.dynamics.kernels import steps as S
 from teleop.dynamics.multipliers import RANK_RTOL, ConstrainedAcceleration, compute_constrained_acceleration
 from teleop.dynamics.rotations import EulerChart
 from teleop.dynamics.rows import RowStack
@@ -46,9 +47,32 @@ def _wrench6(F) -> np.ndarray:
 
 class PoseTerms:
     """Chart terms at (chart, q): p (3,) m, R (3, 3), E_B, E_B^-1, dE (see
-    :func:`kernels.motion.rate_map_terms`) and E_W = R E_B (3, 3)."""
+    :func:`kernels.motion.rate_map_terms`) and E_W = R E_B (3, 3).
 
-    __slots__ = ("key", "p", "R", "E_B", "E_inv", "dE", "E_W")
+    ``terms`` holds (R, E_B, E_B^-1, dE, E_W) as the kernel gave them, a tuple or a (5, 3, 3) array
+    (a fused step's); the rate maps are read from it on demand (unpacking a 3-d array into five
+    views costs about 1.5 us, more than a fused step reads of them)."""
+
+    __slots__ = ("key", "p", "R", "terms")
+
+    def __init__(self, key, p, terms):
+        self.key, self.p, self.terms, self.R = key, p, terms, terms[0]
+
+    @property
+    def E_B(self) -> np.ndarray:
+        return self.terms[1]
+
+    @property
+    def E_inv(self) -> np.ndarray:
+        return self.terms[2]
+
+    @property
+    def dE(self) -> np.ndarray:
+        return self.terms[3]
+
+    @property
+    def E_W(self) -> np.ndarray:
+        return self.terms[4]
 
 
 class Evaluation:
@@ -89,6 +113,10 @@ class ConstrainedBody:
         self._working_py = tuple(e for e in self._py_effects if not e.conservative)
         #: True when an effect takes energy out or puts it in (a damper, a non-conservative effect)
         self.dissipative = bool(self._fx[0] or self._fx[1] or self._working_py)
+        #: True when every row and effect is compiled: a step can then be one fused kernel call
+        #: (:mod:`teleop.dynamics.kernels.steps`); False takes the split path, kernel by kernel
+        self.fused = not self.rows.python_rows and not self._py_effects
+        self._body_pack = S.body_pack(body.J, body.J_inv, body.mass_kg, self.coriolis, RANK_RTOL, self._fx)
 
     # -- pose-only terms --------------------------------------------------------------------------
     def pose_terms(self, chart: EulerChart, q: np.ndarray) -> PoseTerms:
@@ -97,12 +125,20 @@ class ConstrainedBody:
         c = self._cache
         if c is not None and c.key[0] is chart and c.key[1] == qb:  # the chart object itself, not its id
             return c
-        pt = PoseTerms()
-        pt.key = (chart, qb)
-        pt.p = q[:3]
-        pt.R, pt.E_B, pt.E_inv, pt.dE, pt.E_W = K.rate_map_terms(chart.R0, chart.axes_array, q[3:])
+        pt = PoseTerms((chart, qb), q[:3], K.rate_map_terms(chart.R0, chart.axes_array, q[3:]))
         self._cache = pt
         return pt
+
+    def keep_pose_terms(self, chart: EulerChart, q: np.ndarray, mats: np.ndarray) -> PoseTerms:
+        """Cache the pose terms mats (5, 3, 3) (R, E_B, E_B^-1, dE, E_W) a fused kernel computed at q."""
+        pt = self._cache = PoseTerms((chart, q.tobytes()), q[:3], mats)
+        return pt
+
+    def fused_args(self, chart: EulerChart) -> tuple:
+        """The leading arguments of every kernel of :mod:`teleop.dynamics.kernels.steps` (a
+        fused model only): the chart, the compiled rows and the body's constants."""
+        rows = self.rows
+        return chart.R0, chart.axes_array, rows.table, rows.params, self.m, self._body_pack
 
     def twist(self, pt: PoseTerms, qd: np.ndarray) -> np.ndarray:
         """nu = T qd = (v, R E_B thetadot) (6,)."""
@@ -118,8 +154,12 @@ class ConstrainedBody:
         qd[3:] = pt.E_inv @ (pt.R.T @ nu[3:])
         return qd
 
+    def operator_wrench(self, operator_W) -> np.ndarray:
+        """The operator wrench as the kernels take it: a float64 (6,) array, zeros for None."""
+        return self._zero6 if operator_W is None else _wrench6(operator_W)
+
     def _wrench(self, p, R, v, w, t, operator_W) -> np.ndarray:
-        F = self._zero6 if operator_W is None else _wrench6(operator_W)
+        F = self.operator_wrench(operator_W)
         if self._py_effects:  # otherwise F goes to the kernel as it is, uncopied
             F = total_wrench(self._py_effects, p, R, v, w, t, F)
         return F
@@ -127,6 +167,8 @@ class ConstrainedBody:
     # -- eqs. 8-9 ------------------------------------------------------------------------------------
     def evaluate(self, chart: EulerChart, q, qd, t: float, operator_W=None, stabilize=None) -> Evaluation:
         """Eqs. 8-9 at (q, qd). ``stabilize=(alpha, beta)`` adds Baumgarte terms 2a G nu + b^2 h."""
+        if self.fused and stabilize is None:
+            return self._evaluate_fused(chart, q, qd, operator_W)
         pt = self.pose_terms(chart, q)
         v, w = qd[:3], pt.E_W @ qd[3:]
         G, b, h = self.rows.evaluate(pt.p, pt.R, v, w)
@@ -138,6 +180,18 @@ class ConstrainedBody:
             pt.R, pt.E_B, pt.E_inv, pt.dE, self.body.J, self.body.J_inv, self._inv_m, self.coriolis,
             G, b, qd, F, self._fx, RANK_RTOL)
         return Evaluation(qdd, nudot, lam, rank, F, Gtl, pt)
+
+    def _evaluate_fused(self, chart, q, qd, operator_W) -> Evaluation:
+        """:meth:`evaluate` in one kernel call (:func:`kernels.steps.evaluate_at`)."""
+        F = self.operator_wrench(operator_W)
+        out, mats = S.evaluate_at(*self.fused_args(chart), q, qd, F)
+        return self.evaluation(out, self.keep_pose_terms(chart, q, mats))
+
+    def evaluation(self, out: np.ndarray, pose: PoseTerms | None) -> Evaluation:
+        """The :class:`Evaluation` packed by a fused kernel in out (25 + m,) (see
+        :func:`kernels.steps.evaluate_at`), views into it."""
+        m = self.m
+        return Evaluation(out[0:6], out[6:12], out[24:24 + m], int(out[24 + m]), out[12:18], out[18:24], pose)
 
     def project_rates(self, pt: PoseTerms, qd: np.ndarray) -> np.ndarray:
         """The admissible rates closest to qd (6,) in kinetic energy, at the pose of ``pt``."""
@@ -178,7 +232,7 @@ class ConstrainedBody:
     def working_wrench(self, pt: PoseTerms, qd, t: float, operator_W=None) -> np.ndarray:
         """The operator wrench plus the non-conservative Python effects' (6,) at (pose, rates):
         the forces whose power is work done on the tool (besides the compiled dampers)."""
-        F = self._zero6 if operator_W is None else _wrench6(operator_W)
+        F = self.operator_wrench(operator_W)
         if self._working_py:
             F = total_wrench(self._working_py, pt.p, pt.R, qd[:3], pt.E_W @ qd[3:], t, F)
         return F

@@ -19,6 +19,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from teleop.dynamics.kernels.so3 import euler_angles
 from teleop.errors import ConfigError
 
 _AXES = {"X": 0, "Y": 1, "Z": 2}
@@ -33,11 +34,6 @@ def axis_rotation(axis: int, angle: float) -> np.ndarray:
     if axis == 1:
         return np.array([[c, 0.0, s], [0.0, 1.0, 0.0], [-s, 0.0, c]])
     return np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
-
-
-def skew(v: np.ndarray) -> np.ndarray:
-    """Cross-product matrix (3, 3) such that ``skew(a) @ b == cross(a, b)``."""
-    return np.array([[0.0, -v[2], v[1]], [v[2], 0.0, -v[0]], [-v[1], v[0], 0.0]])
 
 
 def cross(a: np.ndarray, b: np.ndarray) -> np.ndarray:
@@ -138,26 +134,12 @@ def rate_map(chart: EulerChart, theta: np.ndarray, theta_dot: np.ndarray):
 
 
 def euler_from_rotation(chart: EulerChart, R_WB: np.ndarray) -> np.ndarray:
-    """Euler angles (rad) of ``R_WB`` in ``chart``. Only well defined away from the singularity.
-
-    Closed form for R = R_a(t1) R_b(t2) R_c(t3) (scipy's conventions: t1, t3 in (-pi, pi], t2 in
-    [-pi/2, pi/2] for Tait-Bryan and [0, pi] for proper sequences), with t2 from atan2 so it stays
-    accurate near the chart centre. With d the remaining axis, s = +1 when (a, b, c) (Tait-Bryan)
-    or (a, b, d) (proper) is a cyclic order of (x, y, z), else -1:
-
-    * Tait-Bryan: sin t2 = s R_ac; t1 = atan2(-s R_bc, R_cc); t3 = atan2(-s R_ab, R_aa).
-    * proper:     cos t2 = R_aa;   t1 = atan2(R_ba, -s R_da); t3 = atan2(R_ab, s R_ad).
-    """
-    R = chart.R0.T @ R_WB
-    a, b, c = chart.axes
-    if a != c:
-        s = 1.0 if (b - a) % 3 == 1 else -1.0
-        t2 = math.atan2(s * R[a, c], math.hypot(R[b, c], R[c, c]))
-        return np.array([math.atan2(-s * R[b, c], R[c, c]), t2, math.atan2(-s * R[a, b], R[a, a])])
-    d = 3 - a - b
-    s = 1.0 if (b - a) % 3 == 1 else -1.0
-    t2 = math.atan2(math.hypot(R[a, b], R[a, d]), R[a, a])
-    return np.array([math.atan2(R[b, a], -s * R[d, a]), t2, math.atan2(R[a, b], s * R[a, d])])
+    """Euler angles (3,) rad of ``R_WB`` (3, 3) in ``chart``, in scipy's conventions (t1, t3 in
+    (-pi, pi]; t2 in [-pi/2, pi/2] for Tait-Bryan, [0, pi] for proper sequences). Only well defined
+    away from the chart's singularity. The compiled :func:`teleop.dynamics.kernels.so3.euler_angles`
+    (scipy's ``as_euler`` costs about a step's budget; see there)."""
+    R = R_WB if R_WB.dtype == np.float64 and R_WB.flags.c_contiguous else np.ascontiguousarray(R_WB, dtype=float)
+    return euler_angles(chart.R0, chart.axes_array, R)
 
 
 def rechart(chart: EulerChart, theta: np.ndarray, theta_dot: np.ndarray):

@@ -41,9 +41,11 @@ class RowStack:
             r += c.rows
         self.holonomic_mask = np.array(mask, dtype=bool)
         self.compiled_mask = np.array([compiled_kind(c) is not None for c in self.constraints], dtype=bool)
-        self._table = np.array(table, dtype=np.int64).reshape(len(table), 2)
-        self._params = np.array(params, dtype=float).reshape(len(params), NPAR)
-        self._python = tuple(python)
+        #: (k, 2) int64 (kind, first row) and (k, NPAR) parameters of the compiled constraints
+        self.table = np.array(table, dtype=np.int64).reshape(len(table), 2)
+        self.params = np.array(params, dtype=float).reshape(len(params), NPAR)
+        #: (first row, end row, constraint) of the constraints evaluated by their Python methods
+        self.python_rows = tuple(python)
         self._G = np.zeros((self.m, 6))
         self._b = np.zeros(self.m)
         self._h = np.zeros(self.m)
@@ -57,9 +59,9 @@ class RowStack:
         moving = v is not None
         if not moving:
             v = w = self._zero3
-        if self._table.shape[0]:
-            stack_rows(self._table, self._params, p, R, v, w, G, b, h)
-        for i, j, c in self._python:
+        if self.table.shape[0]:
+            stack_rows(self.table, self.params, p, R, v, w, G, b, h)
+        for i, j, c in self.python_rows:
             G[i:j] = c.jacobian(p, R)
             b[i:j] = c.bias(p, R, v, w) if moving else 0.0
             h[i:j] = c.residual(p, R) if c.holonomic else 0.0

@@ -107,7 +107,7 @@ class ReferenceTool:
         if operator_W is not None:  # 6 finite floats, or dropped: the kernels index it unchecked
             try:
                 operator_W = np.asarray(operator_W, dtype=float)
-                bad_input = operator_W.shape != (6,) or not math.isfinite(float(operator_W @ operator_W))
+                bad_input = operator_W.shape != (6,) or not math.isfinite(sum(operator_W.tolist()))
             except (TypeError, ValueError):
                 bad_input = True
         if bad_input:
@@ -116,7 +116,8 @@ class ReferenceTool:
             ev = self.integrator.step(self.model, s, h, operator_W)
             x, y, z, a, b, c = s.qd.tolist()  # scalar arithmetic: cheaper than numpy for 6 values
             v2, w2 = x * x + y * y + z * z, a * a + b * b + c * c
-            ok = math.isfinite(float(s.q @ s.q) + v2 + w2 + float(ev.lam @ ev.lam) + float(ev.nudot @ ev.nudot))
+            # a sum is finite only if every term is (inf - inf is NaN); cheaper than numpy for short arrays
+            ok = math.isfinite(sum(s.q.tolist()) + v2 + w2 + sum(ev.lam.tolist()) + sum(ev.nudot.tolist()))
         except (TeleopError, FloatingPointError, np.linalg.LinAlgError, ValueError):
             ok, ev = False, None
         if not ok:

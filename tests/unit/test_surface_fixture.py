@@ -10,12 +10,13 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from scipy.linalg import expm
 from scipy.optimize import minimize
+from pinocchio import skew
 from scipy.spatial.transform import Rotation
 
 from teleop.contact import SurfaceTissue, TissueBlock
 from teleop.dynamics.body import RigidBody
 from teleop.dynamics.registry import FIXTURE_TYPES, FrameMap
-from teleop.dynamics.rotations import rate_map, rotation, skew
+from teleop.dynamics.rotations import rate_map, rotation
 from teleop.dynamics.surface import HeightSurface
 from teleop.dynamics.surface_fixture import SurfaceScalpelSpec
 from teleop.dynamics.tool import ReferenceTool

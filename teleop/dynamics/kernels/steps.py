@@ -1,0 +1,146 @@
+"""Whole steps in one compiled call, for a model whose rows and effects are all compiled.
+
+Each kernel here only chains the kernels of :mod:`.motion` and :mod:`.rows` in the order the
+Python integrators chain them (:class:`teleop.dynamics.integrators.Parametric` and
+:class:`~teleop.dynamics.integrators.EnergyConsistent` on an affine psi); it holds no formula of
+its own. Why: a Python-to-numba call costs about 1-3 us of dispatch, and every array a kernel
+returns costs a boxing (one ``_numba_unpickle`` of its type); on the paper's rolling disk the split
+path made five calls returning sixteen arrays per step. Here a step is one call returning two
+arrays, the packed output and the pose terms at its end.
+
+Inputs shared by the kernels: the chart (R0 (3, 3), axes (3,) int64), the compiled rows (``table``
+(k, 2) int64, ``params`` (k, NPAR), ``m`` rows in all, as in :func:`.rows.stack_rows`) and ``body``,
+the packed constants of :func:`body_pack`. The pose terms come back as one (5, 3, 3) array:
+R, E_B, E_B^-1, dE, E_W. Tested against the split path they replace
+(tests/unit/test_fused_steps.py): the same trajectories to rounding.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from numba import njit
+
+from teleop.dynamics.kernels.motion import (
+    evaluate,
+    flat_advance,
+    project_parameter_rates,
+    rate_map_terms,
+    split_end,
+    split_twist,
+)
+from teleop.dynamics.kernels.rows import stack_rows
+
+
+def body_pack(J, J_inv, mass: float, coriolis: bool, rtol: float, fx) -> np.ndarray:
+    """The body's constants (27,) for the fused kernels: inertia J (3, 3) kg*m^2 and its
+    inverse, mass kg, the gyroscopic switch, the Delassus rank tolerance and the compiled effects
+    fx (5,) of :func:`teleop.dynamics.effects.effect_params`. Layout: J (0:9), J^-1 (9:18), 1/m (18),
+    m (19), coriolis 0 or 1 (20), rtol (21), fx (22:27)."""
+    return np.concatenate([np.ravel(J), np.ravel(J_inv), [1.0 / mass, mass, float(coriolis), rtol],
+                           np.asarray(fx, dtype=float)])
+
+
+@njit(cache=True)
+def _pose(R0, axes, q, mats):
+    """The chart terms of :func:`.motion.rate_map_terms` at q (6,), into mats (5, 3, 3)."""
+    R, E, Einv, dE, EW = rate_map_terms(R0, axes, q[3:])
+    mats[0], mats[1], mats[2], mats[3], mats[4] = R, E, Einv, dE, EW
+
+
+@njit(cache=True)
+def _rows(table, params, m, q, R, v, w):
+    """G (m, 6), b (m,), h (m,) of the compiled stack at pose (q[:3], R), twist (v, w)."""
+    G = np.zeros((m, 6))
+    b = np.zeros(m)
+    h = np.zeros(m)
+    stack_rows(table, params, q[:3], R, v, w, G, b, h)
+    return G, b, h
+
+
+@njit(cache=True)
+def _evaluate_at(R0, axes, table, params, m, body, q, qd, F, mats, out):
+    """:meth:`teleop.dynamics.model.ConstrainedBody.evaluate` at (q, qd) under the wrench F (6,):
+    the pose terms into mats (5, 3, 3), then out[0:24 + m] = (qdd, nudot, total wrench, G^T lam,
+    lam) (see :func:`.motion.evaluate`). Returns the rank."""
+    _pose(R0, axes, q, mats)
+    R, E, EW = mats[0], mats[1], mats[4]
+    v = qd[:3].copy()
+    w = np.empty(3)
+    for i in range(3):
+        w[i] = EW[i, 0] * qd[3] + EW[i, 1] * qd[4] + EW[i, 2] * qd[5]
+    G, b, _ = _rows(table, params, m, q, R, v, w)
+    J, J_inv = body[0:9].copy().reshape((3, 3)), body[9:18].copy().reshape((3, 3))
+    qdd, nudot, lam, rank, Fw, Gtl = evaluate(R, E, mats[2], mats[3], J, J_inv, body[18], body[20] != 0.0,
+                                              G, b, qd, F, body[22:27], body[21])
+    out[0:6], out[6:12], out[12:18], out[18:24], out[24:24 + m] = qdd, nudot, Fw, Gtl, lam
+    return rank
+
+
+@njit(cache=True)
+def evaluate_at(R0, axes, table, params, m, body, q, qd, F):
+    """One evaluation of eqs. 8-9 at (q (6,), qd (6,)) under F (6,). Returns (out (25 + m,), mats
+    (5, 3, 3)): out = (qdd, nudot, total wrench, G^T lam, lam, rank), mats the pose terms at q."""
+    mats = np.empty((5, 3, 3))
+    out = np.empty(25 + m)
+    out[24 + m] = _evaluate_at(R0, axes, table, params, m, body, q, qd, F, mats, out)
+    return out, mats
+
+
+@njit(cache=True)
+def flat_parametric_step(R0, axes, table, params, m, body, P, Pinv, q0, q, qd, z, zd, F, h, project):
+    """The parametric step on psi(z) = q0 + P z (P (6, k), Pinv its pseudo-inverse): evaluation
+    at the start, :func:`.motion.flat_advance`, and (``project``: the stack has nonholonomic rows)
+    :func:`.motion.project_parameter_rates` at the end pose.
+
+    Returns (out, mats): out = (q, qd, z, zd, then the start's evaluation as in
+    :func:`evaluate_at`), length 12 + 2k + 25 + m; mats the pose terms at the end."""
+    k = P.shape[1]
+    o = 12 + 2 * k
+    out = np.empty(o + 25 + m)
+    mats = np.empty((5, 3, 3))
+    ev = out[o:]
+    ev[24 + m] = _evaluate_at(R0, axes, table, params, m, body, q, qd, F, mats, ev)
+    z1, zd1, q1, qd1 = flat_advance(z, zd, ev[0:6], P, Pinv, q0, h)
+    _pose(R0, axes, q1, mats)
+    if project:
+        zero = np.zeros(3)
+        G, _, _ = _rows(table, params, m, q1, mats[0], zero, zero)
+        J_inv = body[9:18].copy().reshape((3, 3))
+        zd1, qd1 = project_parameter_rates(mats[0], mats[1], mats[2], J_inv, body[18], G, qd1, P, Pinv, body[21])
+    out[0:6], out[6:12], out[12:12 + k], out[12 + k:o] = q1, qd1, z1, zd1
+    return out, mats
+
+
+@njit(cache=True)
+def flat_split_step(R0, axes, table, params, m, body, P, Pinv, q0, q, qd, z, zd, F, h):
+    """Steps 1-3 of the ``energy`` integrator on psi(z) = q0 + P z, with the correction's terms:
+    the evaluation at the start, the half kick zd_h = zd + h/2 P^+ qdd, :func:`.motion.split_twist`,
+    the drift z1 = z + h zd_h, q1 = q0 + P z1 (:func:`.motion.flat_advance` with no acceleration),
+    and :func:`.motion.split_end` on every row at q1. F (6,) is the working wrench (the operator's).
+
+    Returns (out, mats): out = (q1, qd1, z1, zd1, the start's evaluation as in :func:`evaluate_at`,
+    a0, b0, K, a, b), length 12 + 2k + 25 + m + 5; mats the pose terms at the end."""
+    n, k = P.shape
+    o = 12 + 2 * k
+    e = o + 25 + m
+    out = np.empty(e + 5)
+    mats = np.empty((5, 3, 3))
+    ev = out[o:e]
+    ev[24 + m] = _evaluate_at(R0, axes, table, params, m, body, q, qd, F, mats, ev)
+    J, J_inv = body[0:9].copy().reshape((3, 3)), body[9:18].copy().reshape((3, 3))
+    fx = body[22:27]
+    nu, a0, b0 = split_twist(mats[0], mats[4], J_inv, body[18], qd, ev[6:12], ev[18:24], F, fx, h)
+    zd_h = zd.copy()
+    for i in range(k):
+        s = 0.0
+        for j in range(n):
+            s += Pinv[i, j] * ev[j]
+        zd_h[i] += 0.5 * h * s
+    z1, _, q1, _ = flat_advance(z, zd_h, np.zeros(n), P, Pinv, q0, h)
+    _pose(R0, axes, q1, mats)
+    zero = np.zeros(3)
+    G, _, _ = _rows(table, params, m, q1, mats[0], zero, zero)
+    zd1, qd1, K, a, b = split_end(mats[0], mats[4], mats[2], J, J_inv, body[19], G, nu, P, Pinv, F, fx, body[21])
+    out[0:6], out[6:12], out[12:12 + k], out[12 + k:o] = q1, qd1, z1, zd1
+    out[e], out[e + 1], out[e + 2], out[e + 3], out[e + 4] = a0, b0, K, a, b
+    return out, mats
