@@ -348,7 +348,9 @@ def _log_axes(ax, xlabel: str, ylabel: str, title: str) -> None:
     ax.axvline(100.0, color="k", lw=0.6, ls="--")
     ax.set_xscale("log")
     ax.set_yscale("log")
+    ax.xaxis.set_major_locator(mticker.LogLocator(base=10.0, subs=(1.0, 2.0, 5.0)))
     ax.xaxis.set_major_formatter(mticker.FormatStrFormatter("%g"))
+    ax.xaxis.set_minor_formatter(mticker.NullFormatter())  # labelled minor ticks ran into each other
     ax.set_xlabel(xlabel, fontsize=8)
     ax.set_ylabel(ylabel, fontsize=8)
     ax.set_title(title, fontsize=9)
@@ -419,7 +421,7 @@ def _plot_incision(axes, col, inc, markers, plt) -> None:
         ax = axes[row][col]
         for k, (name, sub) in enumerate(groups.items()):
             every = sub[0]["every_tick"]
-            marker = "s" if every else ("x" if "period" in name else markers.get(sub[0]["integrator"], "o"))
+            marker = "P" if every else ("x" if "period" in name else markers.get(sub[0]["integrator"], "o"))
             ax.plot([r["cpu_load_pct"] for r in sub], [max(r[key], FLOOR) for r in sub], marker, ms=6,
                     color=colors[k % len(colors)], label=name, mew=1.5)
         _highlight(ax, inc, key)
