@@ -1,6 +1,7 @@
 """What accuracy costs in time: sweep integrators, control periods and effect sets.
 
-    python tools/accuracy_vs_time.py [--out docs/accuracy] [--seconds 2.0]
+    python tools/accuracy_vs_time.py [--out docs/accuracy] [--seconds 2.0] [--incision-seconds 2.0]
+                                     [--workers N | --scheduler ADDRESS] [--replot accuracy.csv]
 
 It also runs straight_incision over the master's integrator and period and the slave's QP solver
 and tolerance (tracking and depth error). For every point it records the constraint drift (holonomic position residual, velocity residual
@@ -9,8 +10,14 @@ and tolerance (tracking and depth error). For every point it records the constra
 period: a shorter period costs more ticks a second) and, on the undamped scenes
 (tests/data/undamped: pushed for 0.5 s, then left alone), the energy drift over the force-free
 stretch (``metrics.energy_drift_rel_max``). It writes ``accuracy.csv``, ``accuracy.md``
-and ``pareto.png`` (errors against CPU load, log-log), and marks the shipped default
-(parametric at 1 ms). The effect sweep shows what each simulated effect costs.
+and ``pareto.png`` (errors against CPU load, log-log), and marks the default (``energy`` at 1 ms,
+what a scene that names no integrator runs) and what the shipped scenes run (``parametric`` at
+1 ms). The effect sweep shows what each simulated effect costs.
+
+The points run in parallel through Dask (``teleop.sweep``: a local cluster of ``--workers``
+processes, or the scheduler at ``--scheduler``), each a pure function of its parameters (the
+scenes' own seeds), so the table does not depend on the number of workers; only the measured CPU
+columns (µs per tick, load, and the front, which weighs the load) vary from run to run.
 """
 
 from __future__ import annotations
@@ -30,12 +37,14 @@ from teleop.scenario.build import build_tool
 from teleop.scenario.metrics import EnergyDrift
 from teleop.scenario.operators import make_operator
 from teleop.scenario.schema import load_scene
+from teleop.sweep import add_sweep_args, check_sweep_args, run_sweep
 
 PERIODS_MS = (0.1, 0.25, 0.5, 1.0, 2.0)
 UNDAMPED_DIR = Path(__file__).resolve().parents[1] / "tests" / "data" / "undamped"
 UNDAMPED = ("undamped_sphere_slide", "undamped_rolling_disk", "undamped_scalpel_slide")
 SCENES = ("paper_rolling_disk", "paper_disk_on_sphere") + UNDAMPED
-DEFAULT = ("parametric", 1.0)
+DEFAULT = ("energy", 1.0)  #: what a scene that names no integrator runs (ReferenceTool's default)
+SHIPPED = ("parametric", 1.0)  #: what the shipped scenes name (they were tuned with it)
 EFFECT_SETS = {
     "effect set: coriolis + damping": ("coriolis", "damping"),
     "effect set: damping only": ("damping",),
@@ -94,57 +103,107 @@ def simulate(scene, seconds: float, record_dt: float = 0.01):
     }
 
 
+def with_effects(scene, effects: tuple):
+    """The scene with only ``effects`` on, and the tables of the effects turned off dropped (a
+    scene that gives a [damping] table without the effect is refused)."""
+    drop = {k: (() if k == "springs" else None) for k in ("damping", "gravity", "springs") if k not in effects}
+    return replace(scene, effects=tuple(effects), **drop)
+
+
 def conservative(scene):
     """The same scene with no damping and no operator: a start velocity, energy must stay put."""
     from teleop.scenario.schema import OperatorSpec
 
     q0 = scene.tool.q0
     qd0 = (0.02, 0.0, 0.0, 0.5, 0.0, 1.0) if scene.fixture.type == "sphere" else (0.0, 0.0, 0.0, 0.8, 0.0, -1.0)
-    return replace(scene, effects=("coriolis",), operator=OperatorSpec(), tool=replace(scene.tool, q0=q0, qd0=qd0))
+    return replace(with_effects(scene, ("coriolis",)), operator=OperatorSpec(), tool=replace(scene.tool, q0=q0, qd0=qd0))
 
 
-def sweep(seconds: float):
+def _traj_err(traj, ref) -> float:
+    """RMS distance of a sampled trajectory from the reference's over their common samples, m."""
+    k = min(len(traj), len(ref))
+    return float(np.sqrt(((traj[:k] - ref[:k]) ** 2).sum(axis=1).mean())) if k else float("nan")
+
+
+def run_point(point: dict) -> dict:
+    """One point of the study, a pure function of ``point`` (kind "ref", "run", "effects" or
+    "incision"; see ``sweep_points``), so that it runs anywhere: the trajectory errors against the
+    reference are taken afterwards, in ``assemble``."""
+    kind, seconds = point["kind"], point["seconds"]
+    if kind == "incision":
+        return incision_point(point["integrator"], point["period_ms"], point["solver"], point["eps"], seconds,
+                              every_tick=point["every_tick"])
+    base = _load(point["scene"])
+    if kind == "ref":
+        return simulate(base.with_overrides(integrator="rk4", dt_s=1e-4), seconds)
+    sc = base if kind == "run" else with_effects(base, EFFECT_SETS[point["effects"]])
+    dt = point["period_ms"] * 1e-3
+    r = simulate(sc.with_overrides(integrator=point["integrator"], dt_s=dt), seconds)
+    if kind == "run" and point["scene"] not in UNDAMPED:  # the undamped scenes are their own test
+        r["energy_rel_err"] = simulate(conservative(base).with_overrides(integrator=point["integrator"], dt_s=dt),
+                                       seconds)["energy_rel_err"]
+    else:
+        r["energy_rel_err"] = float("nan")
+    return r
+
+
+def sweep_points(seconds: float, incision_seconds: float, scenes=None, integrators=None, periods=None,
+                 solvers=None) -> list[dict]:
+    """Every point of the study, in table order: per scene its RK4 reference at 0.1 ms, every
+    integrator at every period, the effect sets at the default; then straight_incision (see
+    ``incision_points``). ``incision_seconds`` 0 leaves the incision out."""
+    scenes = SCENES if scenes is None else tuple(scenes)
+    integrators = tuple(INTEGRATORS) if integrators is None else tuple(integrators)
+    periods = PERIODS_MS if periods is None else tuple(periods)
+    pts = []
+    for name in scenes:
+        pts.append({"kind": "ref", "scene": name, "seconds": seconds})
+        pts += [{"kind": "run", "scene": name, "integrator": i, "period_ms": ms, "seconds": seconds}
+                for i in integrators for ms in periods]
+        pts += [{"kind": "effects", "scene": name, "integrator": DEFAULT[0], "period_ms": DEFAULT[1],
+                 "effects": label, "seconds": seconds} for label in (EFFECT_SETS if name not in UNDAMPED else ())]
+    if incision_seconds:
+        pts += incision_points(incision_seconds, integrators, periods, SOLVERS if solvers is None else solvers)
+    return pts
+
+
+def assemble(points: list[dict], results: list[dict]) -> list[dict]:
+    """The table's rows from the points and their results (same order): trajectory errors against
+    each scene's reference, CPU load, the default and shipped marks."""
+    refs = {p["scene"]: r["traj"] for p, r in zip(points, results) if p["kind"] == "ref"}
     rows = []
-    for name in SCENES:
-        base = _load(name)
-        ref = simulate(base.with_overrides(integrator="rk4", dt_s=1e-4), seconds)
-        cons_scene = conservative(base) if name not in UNDAMPED else None  # these are their own test
-        for integ in INTEGRATORS:
-            for ms in PERIODS_MS:
-                sc = base.with_overrides(integrator=integ, dt_s=ms * 1e-3)
-                r = simulate(sc, seconds)
-                e = (simulate(cons_scene.with_overrides(integrator=integ, dt_s=ms * 1e-3), seconds) if cons_scene
-                     else {"energy_rel_err": float("nan")})
-                k = min(len(r["traj"]), len(ref["traj"]))
-                err = float(np.sqrt(((r["traj"][:k] - ref["traj"][:k]) ** 2).sum(axis=1).mean())) if k else float("nan")
-                rows.append({
-                    "scene": name, "integrator": integ, "period_ms": ms,
-                    "effects": "all (coriolis, damping)" if name not in UNDAMPED else "undamped (coriolis)",
-                    "solver": "", "eps": float("nan"),
-                    "status": r["status"], "traj_err_m": err,
-                    "pos_residual_max": r["pos_residual_max"], "vel_residual_max": r["vel_residual_max"],
-                    "energy_rel_err": e["energy_rel_err"], "energy_drift_rel_max": r["energy_drift_rel_max"],
-                    "tick_median_us": r["tick_median_us"], "tick_p99_us": r["tick_p99_us"],
-                    "cpu_load_pct": 100.0 * r["tick_median_us"] / (ms * 1e3),
-                    "default": (integ, ms) == DEFAULT,
-                })
-                print(f"{name:22s} {integ:15s} {ms:5.2f} ms  err {err:9.2e} m  drift {r['pos_residual_max']:9.2e}  "
-                      f"E {e['energy_rel_err']:9.2e}  drift {r['energy_drift_rel_max']:9.2e}  {r['tick_median_us']:7.1f} us")
-        for label, effects in (EFFECT_SETS.items() if name not in UNDAMPED else ()):
-            sc = replace(base, effects=effects)
-            r = simulate(sc.with_overrides(integrator=DEFAULT[0], dt_s=DEFAULT[1] * 1e-3), seconds)
-            k = min(len(r["traj"]), len(ref["traj"]))
-            err = float(np.sqrt(((r["traj"][:k] - ref["traj"][:k]) ** 2).sum(axis=1).mean()))
-            rows.append({
-                "scene": name, "integrator": DEFAULT[0], "period_ms": DEFAULT[1], "effects": label,
-                "solver": "", "eps": float("nan"),
-                "status": r["status"], "traj_err_m": err, "pos_residual_max": r["pos_residual_max"],
-                "vel_residual_max": r["vel_residual_max"], "energy_rel_err": float("nan"),
-                "tick_median_us": r["tick_median_us"], "tick_p99_us": r["tick_p99_us"],
-                "cpu_load_pct": 100.0 * r["tick_median_us"] / (DEFAULT[1] * 1e3), "default": False,
-            })
-            print(f"{name:22s} effects={label:26s} err {err:9.2e} m  {r['tick_median_us']:7.1f} us")
+    for p, r in zip(points, results):
+        if p["kind"] in ("ref", "incision"):
+            if p["kind"] == "incision":
+                rows.append(r)
+            continue
+        name, integ, ms = p["scene"], p["integrator"], p["period_ms"]
+        if p["kind"] == "run":
+            effects = "all (coriolis, damping)" if name not in UNDAMPED else "undamped (coriolis)"
+        else:
+            effects = p["effects"]
+        run = p["kind"] == "run"
+        rows.append({
+            "scene": name, "integrator": integ, "period_ms": ms, "effects": effects,
+            "solver": "", "eps": float("nan"),
+            "status": r["status"], "traj_err_m": _traj_err(r["traj"], refs[name]),
+            "pos_residual_max": r["pos_residual_max"], "vel_residual_max": r["vel_residual_max"],
+            "energy_rel_err": r["energy_rel_err"],
+            "energy_drift_rel_max": r["energy_drift_rel_max"] if run else float("nan"),
+            "tick_median_us": r["tick_median_us"], "tick_p99_us": r["tick_p99_us"],
+            "cpu_load_pct": 100.0 * r["tick_median_us"] / (ms * 1e3),
+            "default": run and (integ, ms) == DEFAULT, "shipped": run and (integ, ms) == SHIPPED,
+        })
     return rows
+
+
+def print_rows(rows: list[dict]) -> None:
+    """One line a row, as the study used to print while it ran."""
+    for r in rows:
+        qp = f" {r['solver']:8s} eps={r['eps']:.0e}" if r["solver"] else ""
+        print(f"{r['scene']:22s} {r['integrator']:15s} {r['period_ms']:5.2f} ms {r['effects']:30s}{qp} "
+              f"err {r['traj_err_m']:9.2e} m  drift {r['pos_residual_max']:9.2e}  E {r['energy_rel_err']:9.2e}  "
+              f"{r['tick_median_us']:7.1f} us  {r['status']}")
 
 
 INCISION = "straight_incision"
@@ -166,8 +225,7 @@ def incision_point(integrator: str, period_ms: float, solver: str, eps, seconds:
         integrator=integrator, dt_s=period_ms * 1e-3, duration_s=seconds)
     r = run_scene(sc)
     m, t = r.summary["metrics"], r.summary["tick_us"]
-    print(f"{INCISION:22s} {integrator:15s} {period_ms:5.2f} ms  {solver:8s} eps={eps} every_tick={every_tick}  track {m['tip_tracking_rms_m']:9.2e}  "
-          f"depth {m['cut_depth_error_max_m']:9.2e}  {t['median']:7.1f} us  {r.summary['status']}")
+    config = (integrator, period_ms, solver, eps, every_tick)
     return {
         "scene": INCISION, "integrator": integrator, "period_ms": period_ms, "effects": "all (incision)",
         "solver": solver, "eps": eps if eps is not None else float("nan"), "every_tick": every_tick,
@@ -176,19 +234,26 @@ def incision_point(integrator: str, period_ms: float, solver: str, eps, seconds:
         "vel_residual_max": m["sideslip_max_m_per_s"], "energy_rel_err": float("nan"),
         "tick_median_us": t["median"], "tick_p99_us": t["p99"],
         "cpu_load_pct": 100.0 * t["median"] / (period_ms * 1e3),
-        "default": (integrator, period_ms, solver, eps, every_tick) == (DEFAULT[0], DEFAULT[1], SHIPPED_SOLVER, None, False),
+        "default": config == (*DEFAULT, SHIPPED_SOLVER, None, False),
+        "shipped": config == (*SHIPPED, SHIPPED_SOLVER, None, False),
     }
 
 
-def incision_sweep(seconds: float) -> list:
+def incision_points(seconds: float, integrators=None, periods=None, solvers=SOLVERS) -> list[dict]:
     """The master integrator at 1 ms, the default integrator over the periods, and every slave QP
     solver and tolerance at the defaults, each run on every tick: tracking error (RMS) and depth
     error against CPU load."""
-    rows = [incision_point(i, DEFAULT[1], SHIPPED_SOLVER, None, seconds) for i in INTEGRATORS]
-    rows += [incision_point(DEFAULT[0], ms, SHIPPED_SOLVER, None, seconds) for ms in PERIODS_MS if ms != DEFAULT[1]]
-    rows += [incision_point(DEFAULT[0], DEFAULT[1], sv, eps, seconds, every_tick=True) for sv, eps in SOLVERS]
-    assert any(r["default"] for r in rows), "the shipped configuration must be among the points"
-    return rows
+    integrators = tuple(INTEGRATORS) if integrators is None else tuple(integrators)
+    periods = PERIODS_MS if periods is None else tuple(periods)
+
+    def pt(i, ms, sv, eps, every):
+        return {"kind": "incision", "integrator": i, "period_ms": ms, "solver": sv, "eps": eps,
+                "every_tick": every, "seconds": seconds}
+
+    pts = [pt(i, DEFAULT[1], SHIPPED_SOLVER, None, False) for i in integrators]
+    pts += [pt(DEFAULT[0], ms, SHIPPED_SOLVER, None, False) for ms in periods if ms != DEFAULT[1]]
+    pts += [pt(DEFAULT[0], DEFAULT[1], sv, eps, True) for sv, eps in solvers]
+    return pts
 
 
 def _dominates(b, a, tie: float) -> bool:
@@ -216,13 +281,19 @@ def read_csv(path: Path) -> list:
                      "tick_median_us", "tick_p99_us", "cpu_load_pct"):
                 r[k] = float(v) if v != "" else float("nan")
         r["default"] = r["default"] == "True"
+        r["shipped"] = r.get("shipped") == "True"
         r["every_tick"] = r.get("every_tick") == "True"
         r.pop("front", None)
         out.append(r)
     return out
 
 
+def _mark(r: dict) -> str:
+    return "**default**" if r.get("default") else ("*shipped*" if r.get("shipped") else "")
+
+
 def write_outputs(rows, out: Path) -> None:
+    """accuracy.csv (every row), accuracy.md (the table, with the Pareto front) and pareto.png."""
     out.mkdir(parents=True, exist_ok=True)
     with open(out / "accuracy.csv", "w", newline="") as f:
         wr = csv.DictWriter(f, fieldnames=list(dict.fromkeys(k for r in rows for k in r)), restval="")
@@ -231,7 +302,7 @@ def write_outputs(rows, out: Path) -> None:
     lines = ["| scene | integrator | period ms | effects | QP solver (eps) | traj / tracking err m | drift / depth err m | |Gν| | energy err | energy drift | µs median | µs p99 | CPU load % | front |",
              "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|"]
     main = [r for r in rows if not r["effects"].startswith("effect set")]
-    for name in SCENES + (INCISION,):
+    for name in dict.fromkeys(r["scene"] for r in rows):
         sub = [r for r in main if r["scene"] == name]
         # objectives: CPU load (us per tick / period: a shorter period costs more ticks a second),
         # trajectory (or tracking) error, and the constraint drift in position and in velocity
@@ -243,50 +314,99 @@ def write_outputs(rows, out: Path) -> None:
         for i, r in enumerate(sub):
             r["front"] = i in front
     for r in rows:
-        mark = "**default**" if r["default"] else ""
         qp = r["solver"] if r["eps"] != r["eps"] else f"{r['solver']} ({r['eps']:.0e})"  # eps NaN: none
         qp += ", every tick" if r.get("every_tick") else ""
         lines.append(
-            f"| {r['scene']} | {r['integrator']} {mark} | {r['period_ms']:g} | {r['effects']} | "
+            f"| {r['scene']} | {r['integrator']} {_mark(r)} | {r['period_ms']:g} | {r['effects']} | "
             f"{qp} | {r['traj_err_m']:.2e} | "
             f"{r['pos_residual_max']:.1e} | {r['vel_residual_max']:.1e} | {r['energy_rel_err']:.1e} | "
             f"{r.get('energy_drift_rel_max', float('nan')):.1e} | "
             f"{r['tick_median_us']:.1f} | {r['tick_p99_us']:.1f} | {r['cpu_load_pct']:.1f} | {'yes' if r.get('front') else ''} |"
         )
     (out / "accuracy.md").write_text("\n".join(lines) + "\n")
+    plot_pareto(rows, out / "pareto.png")
 
+
+FLOOR = 1e-17  #: errors below this are drawn at it (exact to round-off)
+
+
+def _highlight(ax, rows, key) -> list:
+    """Rings around the default (red) and the shipped scenes' setting (black) among ``rows``."""
+    handles = []
+    for flag, color, label in (("default", "red", "default: energy, 1 ms"),
+                               ("shipped", "black", "shipped scenes: parametric, 1 ms")):
+        d = [r for r in rows if r.get(flag)]
+        if d:
+            handles += ax.plot(d[0]["cpu_load_pct"], max(d[0][key], FLOOR), "o", ms=15, mfc="none", mec=color,
+                               mew=1.4, label=label)
+    return handles
+
+
+def _log_axes(ax, xlabel: str, ylabel: str, title: str) -> None:
+    import matplotlib.ticker as mticker
+
+    ax.axvline(100.0, color="k", lw=0.6, ls="--")
+    ax.set_xscale("log")
+    ax.set_yscale("log")
+    ax.xaxis.set_major_locator(mticker.LogLocator(base=10.0, subs=(1.0, 2.0, 5.0)))
+    ax.xaxis.set_major_formatter(mticker.FormatStrFormatter("%g"))
+    ax.xaxis.set_minor_formatter(mticker.NullFormatter())  # labelled minor ticks ran into each other
+    ax.set_xlabel(xlabel, fontsize=8)
+    ax.set_ylabel(ylabel, fontsize=8)
+    ax.set_title(title, fontsize=9)
+    ax.tick_params(labelsize=7)
+    ax.grid(alpha=0.3, which="both")
+
+
+def plot_pareto(rows, path: Path) -> None:
+    """Errors against CPU load, log-log: a column per scene (trajectory error, constraint drift,
+    energy drift over the force-free stretch of the undamped scenes), one line per integrator
+    over the periods; the incision's column (tracking and depth error) one marker per kind of
+    point; the legends outside the panels, so that no label covers a point."""
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    import matplotlib.ticker  # noqa: F401 (matplotlib.ticker below)
-
-    fig, axes = plt.subplots(3, len(SCENES) + 1, figsize=(26, 12.5))
-    markers = dict(zip(INTEGRATORS, "osD^v*p"))
+    main = [r for r in rows if not r["effects"].startswith("effect set")]
+    scenes = [s for s in dict.fromkeys(r["scene"] for r in main) if s != INCISION]
+    inc = [r for r in rows if r["scene"] == INCISION]
+    integrators = list(dict.fromkeys(r["integrator"] for r in main if r["scene"] != INCISION))
+    ncol = len(scenes) + (1 if inc else 0)
+    fig, axes = plt.subplots(3, ncol, figsize=(4.3 * ncol + 2.6, 12.5), squeeze=False)
+    markers = dict(zip(INTEGRATORS, "osD^v*pXh"))
+    colors = dict(zip(INTEGRATORS, plt.get_cmap("tab10").colors))
     rows_spec = (("traj_err_m", "trajectory error vs RK4 @ 0.1 ms [m]"), ("pos_residual_max", "constraint drift max |h| [m]"),
                  ("energy_drift_rel_max", "energy drift, force-free stretch (relative)"))
-    for col, name in enumerate(SCENES):
+    legend = {}
+    for col, name in enumerate(scenes):
         for row, (key, label) in enumerate(rows_spec):
             ax = axes[row][col]
             if key == "energy_drift_rel_max" and name not in UNDAMPED:
                 ax.set_axis_off()  # damped: no force-free stretch
                 continue
-            for integ in INTEGRATORS:
+            for integ in integrators:
                 sub = [r for r in main if r["scene"] == name and r["integrator"] == integ]
-                ax.plot([r["cpu_load_pct"] for r in sub], [max(r[key], 1e-17) for r in sub],
-                        marker=markers[integ], lw=0.8, label=integ)
-            d = [r for r in main if r["scene"] == name and r["default"]][0]
-            ax.plot(d["cpu_load_pct"], max(d[key], 1e-17), "o", ms=16, mfc="none", mec="red", label="default")
-            ax.axvline(100.0, color="k", lw=0.6, ls="--")
-            ax.set_xscale("log")
-            ax.set_yscale("log")
-            ax.set_xlabel("CPU load, % of real time (µs per tick / period)")
-            ax.set_ylabel(label, fontsize=8)
-            ax.set_title(f"{name} (periods 0.1-2 ms; floor 1e-17 = exact)", fontsize=9)
-            ax.grid(alpha=0.3, which="both")
-    inc = [r for r in rows if r["scene"] == INCISION]
-    groups: dict = {}  # one legend entry per kind of point (no labels on the points: they overlap)
+                h, = ax.plot([r["cpu_load_pct"] for r in sub], [max(r[key], FLOOR) for r in sub],
+                             marker=markers[integ], color=colors[integ], lw=0.8, ms=5, label=integ)
+                legend.setdefault(integ, h)
+            for h in _highlight(ax, [r for r in main if r["scene"] == name], key):
+                legend.setdefault(h.get_label(), h)
+            _log_axes(ax, "CPU load, % of real time (µs per tick / period)", label,
+                      f"{name}\n(periods 0.1-2 ms; {FLOOR:g} = exact)")
+    fig.legend(list(legend.values()), list(legend.keys()), loc="lower center", ncol=len(legend), fontsize=9,
+               title="integrator (points along a line: periods 2, 1, 0.5, 0.25, 0.1 ms from left to right)",
+               title_fontsize=9)
+    if inc:
+        _plot_incision(axes, ncol - 1, inc, markers, plt)
+    fig.tight_layout(rect=(0, 0.05, 1, 1))
+    fig.savefig(path, dpi=100)
+    plt.close(fig)
+
+
+def _plot_incision(axes, col, inc, markers, plt) -> None:
+    """The incision's column: one legend entry per kind of point (labels on the points overlap)."""
+    groups: dict = {}
     for r in inc:
         if r["every_tick"]:
             key = f"{r['solver']} QP every tick" + ("" if r["eps"] != r["eps"] else f" (eps {r['eps']:.0e})")
@@ -296,45 +416,49 @@ def write_outputs(rows, out: Path) -> None:
             key = f"{r['integrator']}, {DEFAULT[1]:g} ms"
         groups.setdefault(key, []).append(r)
     colors = plt.get_cmap("tab20").colors
-    for row, (key, label) in enumerate((("traj_err_m", "slave tip tracking RMS [m]"), ("pos_residual_max", "slave cut depth error max [m]"))):
-        ax = axes[row][len(SCENES)]
+    for row, (key, label) in enumerate((("traj_err_m", "slave tip tracking RMS [m]"),
+                                        ("pos_residual_max", "slave cut depth error max [m]"))):
+        ax = axes[row][col]
         for k, (name, sub) in enumerate(groups.items()):
             every = sub[0]["every_tick"]
-            marker = "s" if every else ("x" if "period" in name else markers.get(sub[0]["integrator"], "o"))
-            ax.plot([r["cpu_load_pct"] for r in sub], [max(r[key], 1e-17) for r in sub], marker, ms=6,
+            marker = "P" if every else ("x" if "period" in name else markers.get(sub[0]["integrator"], "o"))
+            ax.plot([r["cpu_load_pct"] for r in sub], [max(r[key], FLOOR) for r in sub], marker, ms=6,
                     color=colors[k % len(colors)], label=name, mew=1.5)
-        d = [r for r in inc if r["default"]]
-        if d:
-            ax.plot(d[0]["cpu_load_pct"], max(d[0][key], 1e-17), "o", ms=16, mfc="none", mec="red", label="default")
-        ax.axvline(100.0, color="k", lw=0.6, ls="--")
-        ax.set_xscale("log")
-        ax.set_yscale("log")
-        ax.xaxis.set_major_formatter(matplotlib.ticker.FormatStrFormatter("%g"))
-        ax.xaxis.set_minor_locator(matplotlib.ticker.LogLocator(base=10.0, subs=(2.0, 5.0)))
-        ax.xaxis.set_minor_formatter(matplotlib.ticker.FormatStrFormatter("%g"))
-        ax.set_xlabel("CPU load, % of real time (whole tick / period)")
-        ax.set_ylabel(label, fontsize=8)
-        ax.set_title(f"{INCISION}: integrators, periods, QP solvers", fontsize=9)
-        ax.grid(alpha=0.3, which="both")
-    axes[0][len(SCENES)].legend(fontsize=7, loc="upper left", bbox_to_anchor=(1.02, 1.0), borderaxespad=0.0)
-    axes[2][len(SCENES)].set_axis_off()
-    axes[0][0].legend(fontsize=7)
-    fig.tight_layout()
-    fig.savefig(out / "pareto.png", dpi=110)
-    plt.close(fig)
+        _highlight(ax, inc, key)
+        _log_axes(ax, "CPU load, % of real time (whole tick / period)", label,
+                  f"{INCISION}:\nmaster integrators, periods, slave QP solvers")
+    handles, labels = axes[0][col].get_legend_handles_labels()
+    axes[2][col].set_axis_off()
+    axes[2][col].legend(handles, labels, fontsize=8, loc="upper left", ncol=1, frameon=False,
+                        title=f"{INCISION} points", title_fontsize=9)
 
 
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--out", default="docs/accuracy")
     ap.add_argument("--seconds", type=float, default=2.0, help="simulated seconds per paper-scene point")
+    ap.add_argument("--incision-seconds", type=float, default=2.0,
+                    help="simulated seconds per straight_incision point (0: no incision points)")
+    ap.add_argument("--scenes", nargs="+", choices=SCENES, help="a subset of the scenes (default: all)")
+    ap.add_argument("--integrators", nargs="+", choices=tuple(INTEGRATORS), help="a subset of the integrators")
+    ap.add_argument("--periods", nargs="+", type=float, help="control periods, ms (default: 0.1 0.25 0.5 1 2)")
     ap.add_argument("--replot", help="redraw the table and plot from an accuracy.csv, no runs")
-    ap.add_argument("--incision-seconds", type=float, default=2.0, help="simulated seconds per straight_incision point")
+    add_sweep_args(ap)
     args = ap.parse_args(argv)
+    check_sweep_args(ap, args)
+    if args.seconds <= 0 or args.incision_seconds < 0:
+        ap.error("--seconds must be > 0 and --incision-seconds >= 0")
+    if args.periods and min(args.periods) <= 0:
+        ap.error(f"--periods: expected periods > 0 ms, got {args.periods}")
+    if args.replot and not Path(args.replot).is_file():
+        ap.error(f"--replot: no such file {args.replot}")
     if args.replot:
         rows = read_csv(Path(args.replot))
     else:
-        rows = sweep(args.seconds) + incision_sweep(args.incision_seconds)
+        points = sweep_points(args.seconds, args.incision_seconds, args.scenes, args.integrators, args.periods)
+        results = run_sweep(run_point, points, args.workers, args.scheduler, desc="accuracy study")
+        rows = assemble(points, results)
+        print_rows(rows)
     write_outputs(rows, Path(args.out))
     print(f"wrote {args.out}/accuracy.csv, accuracy.md, pareto.png ({len(rows)} points)")
     return 0

@@ -1,6 +1,7 @@
 """Benchmarks: microseconds per step, median and p99, against a yardstick timed in the same run.
 
     python tools/bench.py [--json OUT.json] [--steps N] [--fuzz N] [--engine-only]
+                          [--workers N | --scheduler ADDRESS]   (where the fuzzed scenes run)
 
 The machine is shared and noisy, so every figure is taken in interleaved blocks with the
 yardstick, one ``pinocchio.aba`` of example-robot-data's Panda (``pin_aba_us``); compare ratios.
@@ -15,6 +16,8 @@ import time
 from pathlib import Path
 
 import numpy as np
+
+from teleop.sweep import add_sweep_args, check_sweep_args, run_sweep
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
@@ -129,25 +132,30 @@ def scene_ticks(seconds: float) -> dict:
     return out
 
 
-def fuzz_scenes(n: int) -> dict:
-    """Run n random valid scenes; count statuses. Every one must finish with nan false."""
-    import collections
+def fuzz_point(seed: int) -> dict:
+    """One random valid scene, drawn from its own seed, run to its end: the seed, status and nan."""
     import warnings
 
     from teleop.runtime import run_scene
     from teleop.scenario.random_scene import random_scene
     from teleop.scenario.schema import parse_scene
 
-    counts: collections.Counter = collections.Counter()
-    nan_seeds = []
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", RuntimeWarning)  # overflow on purpose in diverging scenes
-        for seed in range(n):
-            s = run_scene(parse_scene(random_scene(np.random.default_rng(seed)), f"<fuzz {seed}>")).summary
-            counts[s["status"]] += 1
-            if s["nan"]:
-                nan_seeds.append(seed)
-    return {"scenes": n, "passed": n - len(nan_seeds), "statuses": dict(counts), "nan_seeds": nan_seeds}
+        s = run_scene(parse_scene(random_scene(np.random.default_rng(seed)), f"<fuzz {seed}>")).summary
+    return {"seed": seed, "status": s["status"], "nan": bool(s["nan"])}
+
+
+def fuzz_scenes(n: int, workers: int = 2, scheduler: str | None = None) -> dict:
+    """Run n random valid scenes (seeds 0..n-1) in parallel through Dask (teleop.sweep); count
+    statuses. Every one must finish with nan false. The tally does not depend on the workers."""
+    import collections
+
+    runs = run_sweep(fuzz_point, range(n), workers, scheduler, desc="fuzzed scenes")
+    counts = collections.Counter(r["status"] for r in runs)
+    nan_seeds = [r["seed"] for r in runs if r["nan"]]
+    return {"scenes": n, "passed": n - len(nan_seeds), "statuses": dict(sorted(counts.items())),
+            "nan_seeds": nan_seeds}
 
 
 def main(argv=None) -> int:
@@ -155,9 +163,13 @@ def main(argv=None) -> int:
     ap.add_argument("--json", help="write the figures here")
     ap.add_argument("--steps", type=int, default=20_000, help="steps per integrator (default 20000)")
     ap.add_argument("--fuzz", type=int, default=500, help="random valid scenes to run (default 500)")
+    add_sweep_args(ap)  # the fuzzed scenes run through Dask
     ap.add_argument("--engine-only", action="store_true", help="only the integrators and the yardstick")
     ap.add_argument("--scene-seconds", type=float, default=2.0, help="simulated seconds per scene for tick_us")
     args = ap.parse_args(argv)
+    check_sweep_args(ap, args)
+    if args.fuzz < 0:
+        ap.error(f"--fuzz: expected a count >= 0, got {args.fuzz}")
 
     yard = Yardstick()
     yard.block(2000)  # warm-up
@@ -201,7 +213,7 @@ def main(argv=None) -> int:
         for name, t in result["scene_tick_us"].items():
             print(f"tick_us {name:60s} median {t['median']:8.1f}  p99 {t['p99']:8.1f}")
     if args.fuzz:
-        fz = fuzz_scenes(args.fuzz)
+        fz = fuzz_scenes(args.fuzz, args.workers, args.scheduler)
         result["fuzz"] = fz
         print(f"fuzzed scenes: {fz['passed']} of {fz['scenes']} finished with nan false; statuses {fz['statuses']}")
     if args.json:

@@ -2,6 +2,7 @@
 
     python tools/delay_study.py [--out docs/delay] [--delays 0 10 50 100 200 500 1000]
                                 [--losses 0 0.05] [--scenes straight_incision stiff_contact]
+                                [--workers N | --scheduler ADDRESS]
 
 For each scene, round-trip delay (ms), message loss and guard (off / tdpa) it runs the scene in
 simulated time through the [link] channel (``--set link.*``, the same path as the command line)
@@ -39,6 +40,7 @@ from teleop.plots import plot_passivity
 from teleop.runtime import run_scene
 from teleop.scenario.metrics import band_rms
 from teleop.scenario.schema import load_scene
+from teleop.sweep import add_sweep_args, check_sweep_args, run_sweep
 
 DELAYS_MS = (0, 10, 50, 100, 200, 500, 1000)
 LOSSES = (0.0, 0.05)
@@ -155,6 +157,16 @@ def plot(rows: list[dict], out: Path) -> None:
     plt.close(fig)
 
 
+PASSIVITY_POINT = ("stiff_contact", 200.0, 0.0, True)  #: (scene, delay ms, loss, guard) of passivity.png
+
+
+def sweep_point(point: tuple) -> tuple[dict, dict]:
+    """run_point on (scene, delay_ms, loss, guard, seconds), a pure function of the point (the
+    scene's own seed); the log comes back only for the point that passivity.png draws."""
+    row, log = run_point(*point)
+    return row, (log if point[:4] == PASSIVITY_POINT else {})
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--out", default="docs/delay")
@@ -162,28 +174,27 @@ def main(argv=None) -> int:
     ap.add_argument("--losses", type=float, nargs="+", default=LOSSES)
     ap.add_argument("--scenes", nargs="+", default=SCENES)
     ap.add_argument("--seconds", type=float, help="shorten every run to this (s)")
+    add_sweep_args(ap)
     args = ap.parse_args(argv)
+    check_sweep_args(ap, args)
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
-    rows = []
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    for name in args.scenes:
-        ref_force = None
-        for delay in args.delays:
-            for loss in args.losses:
-                for guard in (False, True):
-                    row, log = run_point(name, delay, loss, guard, args.seconds)
-                    if ref_force is None:
-                        ref_force = row["F_tissue_max"]
-                    row["stable"] = verdict(row, ref_force)
-                    rows.append(row)
-                    print(" ".join(f"{c}={_fmt(row[c])}" for c in COLUMNS), flush=True)
-                    if guard and name == "stiff_contact" and delay == 200 and loss == 0.0:
-                        plot_passivity(plt, log, "stiff_contact, 200 ms round trip, TDPA", out / "passivity.png")
+    points = [(name, float(delay), float(loss), guard, args.seconds) for name in args.scenes
+              for delay in args.delays for loss in args.losses for guard in (False, True)]
+    results = run_sweep(sweep_point, points, args.workers, args.scheduler, desc="delay study")
+    rows, ref_force = [], {}
+    for point, (row, log) in zip(points, results):
+        # each scene's first point (the first delay and loss, unguarded) is its reference force
+        row["stable"] = verdict(row, ref_force.setdefault(point[0], row["F_tissue_max"]))
+        rows.append(row)
+        print(" ".join(f"{c}={_fmt(row[c])}" for c in COLUMNS), flush=True)
+        if point[:4] == PASSIVITY_POINT:
+            plot_passivity(plt, log, "stiff_contact, 200 ms round trip, TDPA", out / "passivity.png")
     write_table(rows, out)
     plot(rows, out)
     print(out / "delay.md")

@@ -16,7 +16,8 @@ index), so the results do not depend on the number of workers.
                                   [--quick] [--from-json docs/stability/map.json]
 
 Writes map.json (every point), table.md and zwidth.png under --out. Points run through Dask
-(a local cluster of N single-threaded processes by default, or the scheduler at ADDRESS).
+(teleop.sweep: a local cluster of N single-threaded processes by default, or the scheduler at
+ADDRESS).
 """
 
 from __future__ import annotations
@@ -36,6 +37,7 @@ from teleop.dynamics.body import RigidBody
 from teleop.dynamics.effects import AngularDamper, LinearDamper, Spring
 from teleop.dynamics.tool import ReferenceTool
 from teleop.master import CobotConfig, CobotMaster
+from teleop.sweep import add_sweep_args, check_sweep_args, run_sweep
 
 PULSE_S, DURATION_S, TAIL_S = 0.02, 0.5, 0.2
 KICK_M_PER_S, KICK_RAD_PER_S = 0.05, 0.5
@@ -163,20 +165,8 @@ def sweep_points(quick: bool = False, seed: int = 0) -> list[dict]:
 
 
 def run_points(points: list[dict], workers: int = 2, scheduler: str | None = None) -> list[dict]:
-    """Every point through Dask with a tqdm progress bar; results in the points' order."""
-    from dask.distributed import Client, LocalCluster, as_completed
-    from tqdm import tqdm
-
-    cluster = None if scheduler else LocalCluster(n_workers=workers, threads_per_worker=1, processes=True,
-                                                  dashboard_address=None)
-    with Client(scheduler or cluster) as client:
-        futures = client.map(run_point, points, pure=False)
-        for _ in tqdm(as_completed(futures), total=len(futures), desc="stability map", unit="point"):
-            pass
-        results = client.gather(futures)
-    if cluster is not None:
-        cluster.close()
-    return results
+    """Every point through Dask (teleop.sweep) with a tqdm progress bar; results in the points' order."""
+    return run_sweep(run_point, points, workers, scheduler, desc="stability map")
 
 
 def lightest_stable(results: list[dict]) -> float:
@@ -249,15 +239,13 @@ def plot_stability_map(results: list[dict], params_of, path: Path) -> None:
 
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--workers", type=int, default=2, help="local Dask worker processes")
-    ap.add_argument("--scheduler", default=None, help="address of a running Dask scheduler (instead of a local one)")
+    add_sweep_args(ap)
     ap.add_argument("--out", default="docs/stability", help="output folder")
     ap.add_argument("--quick", action="store_true", help="a coarse map (for a smoke run)")
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--from-json", default=None, help="redraw the table and plot from a map.json")
     a = ap.parse_args(argv)
-    if a.workers < 1:
-        ap.error(f"--workers: expected at least 1, got {a.workers}")
+    check_sweep_args(ap, a)
     if a.from_json and not Path(a.from_json).is_file():
         ap.error(f"--from-json: no such file {a.from_json}")
     if a.from_json:

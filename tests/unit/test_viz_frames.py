@@ -2,6 +2,7 @@
 
 import numpy as np
 import pytest
+from scipy.spatial.transform import Rotation
 
 from teleop.errors import ConfigError
 from teleop.viz import NullView, VizFrame, VizScene, make_view
@@ -90,15 +91,43 @@ def test_make_view_unknown_kind_lists_the_choices():
         make_view("vtk", VizScene("free"))
 
 
-def test_rotation_between_maps_a_onto_b():
+def test_rotation_between_is_scipys_smallest_rotation():
+    """Against scipy's Rotation.align_vectors (one pair: the smallest rotation, unique unless the
+    directions are opposite), including directions a hair from equal."""
     rng = np.random.default_rng(0)
-    for _ in range(20):
-        a, b = rng.normal(size=3), rng.normal(size=3)
+    cases = [(rng.normal(size=3), rng.normal(size=3)) for _ in range(50)]
+    cases += [(a, a + 1e-9 * rng.normal(size=3)) for a in rng.normal(size=(10, 3))]
+    cases += [(a, -a + 1e-3 * rng.normal(size=3)) for a in rng.normal(size=(10, 3))]
+    for a, b in cases:
         R = S.rotation_between(a, b)
-        assert np.allclose(R @ (a / np.linalg.norm(a)), b / np.linalg.norm(b))
+        ref, _ = Rotation.align_vectors(b[None, :], a[None, :])
+        assert np.allclose(R, ref.as_matrix(), atol=1e-9), (a, b)
         assert np.allclose(R.T @ R, np.eye(3)) and np.isclose(np.linalg.det(R), 1.0)
-    R = S.rotation_between([0, 1, 0], [0, -1, 0])  # the opposite case
-    assert np.allclose(R @ [0, 1, 0], [0, -1, 0]) and np.isclose(np.linalg.det(R), 1.0)
+
+
+def test_rotation_between_a_hair_from_opposite_is_a_half_turn_that_maps_a_onto_b():
+    """A hair from opposite, 1 + a.b cancels in Eigen's FromTwoVectors (an unnormalised result
+    had R^T R off by 1e-5): still a rotation, mapping a onto b to ~3e-6 (measured) and turning
+    by scipy's angle."""
+    rng = np.random.default_rng(1)
+    for a, k in zip(rng.normal(size=(40, 3)), np.repeat([1e-5, 1e-6, 1e-7, 1e-9], 10)):
+        b = -a + k * rng.normal(size=3)
+        R = S.rotation_between(a, b)
+        ref, _ = Rotation.align_vectors(b[None, :], a[None, :])
+        assert np.allclose(R @ (a / np.linalg.norm(a)), b / np.linalg.norm(b), atol=1e-5)
+        assert abs(Rotation.from_matrix(R).magnitude() - ref.magnitude()) < 1e-7
+        assert np.allclose(R.T @ R, np.eye(3)) and np.isclose(np.linalg.det(R), 1.0)
+
+
+@pytest.mark.parametrize("a", [[0, 1, 0], [0, 0, 1], [1, 0, 0], [0.3, -0.4, 1.2]])
+def test_rotation_between_opposite_directions_is_a_half_turn_about_a_perpendicular(a):
+    a = np.asarray(a, dtype=float)
+    R = S.rotation_between(a, -a)
+    rot = Rotation.from_matrix(R)
+    axis = rot.as_rotvec() / rot.magnitude()
+    assert np.isclose(rot.magnitude(), np.pi)
+    assert abs(axis @ a) < 1e-9 * np.linalg.norm(a)  # any such half turn is a smallest rotation
+    assert np.allclose(R @ a, -a) and np.isclose(np.linalg.det(R), 1.0)
 
 
 def test_segment_matrix_spans_the_two_points():
