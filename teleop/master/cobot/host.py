@@ -146,7 +146,8 @@ class CobotMaster(Master):
         self.J[:] = np.eye(6)
         self.counter = 0  # this period's SYNC counter
         self.status = "ok"
-        self.err_max = (0.0, 0.0)  # tracking error maxima (m, rad)
+        self._qd_cmd, self._f_v = hs["qd"][0], hs["f_v"][0]  # views read every period
+        self._err_max = hs["err_max"][0]
         m = cfg.workspace_margin_m
         self.ws = np.array([self.model.upper - m, self.model.lower + m])
         self._consts = self._consts_key = None
@@ -256,7 +257,7 @@ class CobotMaster(Master):
             self.status = fault
             self._hold()
             return _ZERO6
-        return self._hs["f_v"][0].copy() if self.clutch.engaged and not self._reengage else _ZERO6
+        return self._f_v.copy() if self.clutch.engaged and not self._reengage else _ZERO6
 
     def command(self, p_r, R_r, nu_r, a_r) -> str:
         """The period's second half, from the reference tool's pose and twist before its step
@@ -276,32 +277,36 @@ class CobotMaster(Master):
         drv, ctrl, k = self.driver, self.ctrl, self.counter
         p_r, R_r, nu_r, a_r = (np.asarray(p_r, dtype=float), np.asarray(R_r, dtype=float),
                                np.asarray(nu_r, dtype=float), np.asarray(a_r, dtype=float))
-        joints = drv.joints_rad_m
         if self._reengage:  # φ re-indexed on the tool's pose: φ(x) = q_r exactly, no jump
             self._reengage = False
             self.clutch.engage(self.p_H_est, self.R_H_est, p_r, R_r)
             ctrl.reset(nu_r)
             self._p_v[:], self._R_v[:] = self.clutch.phi.compute_virtual_pose(self.p_H_est, self.R_H_est)
+            self._constants()  # the new φ (sense refreshed the rest)
         engaged = self.clutch.engaged  # else the handle follows the hand: an admittance of free_damping
-        e_p, e_r = host_command(self._hs, self._constants(), p_r, R_r, nu_r, a_r, joints, k, engaged)
-        if engaged:
-            self._track(e_p, e_r)
-        drv.send_command(self._hs["qd"][0], self.vmax)
+        e_p, e_r = host_command(self._hs, self._hc, p_r, R_r, nu_r, a_r, drv.joints_rad_m, k, engaged)
+        cfg = self.cfg
+        if engaged and (e_p > cfg.tracking_fault_m or e_r > cfg.tracking_fault_rad):
+            self._track_fault(e_p, e_r)
+        drv.send_command(self._qd_cmd, self.vmax)
         self._link_cycle_end()
         self.steps += 1
         return self.status
 
-    def _track(self, e_p: float, e_r: float) -> None:
-        """Keep the maxima of the tracking error |q_r - q_v| (e_p m, e_r rad), and latch
-        "tracking_error" beyond ``tracking_fault_m`` / ``_rad``: the device cannot render the tool
-        (an end stop, a limit cycle). This period's command still goes out (zero velocity, since
-        the driver holds after a fault); from the next period the master senses nothing."""
-        self.err_max = (max(self.err_max[0], e_p), max(self.err_max[1], e_r))
+    @property
+    def err_max(self) -> tuple[float, float]:
+        """The maxima of the tracking error |q_r - q_v| while engaged (m, rad)."""
+        return float(self._err_max[0]), float(self._err_max[1])
+
+    def _track_fault(self, e_p: float, e_r: float) -> None:
+        """Latch "tracking_error": the tracking error |q_r - q_v| (e_p m, e_r rad) is beyond
+        ``tracking_fault_m`` / ``_rad``: the device cannot render the tool (an end stop, a limit
+        cycle). This period's command still goes out (zero velocity, since the driver holds after a
+        fault); from the next period the master senses nothing."""
         cfg = self.cfg
-        if e_p > cfg.tracking_fault_m or e_r > cfg.tracking_fault_rad:
-            self.driver.latch_fault("tracking_error", f"|q_r - q_v| = {e_p:.4g} m, {e_r:.4g} rad, beyond "
-                                    f"{cfg.tracking_fault_m} m / {cfg.tracking_fault_rad} rad")
-            self.status = "tracking_error"
+        self.driver.latch_fault("tracking_error", f"|q_r - q_v| = {e_p:.4g} m, {e_r:.4g} rad, beyond "
+                                f"{cfg.tracking_fault_m} m / {cfg.tracking_fault_rad} rad")
+        self.status = "tracking_error"
 
     def _hold(self) -> None:
         """A latched fault: zero velocity, the observer and the prediction follow it, the bus runs
