@@ -340,7 +340,8 @@ class CobotMaster(Master):
             c["wrench_map"], c["to_handle"] = phi.wrench_map_to_virtual, phi.twist_map_to_handle
             c["off_p"], c["scale"], c["off_R"] = phi.offset_p, phi.scale, phi.offset_R
             c["tau"], c["dt"], c["dt_ctrl"] = self.tau_s, self.dt_s, self.ctrl.dt
-            c["obs_dt"], c["obs_window"], c["obs_tau"], c["alpha"], c["beta"] = obs.dt, obs.window, obs.tau, obs.alpha, obs.beta
+            c["obs_dt"], c["obs_window"], c["obs_tau"] = obs.dt, obs.window, obs.tau
+            c["alpha"], c["beta"] = obs.alpha, obs.beta
             c["servo_model"] = cfg.inertia_compensation == "servo_model"
             c["vmax"], c["free_damping"] = self.vmax, np.broadcast_to(np.asarray(cfg.free_damping, float), 6)
         return self._hc

@@ -276,7 +276,8 @@ def host_sense(hs, hc, joints, j, k, fresh, wrench_S, bias_S, wc, feedback, clos
     r, c = hs[0], hc[0]
     obs = r["obs"]
     if fresh:
-        x, b = correct_kernel(r["obs_hist"], obs[0].copy(), obs[3].copy(), joints, j, k, c["alpha"], c["beta"], c["obs_dt"])
+        x, b = correct_kernel(r["obs_hist"], obs[0].copy(), obs[3].copy(), joints, j, k, c["alpha"], c["beta"],
+                              c["obs_dt"])
         obs[0, :] = x
         obs[3, :] = b
     if not feedback:
@@ -288,8 +289,9 @@ def host_sense(hs, hc, joints, j, k, fresh, wrench_S, bias_S, wc, feedback, clos
         r["J"][:, :] = J
     accel = r["accel_model"][wc % HISTORY].copy() if c["servo_model"] else r["a_H"].copy()
     p_est, R_est, F, f_v, p_v, R_v = host_feedback(
-        r["p_m"].copy(), r["R_m"].copy(), k, j, r["pred_p"], r["pred_R"], wrench_S, bias_S, accel, r["nu_H"], c["mass"], c["com"], c["inertia"],
-        c["gravity"], c["max_force"], c["max_torque"], c["wrench_map"], c["off_p"], c["scale"], c["off_R"])
+        r["p_m"].copy(), r["R_m"].copy(), k, j, r["pred_p"], r["pred_R"], wrench_S, bias_S, accel, r["nu_H"],
+        c["mass"], c["com"], c["inertia"], c["gravity"], c["max_force"], c["max_torque"], c["wrench_map"], c["off_p"],
+        c["scale"], c["off_R"])
     r["p_est"][:] = p_est
     r["R_est"][:, :] = R_est
     r["F_hand"][:] = F
@@ -328,7 +330,8 @@ def host_command(hs, hc, p_r, R_r, nu_r, accel_r, joints, k, engaged):
         err_max = r["err_max"]
         err_max[0] = max(err_max[0], e_p)
         err_max[1] = max(err_max[1], e_r)
-        nu_H, a_H, qd = handle_command(r["J"], c["to_handle"], nu_V, a_V, c["tau"], joints, c["ws"][0], c["ws"][1], c["sigma0"],
+        nu_H, a_H, qd = handle_command(r["J"], c["to_handle"], nu_V, a_V, c["tau"], joints, c["ws"][0], c["ws"][1],
+                                       c["sigma0"],
                                        c["lam0"])
     else:
         nu_H, a_H = np.empty(6), np.empty(6)
