@@ -105,6 +105,8 @@ class FrameDatabase:
                               for i, s in enumerate(c.signals) if not s.name.endswith("Checksum"))
             for c in self.codecs.values()
         }
+        self._id_crc = {c.name: compute_crc32(c.frame_id, b"") if self.checksum[c.name] else None
+                        for c in self.codecs.values()}
         # per frame id, what decode needs, looked up once: (codec, extended, fd, length, CRC of the
         # id or None when unprotected, the range's lower and upper bounds per value (a checksum's
         # unbounded: its check is the CRC))
@@ -113,9 +115,8 @@ class FrameDatabase:
             lo, hi = [-math.inf] * len(c.names), [math.inf] * len(c.names)
             for i, _, a, b, _ in self._checks[c.frame_id]:
                 lo[i], hi[i] = a, b
-            self._rx[c.frame_id] = (c, *self._format[c.frame_id], c.length,
-                                    compute_crc32(c.frame_id, b"") if self.checksum[c.name] else None,
-                                    tuple(lo), tuple(hi))
+            self._rx[c.frame_id] = (c, *self._format[c.frame_id], c.length, self._id_crc[c.name], tuple(lo),
+                                    tuple(hi))
 
     def message(self, name: str):
         try:
@@ -145,11 +146,13 @@ class FrameDatabase:
         return codec.frame_id, self._seal(name, codec.encode_ordered(values)), self._fd[name]
 
     def _seal(self, name: str, data: bytes) -> bytes:
-        """The payload with its CRC-32 in the last four bytes, when the layout has a checksum."""
-        if self.checksum[name] is None:
+        """The payload with its CRC-32 in the last four bytes, when the layout has a checksum:
+        compute_crc32(frame id, body), continued from the id's CRC computed once."""
+        id_crc = self._id_crc[name]
+        if id_crc is None:
             return data
         body = data[:-CRC_BYTES]
-        return body + compute_crc32(self.by_name[name].frame_id, body).to_bytes(CRC_BYTES, "little")
+        return body + (zlib.crc32(body, id_crc) & 0xFFFFFFFF).to_bytes(CRC_BYTES, "little")
 
     def decode(self, frame_id: int, data: bytes, timestamp: float = 0.0, is_extended_id: bool = False,
                is_fd: bool = True) -> Decoded | Rejected:
