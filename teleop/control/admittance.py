@@ -132,25 +132,36 @@ class AdmittanceController:
     :func:`teleop.control.kernels.pid_step`; this object holds its state.
     """
 
-    def __init__(self, gains: AdmittanceGains, dt_s: float):
+    def __init__(self, gains: AdmittanceGains, dt_s: float, state=None):
+        """state (4, 6): where to keep ν_c, q̈_v, e and ∫e (rows, written in place: the cobot's
+        host passes a view of its state record, which its compiled period updates); None: own."""
         gains.check_stable(dt_s)
         self.gains, self.dt = gains, float(dt_s)
-        self.integral = np.zeros(6)
-        self.nu_cmd = np.zeros(6)
-        self.accel_cmd = np.zeros(6)
-        self.error = np.zeros(6)
+        self.state = np.zeros((4, 6)) if state is None else state
+        self.reset()
+
+    # the state's rows, read as views and assigned in place
+    nu_cmd = property(lambda self: self.state[0], lambda self, v: self.state.__setitem__(0, v),
+                      doc="commanded virtual twist ν_c (6,: m/s, rad/s, world)")
+    accel_cmd = property(lambda self: self.state[1], lambda self, v: self.state.__setitem__(1, v),
+                         doc="commanded acceleration q̈_v (6,: m/s^2, rad/s^2)")
+    error = property(lambda self: self.state[2], lambda self, v: self.state.__setitem__(2, v),
+                     doc="the last error e (6,: m, rad)")
+    integral = property(lambda self: self.state[3], lambda self, v: self.state.__setitem__(3, v),
+                        doc="the integral of e (6,: m*s, rad*s)")
 
     def reset(self, nu0=None) -> None:
-        self.integral = np.zeros(6)
-        self.nu_cmd = np.zeros(6) if nu0 is None else np.array(nu0, dtype=float)
-        self.accel_cmd = np.zeros(6)
+        self.integral = 0.0
+        self.nu_cmd = 0.0 if nu0 is None else np.asarray(nu0, dtype=float)
+        self.accel_cmd = 0.0
 
     def step(self, p_r, R_r, nu_r, accel_r, p_v, R_v):
         """One period: reference pose/twist at the measurement time, reference acceleration over
-        the period (6,), virtual pose -> (ν_c (6,) m/s rad/s, q̈_v (6,) m/s^2 rad/s^2), world."""
+        the period (6,), virtual pose -> (ν_c (6,) m/s rad/s, q̈_v (6,) m/s^2 rad/s^2), world
+        (copies: the state itself changes with the next period)."""
         g = self.gains
         self.nu_cmd, self.accel_cmd, self.error, self.integral = pid_step(
             np.asarray(p_r, float), np.asarray(R_r, float), np.asarray(nu_r, float), np.asarray(accel_r, float),
             np.asarray(p_v, float), np.asarray(R_v, float), g.kp, g.ki, g.kd, g.integral_limit, g.max_accel,
             g.max_velocity, self.dt, self.integral, self.nu_cmd)
-        return self.nu_cmd, self.accel_cmd
+        return self.nu_cmd.copy(), self.accel_cmd.copy()

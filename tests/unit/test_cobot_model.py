@@ -25,6 +25,16 @@ def test_ik_fk_round_trip(model):
         assert np.allclose(zxz_angles(R), joints[3:], atol=1e-9)
 
 
+@pytest.mark.parametrize("b", [0.0, np.pi])
+def test_ik_at_the_wrist_singularity_reaches_the_pose(model, b):
+    """Gimbal lock (b = 0 or pi): a and c are not separable; the angles found put the handle on
+    the pose exactly, with c = 0."""
+    R = pin.exp3(np.array([0.0, 0.0, 0.7])) @ pin.exp3(np.array([b, 0.0, 0.0])) @ pin.exp3(np.array([0, 0, -0.2]))
+    joints = model.compute_joints(np.zeros(3), R)
+    assert joints[5] == 0.0 and joints[4] == pytest.approx(b, abs=1e-12)
+    assert np.allclose(model.compute_handle_pose(joints)[1], R, atol=1e-12)
+
+
 def test_jacobian_matches_finite_differences(model):
     joints = np.array([0.1, -0.05, 0.02, 0.4, 1.2, -0.7])
     J = model.compute_jacobian(joints)

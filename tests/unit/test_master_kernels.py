@@ -12,9 +12,10 @@ from scipy.integrate import solve_ivp
 from teleop.control.admittance import Phi
 from teleop.control.kernels import pid_step
 from teleop.dynamics.kernels.so3 import exp3, log3
-from teleop.master.cobot.kernels import (advance_prediction, correct_kernel, distal_wrench_H, dls_command,
-                                         gantry_zxz_pose_jacobian, hand_wrench_W, handle_command, host_command,
-                                         host_feedback, predict_kernel, servo_advance)
+from teleop.master.cobot.kernels import (HOST_CONSTS, HOST_STATE, advance_prediction, correct_kernel,
+                                         distal_wrench_H, dls_command, gantry_zxz_pose_jacobian, hand_wrench_W,
+                                         handle_command, host_command, host_feedback, host_sense, predict_kernel,
+                                         servo_advance)
 from teleop.master.cobot.model import GRAVITY_W, CobotModel
 from teleop.master.cobot.observer import HISTORY, JointObserver
 
@@ -250,34 +251,100 @@ def test_host_feedback_against_pinocchio_and_phi(seed, late, scale):
         np.testing.assert_allclose(got, ref, atol=1e-9)
 
 
-def test_host_command_is_pid_then_handle_command_then_predictions():
-    """The fused command half is the composition of its tested pieces, in order."""
+def _host_records(rng, servo_model=1):
+    """A state record (HOST_STATE) and a constants record (HOST_CONSTS) filled with random values."""
+    hs, hc = np.zeros(1, HOST_STATE), np.zeros(1, HOST_CONSTS)
+    r, c = hs[0], hc[0]
+    for name in HOST_STATE.names:
+        r[name] = rng.normal(size=HOST_STATE[name].shape) * 1e-2
+    r["pred_R"] = np.array(_rotations(rng, HISTORY))
+    r["R_v"], r["R_m"] = _rotations(rng, 2)
+    r["obs"][0] += 0.3
+    c["gains"] = np.array([[4e4] * 6, [4e5] * 6, [400.0] * 6, [2e-6] * 6, [30.0] * 3 + [600.0] * 3,
+                           [0.5] * 3 + [10.0] * 3])
+    c["obs_lim"] = np.array([[0.5] * 3 + [10.0] * 3, [20.0] * 3 + [400.0] * 3])
+    c["ws"] = np.array([MODEL.upper - 0.01, MODEL.lower + 0.01])
+    c["mass"], c["com"], c["inertia"], c["gravity"] = HANDLE
+    c["max_force"], c["max_torque"] = 100.0, 5.0
+    phi = Phi(2.0, rng.normal(size=3) * 0.1, pin.exp3(rng.normal(size=3)))
+    c["wrench_map"], c["to_handle"] = phi.wrench_map_to_virtual, phi.twist_map_to_handle
+    c["off_p"], c["scale"], c["off_R"] = phi.offset_p, phi.scale, phi.offset_R
+    c["tau"], c["dt"], c["dt_ctrl"], c["obs_dt"], c["obs_window"], c["obs_tau"] = 1e-3, 1e-3, 1e-3, 1e-3, 2e-4, 1e-3
+    c["alpha"], c["beta"], c["sigma0"], c["lam0"], c["servo_model"] = 0.2, 0.01, 0.05, 0.02, servo_model
+    c["vmax"], c["free_damping"] = c["obs_lim"][0], [20.0] * 3 + [1.0] * 3
+    return hs, hc
+
+
+@pytest.mark.parametrize("engaged", [True, False])
+def test_host_command_is_pid_then_handle_command_then_predictions(engaged):
+    """The fused command half on the state record is the composition of its tested pieces, in
+    order; clutched out, the handle's twist is the hand's wrench over free_damping, clipped."""
     rng = np.random.default_rng(4)
-    dt, tau, window = 1e-3, 1e-3, 2e-4
-    g = np.array([[4e4] * 6, [4e5] * 6, [400.0] * 6, [2e-6] * 6, [30.0] * 3 + [600.0] * 3, [0.5] * 3 + [10.0] * 3])
-    p_r, p_v = rng.normal(size=3) * 1e-3, rng.normal(size=3) * 1e-3
-    R_r, R_v = pin.exp3(rng.normal(size=3) * 1e-2), pin.exp3(rng.normal(size=3) * 1e-2)
-    nu_r, a_r, integral, nu_cmd = rng.normal(size=6) * 0.1, rng.normal(size=6), rng.normal(size=6) * 1e-6, rng.normal(size=6) * 0.05
+    hs, hc = _host_records(rng)
+    ref = {name: hs[0][name].copy() for name in HOST_STATE.names}
+    c = hc[0]
+    p_r, R_r = ref["p_v"] + rng.normal(size=3) * 1e-3, pin.exp3(rng.normal(size=3) * 1e-2) @ ref["R_v"]
+    nu_r, a_r = rng.normal(size=6) * 0.1, rng.normal(size=6)
     joints = rng.uniform(-0.3, 0.3, 6)
     joints[4] = 1.2
     _, _, J = MODEL.compute_pose_and_jacobian(joints)
-    ws = np.array([MODEL.upper - 0.01, MODEL.lower + 0.01])
-    to_handle = Phi(2.0, np.zeros(3), pin.exp3(rng.normal(size=3))).twist_map_to_handle
-    lim = np.array([[0.5] * 3 + [10.0] * 3, [20.0] * 3 + [400.0] * 3])
-    obs = (joints + 1e-4, rng.normal(size=6) * 0.1, rng.normal(size=6) * 0.1, rng.normal(size=6) * 1e-3)
+    hs[0]["J"] = J
     k = 255
-    pred_p, pred_R = rng.normal(size=(HISTORY, 3)), np.array(_rotations(rng, 1) * HISTORY)
-    history = np.zeros((HISTORY, 6))
-    pp, pR = pred_p.copy(), pred_R.copy()
-    out = host_command(p_r, R_r, nu_r, a_r, p_v, R_v, g, dt, integral, nu_cmd, to_handle, tau, J, joints, ws, 0.05,
-                       0.02, k, pp, pR, dt, *obs, lim, dt, window, tau, history)
-    nu_V, a_V, e, integ = pid_step(p_r, R_r, nu_r, a_r, p_v, R_v, *g, dt, integral, nu_cmd)
-    nu_H, a_H, qd = handle_command(J, to_handle, nu_V, a_V, tau, joints, ws[0], ws[1], 0.05, 0.02)
-    x, qdm, u = predict_kernel(*obs[:3], qd, obs[3], lim[0], lim[1], dt, window, tau)
-    advance_prediction(pred_p, pred_R, k, nu_H, dt)
-    for got, ref in zip(out, (nu_V, a_V, e, integ, nu_H, a_H, qd, x, qdm, u, np.linalg.norm(e[:3]),
-                              np.linalg.norm(e[3:]))):
-        np.testing.assert_array_equal(got, ref)
-    np.testing.assert_array_equal(history[0], x)
-    np.testing.assert_array_equal(pp, pred_p)
-    np.testing.assert_array_equal(pR, pred_R)
+    e_p, e_r = host_command(hs, hc, p_r, R_r, nu_r, a_r, joints, k, engaged)
+    g, ctrl, obs = c["gains"], ref["ctrl"], ref["obs"]
+    if engaged:
+        nu_V, a_V, e, integ = pid_step(p_r, R_r, nu_r, a_r, ref["p_v"], ref["R_v"], *g, c["dt_ctrl"], ctrl[3], ctrl[0])
+        nu_H, a_H, qd = handle_command(J, c["to_handle"], nu_V, a_V, c["tau"], joints, c["ws"][0], c["ws"][1],
+                                       0.05, 0.02)
+        for got, want in zip(hs[0]["ctrl"], (nu_V, a_V, e, integ)):
+            np.testing.assert_array_equal(got, want)
+        assert (e_p, e_r) == (np.linalg.norm(e[:3]), np.linalg.norm(e[3:]))
+    else:
+        nu_H = np.clip(ref["F_hand"] / c["free_damping"], -c["vmax"], c["vmax"])
+        a_H = (nu_H - ref["nu_H"]) / c["dt"]
+        qd = dls_command(J, nu_H + c["tau"] * a_H, joints, c["ws"][0], c["ws"][1], 0.05, 0.02)
+        np.testing.assert_array_equal(hs[0]["ctrl"], ctrl)  # the PID's state untouched
+        assert (e_p, e_r) == (0.0, 0.0)
+    x, qdm, u = predict_kernel(obs[0], obs[1], obs[2], qd, obs[3], c["obs_lim"][0], c["obs_lim"][1], 1e-3, 2e-4, 1e-3)
+    pred_p, pred_R = ref["pred_p"], ref["pred_R"]
+    advance_prediction(pred_p, pred_R, k, nu_H, 1e-3)
+    r = hs[0]
+    for got, want in ((r["nu_H"], nu_H), (r["a_H"], a_H), (r["qd"], qd), (r["obs"][:3], (x, qdm, u)),
+                      (r["obs"][3], obs[3]), (r["obs_hist"][0], x), (r["pred_p"], pred_p), (r["pred_R"], pred_R),
+                      (r["accel_model"][0], J @ np.clip((u - qdm) / 1e-3, -c["obs_lim"][1], c["obs_lim"][1]))):
+        np.testing.assert_allclose(got, want, rtol=0, atol=1e-12)
+    np.testing.assert_array_equal(r["obs_hist"][1:], ref["obs_hist"][1:])
+
+
+@pytest.mark.parametrize("fresh, late, servo_model", [(True, False, 1), (True, True, 0), (False, True, 1)])
+def test_host_sense_is_correction_then_kinematics_then_feedback(fresh, late, servo_model):
+    """The fused feedback half on the state record: the observer's correction by a fresh reading,
+    the closed-form kinematics, :func:`host_feedback` with the servo model's or the commanded
+    handle acceleration; without ``feedback`` (a latched fault) only the correction."""
+    rng = np.random.default_rng(9)
+    for feedback in (True, False):
+        hs, hc = _host_records(rng, servo_model)
+        ref = {name: hs[0][name].copy() for name in HOST_STATE.names}
+        c = hc[0]
+        joints = rng.uniform(-0.3, 0.3, 6)
+        k, wc = 7, 6
+        j = 5 if late else k
+        wrench_S, bias_S = rng.normal(size=6), rng.normal(size=6) * 0.1
+        host_sense(hs, hc, joints, j, k, fresh, wrench_S, bias_S, wc, feedback, True)
+        r = hs[0]
+        x, b = ref["obs"][0], ref["obs"][3]
+        if fresh:
+            x, b = correct_kernel(ref["obs_hist"], x, b, joints, j, k, c["alpha"], c["beta"], c["obs_dt"])
+        np.testing.assert_array_equal(r["obs"][0], x)
+        np.testing.assert_array_equal(r["obs"][3], b)
+        np.testing.assert_array_equal(r["obs_hist"], ref["obs_hist"])
+        if not feedback:
+            np.testing.assert_array_equal(r["f_v"], ref["f_v"])
+            continue
+        p_m, R_m, J = gantry_zxz_pose_jacobian(joints)
+        accel = ref["accel_model"][wc] if servo_model else ref["a_H"]
+        want = host_feedback(p_m, R_m, k, j, ref["pred_p"], ref["pred_R"], wrench_S, bias_S, accel, ref["nu_H"],
+                             *HANDLE, 100.0, 5.0, c["wrench_map"], c["off_p"], c["scale"], c["off_R"])
+        for name, w in zip(("p_est", "R_est", "F_hand", "f_v", "p_v", "R_v"), want):
+            np.testing.assert_array_equal(r[name], w)
+        np.testing.assert_array_equal(r["J"], J)

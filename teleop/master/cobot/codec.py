@@ -18,6 +18,8 @@ import math
 import operator
 import struct
 
+from cantools.database.conversion import IdentityConversion, LinearConversion
+
 from teleop.errors import CanError
 
 _INT_CODES = {8: "b", 16: "h", 32: "i", 64: "q"}  # upper case: unsigned
@@ -73,6 +75,12 @@ class MessageCodec:
         self._scales = tuple(sc for sc, _ in self._scale_offset)
         self._offsets = tuple(off for _, off in self._scale_offset)
         self._to_raw = tuple(s.conversion.numeric_scaled_to_raw for s in signals)
+        # cantools' identity and linear conversions are raw = (v - offset) / scale, rounded for an
+        # integer signal: computed inline for those (no call per value); any other conversion
+        # (integer scale and offset, value tables) calls cantools' own
+        self._inline = all(type(s.conversion) in (IdentityConversion, LinearConversion) for s in signals)
+        self._round = tuple(not s.is_float for s in signals)
+        self._all_int = all(self._round)
         # cantools' strict encode: the range widened by a millionth of the scale, except for raw
         # values of the signal's value table
         self._encode_range = tuple(
@@ -80,6 +88,8 @@ class MessageCodec:
              math.inf if s.maximum is None else s.maximum + abs(s.conversion.scale) * 1e-6,
              frozenset(s.conversion.choices or ()))
             for s in signals)
+        self._lo = tuple(lo for lo, _, _ in self._encode_range)
+        self._hi = tuple(hi for _, hi, _ in self._encode_range)
 
     def encode(self, values) -> bytes:
         """Payload of ``values`` (a mapping with every signal, physical units); strict like
@@ -94,20 +104,34 @@ class MessageCodec:
         """:meth:`encode` for values given in the order of :attr:`names` (no mapping to build)."""
         if len(values) != len(self.names):
             raise CanError(f"can encode {self.name}: expected {len(self.names)} values, got {len(values)}")
-        raw = []
-        for name, v, to_raw, (lo, hi, choices) in zip(self.names, values, self._to_raw, self._encode_range):
-            try:
-                if not lo <= v <= hi:  # NaN fails here too
-                    self._reject(name, v, lo, hi, choices)
-            except TypeError:
-                raise CanError(f"can encode {self.name}.{name}: expected a number, got {v!r}") from None
-            raw.append(to_raw(v))
+        try:  # every value in range (the loops in C); NaN fails here too
+            ok = all(map(operator.le, self._lo, values)) and all(map(operator.le, values, self._hi))
+        except TypeError:
+            ok = False
+        if not ok:
+            self._check_each(values)  # raises, unless a value outside the range is in the value table
+        if self._inline and self._all_int:  # the loops in C
+            raw = list(map(round, map(operator.truediv, map(operator.sub, values, self._offsets), self._scales)))
+        elif self._inline:
+            raw = [round((v - off) / sc) if rnd else (v - off) / sc
+                   for v, off, sc, rnd in zip(values, self._offsets, self._scales, self._round)]
+        else:
+            raw = [to_raw(v) for to_raw, v in zip(self._to_raw, values)]
         if self.struct is None:
             return self.message.encode(dict(zip(self.names, raw)), scaling=False, strict=False)
         try:
             return self.struct.pack(*raw)
         except struct.error as e:  # a raw value that does not fit its bits
             raise CanError(f"can encode {self.name}: {e}") from None
+
+    def _check_each(self, values) -> None:
+        """The range check value by value, raising :class:`CanError` for the first bad one."""
+        for name, v, (lo, hi, choices) in zip(self.names, values, self._encode_range):
+            try:
+                if not lo <= v <= hi:  # NaN fails here too
+                    self._reject(name, v, lo, hi, choices)
+            except TypeError:
+                raise CanError(f"can encode {self.name}.{name}: expected a number, got {v!r}") from None
 
     def _reject(self, name, v, lo, hi, choices) -> None:
         if not math.isfinite(v):

@@ -17,6 +17,7 @@ so any 1..5 flipped bits are always caught); tools/can_residual.py measures it.
 from __future__ import annotations
 
 import math
+import operator
 import zlib
 from pathlib import Path
 from typing import NamedTuple
@@ -104,6 +105,18 @@ class FrameDatabase:
                               for i, s in enumerate(c.signals) if not s.name.endswith("Checksum"))
             for c in self.codecs.values()
         }
+        self._id_crc = {c.name: compute_crc32(c.frame_id, b"") if self.checksum[c.name] else None
+                        for c in self.codecs.values()}
+        # per frame id, what decode needs, looked up once: (codec, extended, fd, length, CRC of the
+        # id or None when unprotected, the range's lower and upper bounds per value (a checksum's
+        # unbounded: its check is the CRC))
+        self._rx = {}
+        for c in self.codecs.values():
+            lo, hi = [-math.inf] * len(c.names), [math.inf] * len(c.names)
+            for i, _, a, b, _ in self._checks[c.frame_id]:
+                lo[i], hi[i] = a, b
+            self._rx[c.frame_id] = (c, *self._format[c.frame_id], c.length, self._id_crc[c.name], tuple(lo),
+                                    tuple(hi))
 
     def message(self, name: str):
         try:
@@ -133,40 +146,43 @@ class FrameDatabase:
         return codec.frame_id, self._seal(name, codec.encode_ordered(values)), self._fd[name]
 
     def _seal(self, name: str, data: bytes) -> bytes:
-        """The payload with its CRC-32 in the last four bytes, when the layout has a checksum."""
-        if self.checksum[name] is None:
+        """The payload with its CRC-32 in the last four bytes, when the layout has a checksum:
+        compute_crc32(frame id, body), continued from the id's CRC computed once."""
+        id_crc = self._id_crc[name]
+        if id_crc is None:
             return data
         body = data[:-CRC_BYTES]
-        return body + compute_crc32(self.by_name[name].frame_id, body).to_bytes(CRC_BYTES, "little")
+        return body + (zlib.crc32(body, id_crc) & 0xFFFFFFFF).to_bytes(CRC_BYTES, "little")
 
     def decode(self, frame_id: int, data: bytes, timestamp: float = 0.0, is_extended_id: bool = False,
                is_fd: bool = True) -> Decoded | Rejected:
         """Decode and check one frame: a :class:`Decoded` in SI units, or a :class:`Rejected`.
         ``is_extended_id`` and ``is_fd`` are the frame's flags as received (every shipped message
         is a standard-id CAN FD frame)."""
-        codec = self._codec_by_id.get(frame_id)
-        if codec is None:
+        rx = self._rx.get(frame_id)
+        if rx is None:
             return Rejected(frame_id, "unknown_id", timestamp)
-        extended, fd = self._format[frame_id]
+        codec, extended, fd, length, id_crc, lo, hi = rx
         if bool(is_extended_id) != extended:
             return Rejected(frame_id, "id_type", timestamp)
         if bool(is_fd) != fd:
             return Rejected(frame_id, "fd_flag", timestamp)
-        if len(data) != codec.length:
+        if len(data) != length:
             return Rejected(frame_id, "length", timestamp)
         data = bytes(data)
-        if (self.checksum[codec.name] is not None
-                and compute_crc32(frame_id, data[:-CRC_BYTES]) != int.from_bytes(data[-CRC_BYTES:], "little")):
+        # compute_crc32(frame_id, body), continued from the id's CRC
+        if id_crc is not None and zlib.crc32(data[:-CRC_BYTES], id_crc) != int.from_bytes(data[-CRC_BYTES:], "little"):
             return Rejected(frame_id, "checksum", timestamp)
         try:
             values = codec.decode(data)
         except Exception:  # cantools raises several types on malformed payloads
             return Rejected(frame_id, "decode", timestamp)
-        for i, sig, lo, hi, is_float in self._checks[frame_id]:
-            v = values[i]
-            if not lo <= v <= hi:
-                bad = is_float and not math.isfinite(v)
-                return Rejected(frame_id, f"{'nonfinite' if bad else 'range'}:{sig}", timestamp)
+        if not (all(map(operator.le, lo, values)) and all(map(operator.le, values, hi))):  # in C; NaN fails
+            for i, sig, lo_i, hi_i, is_float in self._checks[frame_id]:
+                v = values[i]
+                if not lo_i <= v <= hi_i:
+                    bad = is_float and not math.isfinite(v)
+                    return Rejected(frame_id, f"{'nonfinite' if bad else 'range'}:{sig}", timestamp)
         return Decoded(codec.name, dict(zip(codec.names, values)), timestamp, values)
 
     def decode_message(self, msg) -> Decoded | Rejected:

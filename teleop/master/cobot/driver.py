@@ -38,7 +38,7 @@ CMD_SIGNALS = ("CmdVelX", "CmdVelY", "CmdVelZ", "CmdRateA", "CmdRateB", "CmdRate
 #: frames the driver encodes or reads by position every period, and the signal order it assumes
 ORDERED_FRAMES = {"SYNC": ("SyncCounter",), "HOST_CMD": (*CMD_SIGNALS, "CmdMode", "CmdCounter"),
                   "DEV_JOINTS": (*JOINT_SIGNALS, "DevState", "JointsCounter"),
-                  "DEV_WRENCH": WRENCH_SIGNALS}
+                  "DEV_WRENCH": (*WRENCH_SIGNALS, "WrenchCounter")}
 #: the HOST_CMD ranges of the DBC (m/s x3, rad/s x3)
 CMD_RANGE = (0.99996,) * 3 + (16.0,) * 3
 
@@ -171,15 +171,16 @@ class CobotDriver:
         """Take up to ``max_frames_per_read`` frames off the bus without blocking; returns the
         number of valid frames decoded."""
         n = 0
+        recv, decode = self.bus.recv, self.db.decode
         for _ in range(self.max_frames_per_read):
-            msg = self.bus.recv(timeout=0.0)
+            msg = recv(timeout=0.0)
             if msg is None:
                 break
             self.frames_rx += 1
             if msg.is_error_frame:
                 self._on_error_frame(msg)
                 continue
-            out = self.db.decode_message(msg)
+            out = decode(msg.arbitration_id, msg.data, msg.timestamp, msg.is_extended_id, msg.is_fd)
             if not isinstance(out, Decoded):
                 self.rejected[out.reason] += 1
                 level = logging.WARNING if sum(self.rejected.values()) <= 10 else logging.DEBUG
@@ -221,13 +222,13 @@ class CobotDriver:
         return self._sync == 0 or (self._sync - 1 - counter) % 256 >= 128
 
     def _apply(self, d: Decoded) -> None:
-        s = d.signals
-        if d.name in ("DEV_JOINTS", "DEV_WRENCH"):
-            counter = int(s["JointsCounter" if d.name == "DEV_JOINTS" else "WrenchCounter"])
+        s, name = d.signals, d.name
+        if name == "DEV_JOINTS" or name == "DEV_WRENCH":
+            counter = int(d.values[7 if name == "DEV_JOINTS" else 6])  # ORDERED_FRAMES: the counter after
             if self._from_future(counter):
                 self.rejected["counter"] += 1
                 return
-        if d.name == "DEV_JOINTS":
+        if name == "DEV_JOINTS":
             if not self._newer(counter, self.joints_counter):
                 self.frames_late += 1
                 return
@@ -246,10 +247,10 @@ class CobotDriver:
                     return
             self.joints_rad_m = np.array(meas, dtype=float)
             self.joints_counter = counter
-            self.device_state = int(s["DevState"])
+            self.device_state = int(d.values[6])
             self.fresh_joints = True
             self.cycles_since_joints = 0
-        elif d.name == "DEV_WRENCH":
+        elif name == "DEV_WRENCH":
             if not self._newer(counter, self.wrench_counter):
                 self.frames_late += 1
                 return
@@ -257,10 +258,10 @@ class CobotDriver:
             self.wrench_counter = counter
             self.fresh_wrench = True
             self.cycles_since_wrench = 0
-        elif d.name == "DEV_HEARTBEAT":
+        elif name == "DEV_HEARTBEAT":
             self.last_device_hb_s = self.clock()
             self.device_state = int(s["DevHbState"])
-        elif d.name == "DEV_EMERGENCY" and int(s["EmcyCode"]) != 0:
+        elif name == "DEV_EMERGENCY" and int(s["EmcyCode"]) != 0:
             self._trip("device_emergency", f"device emergency code {int(s['EmcyCode'])}")
 
     # -- watchdog -----------------------------------------------------------------------------------

@@ -33,10 +33,10 @@ from teleop.errors import ConfigError
 from teleop.master.base import Master
 from teleop.master.cobot.database import FrameDatabase
 from teleop.master.cobot.driver import CobotDriver
-from teleop.master.cobot.kernels import (advance_prediction, dls_command, gantry_zxz_pose_jacobian, host_command,
-                                         host_feedback, servo_acceleration)
+from teleop.master.cobot.kernels import (HOST_CONSTS, HOST_STATE, advance_prediction, host_command,
+                                         host_sense)
 from teleop.master.cobot.model import GRAVITY_W, CobotModel, compute_servo_lag_s
-from teleop.master.cobot.observer import HISTORY, JointObserver
+from teleop.master.cobot.observer import JointObserver
 from teleop.master.cobot.plant import CobotPlant, DeviceParams
 from teleop.master.cobot.simulator import CobotSimulator
 from teleop.master.config import CobotConfig
@@ -85,11 +85,16 @@ class CobotMaster(Master):
         self.model = CobotModel()
         #: joints -> (p, R, J) of the handle: the compiled closed form for the shipped gantry + Z-X-Z
         #: wrist, Pinocchio for any other URDF (chosen once, see CobotModel.compute_pose_and_jacobian)
-        self._kinematics = gantry_zxz_pose_jacobian if self.model.closed_form else self.model.compute_pose_and_jacobian
+        self.closed_form = self.model.closed_form
+        #: the host's state between periods, one record the compiled period updates in place (see
+        #: kernels.HOST_STATE); the attributes below, the controller's and the observer's are views
+        self._hs = np.zeros(1, HOST_STATE)
+        self._hc = np.zeros(1, HOST_CONSTS)
+        hs = self._hs
         self.clutch = Clutch(Phi(cfg.scale, np.array(cfg.offset_m), pin.exp3(np.array(cfg.offset_rotvec_rad))))
         gains = AdmittanceGains(cfg.kp, cfg.ki, cfg.kd, cfg.integral_limit,
                                 max_velocity=self._virtual_velocity_limit(cfg))
-        self.ctrl = AdmittanceController(gains, self.dt_s)
+        self.ctrl = AdmittanceController(gains, self.dt_s, state=hs["ctrl"][0])
         p_H, R_H = self.clutch.phi.compute_handle_pose(np.asarray(p0, float), np.asarray(R0, float))
         self.joints0 = self.model.compute_joints(p_H, R_H)
         self._warn_end_stops(self.joints0)
@@ -129,19 +134,23 @@ class CobotMaster(Master):
                                          self.capture) if simulated else None
         self.bias_S = np.zeros(6)
         self.observer = JointObserver(self.joints0, self.dt_s, self.tau_s, cfg.read_window_s, self.vmax,
-                                      cfg.max_acceleration, cfg.observer_bandwidth_hz)
-        self.nu_H_cmd = np.zeros(6)
-        self.accel_H_cmd = np.zeros(6)
-        self.accel_H_model = np.zeros((HISTORY, 6))  # the servo model's handle acceleration per SYNC
-        self.pred_p = np.zeros((HISTORY, 3))  # handle pose the commands predict, per SYNC counter
-        self.pred_R = np.tile(np.eye(3), (HISTORY, 1, 1))
-        self.p_H_est, self.R_H_est = p_H, R_H
-        self._p_v, self._R_v = self.clutch.phi.compute_virtual_pose(p_H, R_H)  # φ(estimate) of this period
-        self.F_hand_W = np.zeros(6)  # the hand's wrench at H (world) of this period's feedback
-        self.J = np.eye(6)
+                                      cfg.max_acceleration, cfg.observer_bandwidth_hz, state=hs["obs"][0],
+                                      history=hs["obs_hist"][0])
+        self.nu_H_cmd, self.accel_H_cmd = hs["nu_H"][0], hs["a_H"][0]  # the handle's commanded twist, acceleration
+        self.accel_H_model = hs["accel_model"][0]  # the servo model's handle acceleration per SYNC
+        self.pred_p, self.pred_R = hs["pred_p"][0], hs["pred_R"][0]  # handle pose the commands predict, per SYNC
+        self.pred_R[:] = np.eye(3)
+        self.p_H_est, self.R_H_est = hs["p_est"][0], hs["R_est"][0]
+        self.p_H_est[:], self.R_H_est[:] = p_H, R_H
+        self._p_v, self._R_v = hs["p_v"][0], hs["R_v"][0]  # φ(estimate) of this period
+        self._p_v[:], self._R_v[:] = self.clutch.phi.compute_virtual_pose(p_H, R_H)
+        self.F_hand_W = hs["F_hand"][0]  # the hand's wrench at H (world) of this period's feedback
+        self.J = hs["J"][0]
+        self.J[:] = np.eye(6)
         self.counter = 0  # this period's SYNC counter
         self.status = "ok"
-        self.err_max = (0.0, 0.0)  # tracking error maxima (m, rad)
+        self._qd_cmd, self._f_v = hs["qd"][0], hs["f_v"][0]  # views read every period
+        self._err_max = hs["err_max"][0]
         m = cfg.workspace_margin_m
         self.ws = np.array([self.model.upper - m, self.model.lower + m])
         self._consts = self._consts_key = None
@@ -235,25 +244,23 @@ class CobotMaster(Master):
         return _ZERO6
 
     def _sense(self, hand_wrench_W) -> np.ndarray:
-        phi, drv, obs = self.clutch.phi, self.driver, self.observer
+        drv = self.driver
         if self.sim is not None:
-            self.sim.apply_hand_wrench(phi.wrench_to_handle(_finite(hand_wrench_W)))
+            self.sim.apply_hand_wrench(self.clutch.phi.wrench_to_handle(_finite(hand_wrench_W)))
         k = self.counter = self._link_cycle_begin()
-        if drv.fresh_joints:  # a reading of SYNC joints_counter (this one, or late)
-            obs.correct(drv.joints_rad_m, drv.joints_counter, k)
+        fresh = drv.fresh_joints  # a reading of SYNC joints_counter (this one, or late): corrects the observer
         fault = drv.end_cycle()
+        joints = drv.joints_rad_m
+        if fault is None and not self.closed_form:  # Pinocchio's kinematics for any other URDF
+            hs = self._hs
+            hs["p_m"][0], hs["R_m"][0], hs["J"][0] = self.model.compute_pose_and_jacobian(joints)
+        host_sense(self._hs, self._constants(), joints, drv.joints_counter, k, fresh, drv.wrench_S, self.bias_S,
+                   drv.wrench_counter, fault is None, self.closed_form)
         if fault is not None:
             self.status = fault
             self._hold()
             return _ZERO6
-        feedback = self._constants()[0]
-        p_m, R_m, self.J = self._kinematics(drv.joints_rad_m)
-        accel = (self.accel_H_model[drv.wrench_counter % HISTORY] if self.cfg.inertia_compensation == "servo_model"
-                 else self.accel_H_cmd)
-        self.p_H_est, self.R_H_est, self.F_hand_W, f_v, self._p_v, self._R_v = host_feedback(
-            p_m, R_m, k, drv.joints_counter, self.pred_p, self.pred_R, drv.wrench_S, self.bias_S, accel,
-            self.nu_H_cmd, *feedback)
-        return f_v if self.clutch.engaged and not self._reengage else _ZERO6
+        return self._f_v.copy() if self.clutch.engaged and not self._reengage else _ZERO6
 
     def command(self, p_r, R_r, nu_r, a_r) -> str:
         """The period's second half, from the reference tool's pose and twist before its step
@@ -270,48 +277,39 @@ class CobotMaster(Master):
             return self.status
 
     def _command(self, p_r, R_r, nu_r, a_r) -> str:
-        drv, obs, ctrl, k = self.driver, self.observer, self.ctrl, self.counter
+        drv, ctrl, k = self.driver, self.ctrl, self.counter
         p_r, R_r, nu_r, a_r = (np.asarray(p_r, dtype=float), np.asarray(R_r, dtype=float),
                                np.asarray(nu_r, dtype=float), np.asarray(a_r, dtype=float))
-        joints = drv.joints_rad_m
         if self._reengage:  # φ re-indexed on the tool's pose: φ(x) = q_r exactly, no jump
             self._reengage = False
             self.clutch.engage(self.p_H_est, self.R_H_est, p_r, R_r)
             ctrl.reset(nu_r)
-            self._p_v, self._R_v = self.clutch.phi.compute_virtual_pose(self.p_H_est, self.R_H_est)
-        if self.clutch.engaged:
-            _, gains, obs_lim, to_handle = self._constants()
-            (ctrl.nu_cmd, ctrl.accel_cmd, ctrl.error, ctrl.integral, nu_H, a_H, qd, obs.x, obs.qd_model, obs.u,
-             e_p, e_r) = host_command(p_r, R_r, nu_r, a_r, self._p_v, self._R_v, gains, ctrl.dt, ctrl.integral,
-                                      ctrl.nu_cmd, to_handle, self.tau_s, self.J, joints, self.ws, DLS_SIGMA0,
-                                      DLS_LAMBDA0, k, self.pred_p, self.pred_R, self.dt_s, obs.x, obs.qd_model,
-                                      obs.u, obs.bias, obs_lim, obs.dt, obs.window, obs.tau, obs.history)
-            self._track(e_p, e_r)
-        else:  # the handle follows the hand: an admittance of free_damping
-            nu_H = np.clip(self.F_hand_W / np.array(self.cfg.free_damping), -self.vmax, self.vmax)
-            a_H = (nu_H - self.nu_H_cmd) / self.dt_s
-            qd = dls_command(self.J, nu_H + self.tau_s * a_H, joints, self.ws[0], self.ws[1], DLS_SIGMA0, DLS_LAMBDA0)
-            obs.predict(k, qd)
-            advance_prediction(self.pred_p, self.pred_R, k, nu_H, self.dt_s)
-        drv.send_command(qd, self.vmax)
-        self.nu_H_cmd, self.accel_H_cmd = nu_H, a_H
-        self.accel_H_model[(k + 1) % HISTORY] = self.J @ servo_acceleration(obs.u, obs.qd_model, self.tau_s,
-                                                                            obs.amax)
+            self._p_v[:], self._R_v[:] = self.clutch.phi.compute_virtual_pose(self.p_H_est, self.R_H_est)
+            self._constants()  # the new φ (sense refreshed the rest)
+        engaged = self.clutch.engaged  # else the handle follows the hand: an admittance of free_damping
+        e_p, e_r = host_command(self._hs, self._hc, p_r, R_r, nu_r, a_r, drv.joints_rad_m, k, engaged)
+        cfg = self.cfg
+        if engaged and (e_p > cfg.tracking_fault_m or e_r > cfg.tracking_fault_rad):
+            self._track_fault(e_p, e_r)
+        drv.send_command(self._qd_cmd, self.vmax)
         self._link_cycle_end()
         self.steps += 1
         return self.status
 
-    def _track(self, e_p: float, e_r: float) -> None:
-        """Keep the maxima of the tracking error |q_r - q_v| (e_p m, e_r rad), and latch
-        "tracking_error" beyond ``tracking_fault_m`` / ``_rad``: the device cannot render the tool
-        (an end stop, a limit cycle). This period's command still goes out (zero velocity, since
-        the driver holds after a fault); from the next period the master senses nothing."""
-        self.err_max = (max(self.err_max[0], e_p), max(self.err_max[1], e_r))
+    @property
+    def err_max(self) -> tuple[float, float]:
+        """The maxima of the tracking error |q_r - q_v| while engaged (m, rad)."""
+        return float(self._err_max[0]), float(self._err_max[1])
+
+    def _track_fault(self, e_p: float, e_r: float) -> None:
+        """Latch "tracking_error": the tracking error |q_r - q_v| (e_p m, e_r rad) is beyond
+        ``tracking_fault_m`` / ``_rad``: the device cannot render the tool (an end stop, a limit
+        cycle). This period's command still goes out (zero velocity, since the driver holds after a
+        fault); from the next period the master senses nothing."""
         cfg = self.cfg
-        if e_p > cfg.tracking_fault_m or e_r > cfg.tracking_fault_rad:
-            self.driver.latch_fault("tracking_error", f"|q_r - q_v| = {e_p:.4g} m, {e_r:.4g} rad, beyond "
-                                    f"{cfg.tracking_fault_m} m / {cfg.tracking_fault_rad} rad")
-            self.status = "tracking_error"
+        self.driver.latch_fault("tracking_error", f"|q_r - q_v| = {e_p:.4g} m, {e_r:.4g} rad, beyond "
+                                f"{cfg.tracking_fault_m} m / {cfg.tracking_fault_rad} rad")
+        self.status = "tracking_error"
 
     def _hold(self) -> None:
         """A latched fault: zero velocity, the observer and the prediction follow it, the bus runs
@@ -328,21 +326,28 @@ class CobotMaster(Master):
         self.driver.send_command(_ZERO6)
 
     def _constants(self):
-        """The kernels' constant arguments for the current φ, gains and observer limits (rebuilt
-        when one of them is replaced): (feedback tuple, gains (6, 6), observer limits (2, 6),
-        φ's twist map to the handle)."""
+        """The kernels' constant record (:data:`.kernels.HOST_CONSTS`) for the current φ, gains,
+        observer limits and settings, refilled when one of them is replaced (the handle's inertia
+        is read then too)."""
         phi, g, obs, m, cfg = self.clutch.phi, self.ctrl.gains, self.observer, self.model, self.cfg
         key = self._consts_key
         if (key is None or phi is not key[0] or g is not key[1] or obs.vmax is not key[2] or obs.amax is not key[3]
                 or cfg is not key[4]):
             self._consts_key = (phi, g, obs.vmax, obs.amax, cfg)
-            self._consts = (
-                (m.handle_mass_kg, m.handle_com_H, m.handle_J_H, GRAVITY_W, cfg.max_force_N, cfg.max_torque_Nm,
-                 phi.wrench_map_to_virtual, phi.offset_p, phi.scale, phi.offset_R),
-                np.array([g.kp, g.ki, g.kd, g.integral_limit, g.max_accel, g.max_velocity]),
-                np.array([obs.vmax, obs.amax]),
-                phi.twist_map_to_handle)
-        return self._consts
+            c = self._hc[0]
+            c["gains"] = np.array([g.kp, g.ki, g.kd, g.integral_limit, g.max_accel, g.max_velocity])
+            c["obs_lim"] = np.array([obs.vmax, obs.amax])
+            c["ws"], c["sigma0"], c["lam0"] = self.ws, DLS_SIGMA0, DLS_LAMBDA0
+            c["mass"], c["com"], c["inertia"], c["gravity"] = m.handle_mass_kg, m.handle_com_H, m.handle_J_H, GRAVITY_W
+            c["max_force"], c["max_torque"] = cfg.max_force_N, cfg.max_torque_Nm
+            c["wrench_map"], c["to_handle"] = phi.wrench_map_to_virtual, phi.twist_map_to_handle
+            c["off_p"], c["scale"], c["off_R"] = phi.offset_p, phi.scale, phi.offset_R
+            c["tau"], c["dt"], c["dt_ctrl"] = self.tau_s, self.dt_s, self.ctrl.dt
+            c["obs_dt"], c["obs_window"], c["obs_tau"] = obs.dt, obs.window, obs.tau
+            c["alpha"], c["beta"] = obs.alpha, obs.beta
+            c["servo_model"] = cfg.inertia_compensation == "servo_model"
+            c["vmax"], c["free_damping"] = self.vmax, np.broadcast_to(np.asarray(cfg.free_damping, float), 6)
+        return self._hc
 
     # -- clutch -------------------------------------------------------------------------------------
     def set_clutch(self, engaged: bool) -> None:

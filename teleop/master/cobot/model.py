@@ -9,11 +9,13 @@ load cell: the cell reads the hand's wrench plus the handle's weight and inertia
 from __future__ import annotations
 
 import math
+import warnings
 import xml.etree.ElementTree as ET
 from pathlib import Path
 
 import numpy as np
 import pinocchio as pin
+from scipy.spatial.transform import Rotation
 
 from teleop.errors import ConfigError
 from teleop.master.cobot.kernels import distal_wrench_H, gantry_zxz_pose_jacobian
@@ -40,11 +42,12 @@ def handle_inertia_from_urdf(path: Path, link: str = "handle"):
 
 
 def zxz_angles(R: np.ndarray) -> np.ndarray:
-    """Wrist angles (a, b, c) rad with R = Rz(a) Rx(b) Rz(c), b in [0, pi]."""
-    b = math.acos(max(-1.0, min(1.0, R[2, 2])))
-    if math.sin(b) < 1e-9:  # singular: put everything on a
-        return np.array([math.atan2(R[1, 0], R[0, 0]), b, 0.0])
-    return np.array([math.atan2(R[0, 2], -R[1, 2]), b, math.atan2(R[2, 0], R[2, 1])])
+    """Wrist angles (a, b, c) rad with R = Rz(a) Rx(b) Rz(c), b in [0, pi] (scipy's intrinsic
+    "ZXZ" Euler angles; at b = 0 or pi, gimbal lock, everything on a and c = 0, scipy's warning
+    silenced: the start pose is still reached exactly)."""
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", UserWarning)
+        return Rotation.from_matrix(np.asarray(R, dtype=float)).as_euler("ZXZ")
 
 
 class CobotModel:

@@ -27,9 +27,7 @@ import math
 
 import numpy as np
 
-from teleop.master.cobot.kernels import correct_kernel, predict_kernel
-
-HISTORY = 256  # the SYNC counter's range
+from teleop.master.cobot.kernels import HISTORY, correct_kernel, predict_kernel
 
 
 class JointObserver:
@@ -37,22 +35,35 @@ class JointObserver:
 
     dt_s: period, s; tau_s: servo lag, s; read_window_s: delay of the command after SYNC, s;
     vmax (6,), amax (6,): the servos' velocity and acceleration limits; bandwidth_hz: the filter's.
+    state (4, 6), history (HISTORY, 6): where to keep the estimate (rows x, qd_model, u, bias) and
+    the estimates per SYNC counter, written in place (the host passes views of its state record,
+    which its compiled period updates); None: the observer's own arrays.
     """
 
     def __init__(self, joints0, dt_s: float, tau_s: float, read_window_s: float, vmax, amax,
-                 bandwidth_hz: float = 20.0):
+                 bandwidth_hz: float = 20.0, state=None, history=None):
         self.dt, self.tau, self.window = float(dt_s), float(tau_s), float(read_window_s)
         r = math.exp(-2.0 * math.pi * bandwidth_hz * self.dt)
         self.alpha, self.beta = 1.0 - r * r, (1.0 - r) ** 2
         self.vmax, self.amax = np.asarray(vmax, dtype=float), np.asarray(amax, dtype=float)
+        self.state = np.zeros((4, 6)) if state is None else state
+        self.history = np.zeros((HISTORY, 6)) if history is None else history
         self.reset(joints0)
 
+    # the estimate's rows, read as views and assigned in place
+    x = property(lambda self: self.state[0], lambda self, v: self.state.__setitem__(0, v),
+                 doc="estimate (6,) at the last SYNC")
+    qd_model = property(lambda self: self.state[1], lambda self, v: self.state.__setitem__(1, v),
+                        doc="servo-model rate (6,) at the last SYNC")
+    u = property(lambda self: self.state[2], lambda self, v: self.state.__setitem__(2, v),
+                 doc="the command in force (6,)")
+    bias = property(lambda self: self.state[3], lambda self, v: self.state.__setitem__(3, v),
+                    doc="rate bias (6,)")
+
     def reset(self, joints0) -> None:
-        self.x = np.array(joints0, dtype=float)  # estimate at the last SYNC
-        self.qd_model = np.zeros(6)  # servo-model rate at the last SYNC
-        self.bias = np.zeros(6)
-        self.u = np.zeros(6)  # the command in force
-        self.history = np.tile(self.x, (HISTORY, 1))  # estimate (before correction) per SYNC counter
+        self.state[:] = 0.0
+        self.x = np.asarray(joints0, dtype=float)
+        self.history[:] = self.x  # estimate (before correction) per SYNC counter
 
     @property
     def rates(self) -> np.ndarray:
