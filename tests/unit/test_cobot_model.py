@@ -1,10 +1,12 @@
 """The device model: kinematics, Jacobian, inertia, load cell, servos, encoders."""
 
+from pathlib import Path
+
 import numpy as np
 import pinocchio as pin
 import pytest
 
-from teleop.master.cobot.model import CobotModel, zxz_angles
+from teleop.master.cobot.model import DEFAULT_URDF, CobotModel, handle_inertia_from_urdf, zxz_angles
 from teleop.master.cobot.plant import CobotPlant, DeviceParams
 
 
@@ -111,3 +113,17 @@ def test_closed_form_kinematics_match_pinocchio_and_other_urdfs_fall_back(tmp_pa
     assert not shifted.closed_form
     p, R, _ = shifted.compute_pose_and_jacobian(np.zeros(6))
     np.testing.assert_allclose(p, [0.0, 0.0, 0.05], atol=1e-12)
+
+
+def test_the_handle_inertia_parsed_from_the_urdf_sums_to_pinocchios_merged_wrist_body():
+    """Pinocchio merges the links on the wrist's fixed joints into its last joint's body; the
+    links' own inertias, read from the URDF and placed at Pinocchio's frames, must sum to it."""
+    model = pin.buildModelFromUrdf(str(DEFAULT_URDF))
+    joint = model.frames[model.getFrameId("handle")].parentJoint
+    total = pin.Inertia.Zero()
+    for f in model.frames:
+        if f.type == pin.FrameType.BODY and f.parentJoint == joint:
+            mass, com, J = handle_inertia_from_urdf(Path(DEFAULT_URDF), f.name)
+            total += f.placement.act(pin.Inertia(mass, com, J))
+    np.testing.assert_allclose(total.matrix(), model.inertias[joint].matrix(), atol=1e-12)
+    assert handle_inertia_from_urdf(Path(DEFAULT_URDF))[0] == 0.15

@@ -26,11 +26,20 @@ GRAVITY_W = np.array([0.0, 0.0, -9.81])
 
 
 def handle_inertia_from_urdf(path: Path, link: str = "handle"):
-    """(mass kg, COM (3,) m in the handle frame, inertia (3, 3) kg*m^2 about the COM) of ``link``."""
+    """(mass kg, COM (3,) m in the link's frame, inertia (3, 3) kg*m^2 about the COM) of ``link``;
+    a link without ``<inertial>`` is massless, as URDF has it.
+
+    Read from the URDF itself, not from Pinocchio's model: Pinocchio merges a link on a fixed joint
+    into its parent joint's body (the wrist's last joint holds the wrist link, the load cell and the
+    handle together: 0.25 kg, the handle alone 0.15 kg) and leaves the link's frame without an
+    inertia, so the handle's own is not in the model. The test holds the parse to the model: the
+    links' inertias placed at their frames sum to Pinocchio's merged body."""
     root = ET.parse(path).getroot()
     for el in root.findall("link"):
         if el.get("name") == link:
             inert = el.find("inertial")
+            if inert is None:
+                return 0.0, np.zeros(3), np.zeros((3, 3))
             m = float(inert.find("mass").get("value"))
             c = np.array([float(v) for v in inert.find("origin").get("xyz").split()])
             i = inert.find("inertia").attrib
