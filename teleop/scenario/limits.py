@@ -10,7 +10,8 @@ master renders the same device perfectly, so it gets the same box; a tool that s
 Both limits act the same way, as a person's hand near a stop would:
 
 * the hand's push *toward* a limit fades to nothing across a zone before it (a wall zone of
-  ``zone_m`` before each face; the last fifth below the speed limit), and
+  ``zone_m`` before each face; the last fifth below the speed limit), and is gone at once while
+  the tool comes on toward a face faster than the wall allows (the brake below then acts alone), and
 * past a face or a speed limit all the same (a fixture can turn a push along a face into a slide
   through it, a push into a turn: a knife edge, a rolling disk), the hand's whole wrench fades out
   over :data:`PAST_LIMIT_SHARE` of the zone or the limit, and
@@ -180,8 +181,11 @@ class LimitedOperator(Operator):
         for n, dk in zip(lim.workspace.normals(), d):
             if dk >= lim.zone_m:
                 continue
-            F = _fade(F, n, max(0.0, dk / lim.zone_m))
             excess = float(v @ n) - dk / lim.wall_s
+            # the push toward the face fades across the zone, and is gone while the tool comes on
+            # faster than the wall allows: then the brake alone acts, a critically damped stop that
+            # does not cross the face (a hand's integral push of newtons would outrun it)
+            F = _fade(F, n, 0.0 if excess > 0.0 else max(0.0, dk / lim.zone_m))
             if excess > 0.0:
                 brake_F -= c * excess * n
                 active.append("wall")
