@@ -35,6 +35,16 @@ def _matmul3(A, B):
     return C
 
 
+@njit(cache=True, inline="always")
+def _chart_rates(R, Einv, nu, out):
+    """out (6,) <- the chart rates of the world twist nu (6,): v, and E_B^-1 R^T w."""
+    out[:3] = nu[:3]
+    x0 = R[0, 0] * nu[3] + R[1, 0] * nu[4] + R[2, 0] * nu[5]
+    x1 = R[0, 1] * nu[3] + R[1, 1] * nu[4] + R[2, 1] * nu[5]
+    x2 = R[0, 2] * nu[3] + R[1, 2] * nu[4] + R[2, 2] * nu[5]
+    _rv(Einv, x0, x1, x2, out[3:])
+
+
 # -- chart terms -------------------------------------------------------------------------------------
 @njit(cache=True, inline="always")
 def _rot_cols(M, k, c, s):
@@ -376,11 +386,7 @@ def project_rates(R, E, Einv, J_inv, inv_m, G, qd, rtol):
         E[2, 0] * d1 + E[2, 1] * d2 + E[2, 2] * d3, nu[3:])
     nu = project_twist(R, J_inv, inv_m, G, nu, rtol)
     out = np.empty(6)
-    out[:3] = nu[:3]
-    x = np.empty(3)
-    for i in range(3):
-        x[i] = R[0, i] * nu[3] + R[1, i] * nu[4] + R[2, i] * nu[5]
-    _rv(Einv, x[0], x[1], x[2], out[3:])
+    _chart_rates(R, Einv, nu, out)
     return out
 
 
@@ -461,11 +467,7 @@ def split_end(R, E_W, Einv, J, J_inv, mass, G, nu, P, Pinv, F, fx, rtol):
     Returns zd (k,), qd (6,), K, a, b."""
     nup = project_twist(R, J_inv, 1.0 / mass, G, nu, rtol)
     qf = np.empty(6)
-    qf[:3] = nup[:3]
-    x = np.empty(3)
-    for i in range(3):
-        x[i] = R[0, i] * nup[3] + R[1, i] * nup[4] + R[2, i] * nup[5]
-    _rv(Einv, x[0], x[1], x[2], qf[3:])
+    _chart_rates(R, Einv, nup, qf)
     n, k = P.shape
     zd = np.zeros(k)
     _add_product(Pinv, qf, 1.0, zd)
