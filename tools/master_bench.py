@@ -5,8 +5,9 @@ A tick is the master side of the bilateral period: ``sense``, the reference tool
     python tools/master_bench.py [--steps N]
 
 The per-phase split (µs per cycle, medians) times the driver's ``read`` (drain + decode +
-checks: ``decode``), the reference tool's ``step`` (``engine``) and every frame the driver
-encodes and sends (``encode_send``); ``controller`` is the rest of the cycle (pose, Jacobian,
+checks: ``decode``), the reference tool's ``step`` (``engine``) and the driver's sends (SYNC, the
+heartbeat when due, the command: encode, seal and send, ``encode_send``); ``controller`` is the
+rest of the cycle (pose, Jacobian,
 load-cell compensation, PID, DLS, prediction). The phase timers add about 0.1 µs each.
 
 The machine may be shared and noisy, so the ticks are timed in blocks interleaved with the
@@ -136,7 +137,9 @@ def measure(n_steps: int = 5000, yard=None) -> dict:
     replay = can.Bus(interface=m.cfg.interface, channel=ch, fd=True, preserve_timestamps=True)
     clock = PhaseClock()
     m.driver.read = clock.wrap(m.driver.read, "decode")
-    m.driver._send = clock.wrap(m.driver._send, "encode_send")
+    m.driver.send_sync = clock.wrap(m.driver.send_sync, "encode_send")
+    m.driver.send_heartbeat = clock.wrap(m.driver.send_heartbeat, "encode_send")
+    m.driver.send_command = clock.wrap(m.driver.send_command, "encode_send")
     tool.step = clock.wrap(tool.step, "engine")
     samples = np.empty(n_steps)
     phases = {p: np.empty(n_steps) for p in PHASES}

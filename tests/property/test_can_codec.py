@@ -1,5 +1,6 @@
-"""The compiled per-message codecs agree with cantools on every frame of the DBC (hypothesis):
-the same payload bytes, the same decoded values, the same strict range verdicts."""
+"""The compiled frame codec agrees with cantools on every frame of the DBC (hypothesis): the same
+payload bytes, the same decoded values and types, the same strict range verdicts; its CRC-32 is
+crccheck's."""
 
 import math
 
@@ -8,12 +9,37 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from teleop.master.cobot.codec import MessageCodec, compile_struct
+from crccheck.crc import Crc32
+
+from teleop.master.cobot import frame_kernels as FK
+from teleop.master.cobot.codec import MessageCodec, compile_layout
 from teleop.master.cobot.database import FrameDatabase
 from teleop.errors import CanError
 
 DB = FrameDatabase()
-MESSAGES = list(DB.db.messages)
+#: layouts the shipped protocol does not use: big-endian integers and floats (compiled), bit fields
+#: (cantools' codec), a value table with a value outside the range
+OTHER_DBC = """VERSION ""
+NS_ :
+BS_:
+BU_: A B
+BO_ 256 BIG: 16 A
+ SG_ BigI16 : 7|16@0- (0.01,0) [-300|300] "" B
+ SG_ BigU8 : 23|8@0+ (1,0) [0|200] "" B
+ SG_ BigF32 : 31|32@0- (1,0) [-1000|1000] "" B
+ SG_ BigF64 : 63|64@0- (0.5,1) [-1e6|1e6] "" B
+BO_ 257 BITS: 8 A
+ SG_ Nib : 0|4@1+ (1,0) [0|15] "" B
+ SG_ Rest : 4|12@1- (0.5,0) [-1000|1000] "" B
+BO_ 258 CHOICE: 2 A
+ SG_ Mode : 0|8@1+ (1,0) [0|3] "" B
+ SG_ Other : 8|8@1+ (1,0) [0|255] "" B
+SIG_VALTYPE_ 256 BigF32 : 1;
+SIG_VALTYPE_ 256 BigF64 : 2;
+VAL_ 258 Mode 0 "off" 1 "on" 255 "fault" ;
+"""
+OTHER = cantools.database.load_string(OTHER_DBC, "dbc")
+MESSAGES = list(DB.db.messages) + list(OTHER.messages)
 IDS = [m.name for m in MESSAGES]
 
 
@@ -30,9 +56,28 @@ def physical_values(msg, margin: float = 0.0):
     return st.fixed_dictionaries(fields)
 
 
-def test_every_protocol_message_compiles_to_a_struct():
-    for msg in MESSAGES:
-        assert compile_struct(msg) is not None, msg.name
+def test_every_protocol_message_compiles_to_the_codec_tables():
+    for msg in DB.db.messages:
+        assert compile_layout(msg) is not None and MessageCodec(msg).compiled, msg.name
+    assert MessageCodec(OTHER.get_message_by_name("BIG")).compiled
+    assert MessageCodec(OTHER.get_message_by_name("CHOICE")).compiled
+    assert not MessageCodec(OTHER.get_message_by_name("BITS")).compiled  # bit fields: cantools' codec
+
+
+def test_a_value_table_value_outside_the_range_encodes_as_cantools_strict():
+    msg = OTHER.get_message_by_name("CHOICE")
+    codec = MessageCodec(msg)
+    assert codec.encode({"Mode": 255, "Other": 7}) == msg.encode({"Mode": 255, "Other": 7}, strict=True)
+    with pytest.raises(CanError, match="Mode"):
+        codec.encode({"Mode": 254, "Other": 7})
+
+
+@settings(max_examples=300, deadline=None)
+@given(st.binary(max_size=64), st.integers(0, 2**32 - 1))
+def test_compiled_crc_is_crccheck_continued(data, start):
+    """crc32_continue(CRC of a, b) = CRC of a + b, against crccheck (the wire's definition)."""
+    head = start.to_bytes(4, "little")
+    assert FK.crc32_continue(Crc32.calc(head), data, len(data)) == Crc32.calc(head + data)
 
 
 @pytest.mark.parametrize("msg", MESSAGES, ids=IDS)
@@ -66,21 +111,31 @@ def test_decode_matches_cantools_on_any_payload(msg):
         out = dict(zip(codec.names, codec.decode(data)))
         assert out.keys() == ref.keys()
         for k, v in ref.items():
-            assert out[k] == v and type(out[k]) is type(v), k
+            same = out[k] == v or (isinstance(v, float) and math.isnan(v) and math.isnan(out[k]))  # a float's NaN
+            assert same and type(out[k]) is type(v), k
 
     check()
 
 
+@pytest.fixture(scope="module")
+def other_db(tmp_path_factory):
+    path = tmp_path_factory.mktemp("dbc") / "other.dbc"
+    path.write_text(OTHER_DBC)
+    return FrameDatabase(path)
+
+
 @pytest.mark.parametrize("msg", MESSAGES, ids=IDS)
-def test_database_roundtrip_is_on_the_grid(msg):
-    """encode -> decode through the database (checksums included) returns cantools' quantization."""
+def test_database_roundtrip_is_on_the_grid(msg, other_db):
+    """encode -> decode through the database (checksums included) returns cantools' quantization,
+    on the compiled layouts and on cantools' own (a bit-field message)."""
+    db = DB if msg.name in DB.by_name else other_db
 
     @settings(max_examples=60, deadline=None)
     @given(physical_values(msg))
     def check(values):
         values = {k: v for k, v in values.items() if not k.endswith("Checksum")}
-        fid, data, _ = DB.encode(msg.name, values)
-        out = DB.decode(fid, data)
+        fid, data, fd = db.encode(msg.name, values)
+        out = db.decode(fid, data, is_fd=fd)
         for k, v in values.items():
             sig = msg.get_signal_by_name(k)
             assert out.signals[k] == sig.conversion.raw_to_scaled(sig.conversion.numeric_scaled_to_raw(v), False)

@@ -1,13 +1,16 @@
-"""Per-message codecs compiled once from the cantools database.
+"""Per-message codecs: each message's layout read once from the cantools database into the tables
+of the compiled frame codec (:mod:`.frame_kernels`).
 
 cantools encodes and decodes through Python loops over its signal objects, with dict plumbing and
-strict checks on every call (≈ 10 µs to encode a 16-byte frame). A :class:`MessageCodec` reads the
-same message's layout from the DBC once (start bit, length, byte order, signedness, float-ness,
-scale, offset, range, value table) and, when every signal fills whole bytes in one byte order,
-compiles it into a single :class:`struct.Struct`; any other layout keeps cantools' own bit codec.
-Either way the values are those of cantools: raw -> physical is ``raw * scale + offset`` and
-physical -> raw is the signal conversion's own ``numeric_scaled_to_raw``, and the range check is
-cantools' strict one (tests/property/test_can_codec.py compares both on random frames).
+strict checks on every call (≈ 10 µs to encode a 16-byte frame). :func:`compile_layout` reads a
+message's layout from the DBC (start bit, length, byte order, signedness, float-ness, scale,
+offset, range) and, when every signal fills whole bytes in one byte order with a linear
+conversion, :func:`layout_tables` writes it into the compiled codec's tables; any other layout
+(bit fields, multiplexing, integer-scale conversions) keeps cantools' own codec.
+Either way the values are those of cantools: raw -> physical is ``raw * scale + offset``,
+physical -> raw is ``(v - offset) / scale`` rounded half to even for an integer signal (cantools'
+``numeric_scaled_to_raw``), and the range check is cantools' strict one
+(tests/property/test_can_codec.py compares both on random frames).
 
 Values are SI (the DBC's units); raw values are the integers on the wire.
 """
@@ -15,81 +18,124 @@ Values are SI (the DBC's units); raw values are the integers on the wire.
 from __future__ import annotations
 
 import math
-import operator
-import struct
 
-from cantools.database.conversion import IdentityConversion, LinearConversion
+import numpy as np
+from cantools.database.conversion import BaseConversion, IdentityConversion, LinearConversion, LinearIntegerConversion
 
 from teleop.errors import CanError
+from teleop.master.cobot import frame_kernels as FK
 
-_INT_CODES = {8: "b", 16: "h", 32: "i", 64: "q"}  # upper case: unsigned
-_FLOAT_CODES = {16: "e", 32: "f", 64: "d"}
+_INT_BYTES = (1, 2, 4, 8)
+_FLOAT_BYTES = (4, 8)
 
 
-def _field(signal) -> tuple[int, str] | None:
-    """(first byte, struct code) of a signal that fills whole bytes, or None."""
-    if signal.is_float:
-        code = _FLOAT_CODES.get(signal.length)
-    else:
-        code = _INT_CODES.get(signal.length)
-        code = code if code is None or signal.is_signed else code.upper()
-    if code is None:
+def _field(signal) -> tuple[int, int, int] | None:
+    """(first byte, bytes, kind) of a signal that fills whole bytes, or None."""
+    if signal.length % 8 or signal.length // 8 not in (_FLOAT_BYTES if signal.is_float else _INT_BYTES):
         return None
+    kind = FK.KIND_FLOAT if signal.is_float else FK.KIND_SIGNED if signal.is_signed else FK.KIND_UNSIGNED
     # cantools numbers a little-endian signal by its LSB, a big-endian one by its MSB (bit 7 of
     # its first byte in the DBC's sawtooth numbering)
     aligned = signal.start % 8 == (0 if signal.byte_order == "little_endian" else 7)
-    return (signal.start // 8, code) if aligned else None
+    return (signal.start // 8, signal.length // 8, kind) if aligned else None
 
 
-def compile_struct(message) -> tuple[struct.Struct, tuple] | None:
-    """(struct, signals in field order) of a byte-aligned, single-byte-order message without
-    multiplexing, with unused bytes as zero padding; None for any other layout."""
-    signals = sorted(message.signals, key=lambda s: s.start // 8)
+def _base_conversion(signal) -> type:
+    """The type of a signal's numeric conversion (a value table's wraps one: cantools builds it by
+    the same factory from the scale and offset)."""
+    c = signal.conversion
+    return type(BaseConversion.factory(scale=c.scale, offset=c.offset, is_float=signal.is_float))
+
+
+def compile_layout(message) -> tuple[tuple, tuple] | None:
+    """(fields (first byte, bytes, kind) per signal, signals) in byte order of a byte-aligned,
+    single-byte-order message without multiplexing whose conversions are cantools' identity or
+    linear ones (with or without a value table); None for any other layout."""
+    signals = tuple(sorted(message.signals, key=lambda s: s.start // 8))
     orders = {s.byte_order for s in signals}
     if not signals or len(orders) != 1 or any(s.is_multiplexer or s.multiplexer_ids for s in signals):
         return None
-    fmt, pos = ["<" if orders == {"little_endian"} else ">"], 0
+    if any(_base_conversion(s) not in (IdentityConversion, LinearConversion) for s in signals):
+        return None
+    fields, pos = [], 0
     for s in signals:
         f = _field(s)
         if f is None or f[0] < pos:  # not byte-aligned, or overlapping
             return None
-        fmt.append("x" * (f[0] - pos) + f[1])
-        pos = f[0] + s.length // 8
-    if pos > message.length:
-        return None
-    fmt.append("x" * (message.length - pos))
-    return struct.Struct("".join(fmt)), tuple(signals)
+        fields.append(f)
+        pos = f[0] + f[1]
+    return (tuple(fields), signals) if pos <= message.length else None
+
+
+def _decode_slack(signal) -> float:
+    """Tolerance (physical units) of a decoded value against the DBC range: half a raw step for
+    integer signals, round-off for floats. The DBC writes its limits at physical resolution
+    (0.99996 for raw 32767 x 2^-15), so whatever strict encoding accepts, decoding does."""
+    return 1e-9 + (0.0 if signal.is_float else 0.5 * abs(signal.conversion.scale))
+
+
+def _signal_order(message) -> tuple:
+    compiled = compile_layout(message)
+    return compiled[1] if compiled is not None else tuple(message.signals)
+
+
+def layout_tables(messages, crc_of_id=None) -> tuple:
+    """The compiled codec's tables (msgs, sig_i, sig_f, ids, order; see :mod:`.frame_kernels`) of
+    ``messages`` (cantools ``Message`` objects), signals in :func:`compile_layout`'s order (the
+    DBC's for a layout it cannot compile). ``crc_of_id(frame_id)``: the CRC of a protected
+    message's id (a message with a ``*Checksum`` signal), None: no message is protected."""
+    messages = list(messages)
+    n_sig = max([len(m.signals) for m in messages] + [1])
+    msgs = np.zeros((len(messages), FK.MSG_COLS), np.int64)
+    sig_i = np.zeros((len(messages), n_sig, FK.SIG_I_COLS), np.int64)
+    sig_f = np.zeros((len(messages), n_sig, FK.SIG_F_COLS))
+    for row, m in enumerate(messages):
+        compiled = compile_layout(m)
+        signals = compiled[1] if compiled is not None else tuple(m.signals)
+        protected = crc_of_id is not None and any(s.name.endswith("Checksum") for s in signals)
+        msgs[row] = (m.frame_id, m.is_extended_frame, m.is_fd, m.length,
+                     crc_of_id(m.frame_id) if protected else -1, len(signals),
+                     bool(signals) and signals[0].byte_order == "big_endian", compiled is not None)
+        for i, s in enumerate(signals):
+            if compiled is not None:
+                sig_i[row, i] = compiled[0][i]
+            scale = s.conversion.scale
+            checked = not s.name.endswith("Checksum")  # a checksum's check is the CRC
+            sig_f[row, i] = (
+                scale, s.conversion.offset,
+                s.minimum - _decode_slack(s) if checked and s.minimum is not None else -math.inf,
+                s.maximum + _decode_slack(s) if checked and s.maximum is not None else math.inf,
+                # cantools' strict encode: the range widened by a millionth of the scale
+                -math.inf if s.minimum is None else s.minimum - abs(scale) * 1e-6,
+                math.inf if s.maximum is None else s.maximum + abs(scale) * 1e-6)
+    ids = msgs[:, FK.M_ID]
+    order = np.argsort(ids, kind="stable")
+    return msgs, sig_i, sig_f, np.ascontiguousarray(ids[order]), order.astype(np.int64)
 
 
 class MessageCodec:
-    """Encode and decode one message (a cantools ``Message``) in physical units."""
+    """Encode and decode one message's payload (a cantools ``Message``) in physical units; the
+    checksum signal, if any, is a value like the others here (the database seals and checks)."""
 
     def __init__(self, message):
         self.message = message
         self.name, self.frame_id, self.length = message.name, message.frame_id, message.length
-        compiled = compile_struct(message)
-        self.struct, signals = compiled if compiled is not None else (None, tuple(message.signals))
-        self.signals = signals
-        self.names = tuple(s.name for s in signals)
-        self._scale_offset = tuple((s.conversion.scale, s.conversion.offset) for s in signals)
-        self._scales = tuple(sc for sc, _ in self._scale_offset)
-        self._offsets = tuple(off for _, off in self._scale_offset)
-        self._to_raw = tuple(s.conversion.numeric_scaled_to_raw for s in signals)
-        # cantools' identity and linear conversions are raw = (v - offset) / scale, rounded for an
-        # integer signal: computed inline for those (no call per value); any other conversion
-        # (integer scale and offset, value tables) calls cantools' own
-        self._inline = all(type(s.conversion) in (IdentityConversion, LinearConversion) for s in signals)
-        self._round = tuple(not s.is_float for s in signals)
-        self._all_int = all(self._round)
-        # cantools' strict encode: the range widened by a millionth of the scale, except for raw
-        # values of the signal's value table
+        self.signals = _signal_order(message)
+        self.names = tuple(s.name for s in self.signals)
+        self.tables = layout_tables([message])
+        self.compiled = bool(self.tables[0][0, FK.M_COMPILED])
+        # cantools gives an int for an integer signal with an integer conversion, else a float
+        self._int = tuple(_base_conversion(s) in (IdentityConversion, LinearIntegerConversion) and not s.is_float
+                          for s in self.signals)
+        self._ints = any(self._int)
+        self._scale_offset = tuple((s.conversion.scale, s.conversion.offset) for s in self.signals)
+        self._to_raw = tuple(s.conversion.numeric_scaled_to_raw for s in self.signals)
         self._encode_range = tuple(
             (-math.inf if s.minimum is None else s.minimum - abs(s.conversion.scale) * 1e-6,
              math.inf if s.maximum is None else s.maximum + abs(s.conversion.scale) * 1e-6,
              frozenset(s.conversion.choices or ()))
-            for s in signals)
-        self._lo = tuple(lo for lo, _, _ in self._encode_range)
-        self._hi = tuple(hi for _, hi, _ in self._encode_range)
+            for s in self.signals)
+        self._values = np.empty(len(self.names))
 
     def encode(self, values) -> bytes:
         """Payload of ``values`` (a mapping with every signal, physical units); strict like
@@ -100,29 +146,38 @@ class MessageCodec:
             raise CanError(f"can encode {self.name}: missing signals {missing}, unknown signals {unknown}")
         return self.encode_ordered([values[n] for n in self.names])
 
-    def encode_ordered(self, values) -> bytes:
-        """:meth:`encode` for values given in the order of :attr:`names` (no mapping to build)."""
+    def encode_ordered(self, values, seal: bool = False, tables=None, row: int = 0) -> bytes:
+        """:meth:`encode` for values given in the order of :attr:`names` (no mapping to build).
+        ``seal``: put the frame's CRC-32 (of the id in ``tables``' message ``row``, the database's)
+        in its last four bytes instead of the checksum signal's value."""
         if len(values) != len(self.names):
             raise CanError(f"can encode {self.name}: expected {len(self.names)} values, got {len(values)}")
-        try:  # every value in range (the loops in C); NaN fails here too
-            ok = all(map(operator.le, self._lo, values)) and all(map(operator.le, values, self._hi))
-        except TypeError:
-            ok = False
-        if not ok:
-            self._check_each(values)  # raises, unless a value outside the range is in the value table
-        if self._inline and self._all_int:  # the loops in C
-            raw = list(map(round, map(operator.truediv, map(operator.sub, values, self._offsets), self._scales)))
-        elif self._inline:
-            raw = [round((v - off) / sc) if rnd else (v - off) / sc
-                   for v, off, sc, rnd in zip(values, self._offsets, self._scales, self._round)]
-        else:
-            raw = [to_raw(v) for to_raw, v in zip(self._to_raw, values)]
-        if self.struct is None:
-            return self.message.encode(dict(zip(self.names, raw)), scaling=False, strict=False)
-        try:
-            return self.struct.pack(*raw)
-        except struct.error as e:  # a raw value that does not fit its bits
-            raise CanError(f"can encode {self.name}: {e}") from None
+        msgs, sig_i, sig_f = (tables or self.tables)[:3]
+        if self.compiled:
+            buf = self._values
+            try:
+                buf[:] = values
+            except (TypeError, ValueError):
+                self._check_each(values)  # raises: a value that is not a number
+                raise
+            out = bytearray(self.length)
+            bad = FK.pack_frame(msgs, sig_i, sig_f, row, buf, out, seal)
+            if bad < 0:
+                return bytes(out)
+            self._check_each(values)  # raises, unless the value is in the signal's value table
+            lo, hi, _ = self._encode_range[bad]
+            if lo <= values[bad] <= hi:  # in range, yet too wide for its bits
+                raise CanError(f"can encode {self.name}.{self.names[bad]}: {values[bad]} does not fit its "
+                               f"{8 * int(sig_i[row, bad, FK.S_NBYTES])} bits")
+        else:  # cantools' codec for this layout
+            self._check_each(values)
+        raw = [to_raw(v) for to_raw, v in zip(self._to_raw, values)]
+        data = self.message.encode(dict(zip(self.names, raw)), scaling=False, strict=False)
+        idcrc = int(msgs[row, FK.M_IDCRC])
+        if not seal or idcrc < 0:
+            return data
+        body = bytes(data[:-FK.CRC_BYTES])
+        return body + int(FK.crc32_continue(idcrc, body, len(body))).to_bytes(FK.CRC_BYTES, "little")
 
     def _check_each(self, values) -> None:
         """The range check value by value, raising :class:`CanError` for the first bad one."""
@@ -139,10 +194,18 @@ class MessageCodec:
         if self._to_raw[self.names.index(name)](v) not in choices:
             raise CanError(f"can encode {self.name}.{name}: {v} outside the DBC range [{lo}, {hi}]")
 
+    def values_from(self, vals: np.ndarray) -> tuple:
+        """The decoded values ``vals`` (n,) as cantools gives them: an int for an integer signal with
+        the identity conversion, else a float."""
+        out = vals[: len(self.names)].tolist()
+        if self._ints:
+            out = [int(v) if i else v for v, i in zip(out, self._int)]
+        return tuple(out)
+
     def decode(self, data: bytes) -> tuple:
         """Physical values of a payload of the right length, in the order of :attr:`names`."""
-        if self.struct is None:
-            raw = self.message.decode(data, decode_choices=False, scaling=False)
-            return tuple(raw[n] * sc + off for n, (sc, off) in zip(self.names, self._scale_offset))
-        # raw * scale + offset per signal, the loop in C
-        return tuple(map(operator.add, map(operator.mul, self.struct.unpack(data), self._scales), self._offsets))
+        if self.compiled:
+            FK.unpack_values(*self.tables[:3], 0, bytes(data), self._values)
+            return self.values_from(self._values)
+        raw = self.message.decode(data, decode_choices=False, scaling=False)
+        return tuple(raw[n] * sc + off for n, (sc, off) in zip(self.names, self._scale_offset))

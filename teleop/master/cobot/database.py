@@ -17,34 +17,35 @@ so any 1..5 flipped bits are always caught); tools/can_residual.py measures it.
 from __future__ import annotations
 
 import math
-import operator
-import zlib
 from pathlib import Path
 from typing import NamedTuple
 
 import cantools
+import numpy as np
 from crccheck.crc import Crc32
 
-from teleop.master.cobot.codec import MessageCodec
 from teleop.errors import CanError
+from teleop.master.cobot import frame_kernels as FK
+from teleop.master.cobot.codec import MessageCodec, layout_tables
 
 #: The protocol shipped with the package.
 DEFAULT_DBC = Path(__file__).with_name("protocol.dbc")
 #: bytes of the CRC at the end of a protected frame
-CRC_BYTES = 4
+CRC_BYTES = FK.CRC_BYTES
 
 
 def compute_crc32(frame_id: int, data: bytes) -> int:
     """CRC-32/ISO-HDLC (crccheck's ``Crc32``) of the frame id (2 bytes, little-endian) then
-    ``data``. Computed with :func:`zlib.crc32`: crccheck is pure Python (~42 us per 20-byte frame
-    here, ~9 frames per 1 kHz tick), zlib ~0.3 us; tests/unit/test_can_database.py checks that
-    both give the same value."""
-    return zlib.crc32(data, zlib.crc32(frame_id.to_bytes(2, "little"))) & 0xFFFFFFFF
+    ``data``, by the compiled codec's :func:`.frame_kernels.crc32_continue` (crccheck is pure
+    Python, ~42 us per 20-byte frame; the compiled table loop runs inside the frame checks).
+    tests/unit/test_can_database.py checks it against crccheck on random frames."""
+    head = FK.crc32_continue(0, frame_id.to_bytes(2, "little"), 2)
+    return int(FK.crc32_continue(head, bytes(data), len(data)))
 
 
-# the one definition of the wire CRC is crccheck's; zlib must compute that same CRC (check value)
-if not zlib.crc32(b"123456789") == Crc32.calc(b"123456789") == 0xCBF43926:
-    raise CanError("zlib.crc32 differs from crccheck's CRC-32/ISO-HDLC")
+# the one definition of the wire CRC is crccheck's; the compiled CRC must compute that same CRC
+if not compute_crc32(0x3231, b"3456789") == Crc32.calc(b"123456789") == 0xCBF43926:
+    raise CanError("the compiled CRC-32 differs from crccheck's CRC-32/ISO-HDLC")
 
 
 class Decoded(NamedTuple):
@@ -66,17 +67,17 @@ class Rejected(NamedTuple):
     timestamp: float
 
 
-def _slack(signal) -> float:
-    """Tolerance (physical units) of a decoded value against the DBC range: half a raw step for
-    integer signals, round-off for floats."""
-    return 1e-9 + (0.0 if signal.is_float else 0.5 * abs(signal.conversion.scale))
+#: check_frame's rejections by name
+_REASONS = {FK.UNKNOWN_ID: "unknown_id", FK.ID_TYPE: "id_type", FK.FD_FLAG: "fd_flag", FK.LENGTH: "length",
+            FK.CHECKSUM: "checksum"}
 
 
 class FrameDatabase:
     """The DBC plus the encode/decode rules of the protocol (checksums, ranges).
 
-    Each message is encoded and decoded by a :class:`~teleop.master.cobot.codec.MessageCodec` compiled from
-    its DBC layout (cantools' values, without cantools' per-call overhead).
+    Every message is encoded and decoded by the compiled frame codec (:mod:`.frame_kernels`) over
+    the layout tables :func:`.codec.layout_tables` reads from the DBC (cantools' own codec for a
+    layout they cannot hold); :attr:`codecs` holds each message's :class:`.codec.MessageCodec`.
     """
 
     def __init__(self, path: str | Path = DEFAULT_DBC):
@@ -84,39 +85,23 @@ class FrameDatabase:
             self.db = cantools.database.load_file(str(path))
         except (OSError, cantools.database.UnsupportedDatabaseFormatError) as e:
             raise CanError(f"can database {path}: cannot load: {e}") from None
-        self.by_name = {m.name: m for m in self.db.messages}
-        self.codecs = {m.name: MessageCodec(m) for m in self.db.messages}
-        self._codec_by_id = {m.frame_id: self.codecs[m.name] for m in self.db.messages}
+        messages = list(self.db.messages)
+        if len({m.frame_id for m in messages}) != len(messages):
+            raise CanError(f"can database {path}: two messages share a frame id")
+        self.by_name = {m.name: m for m in messages}
+        self.codecs = {m.name: MessageCodec(m) for m in messages}
         self.checksum = {m.name: next((s.name for s in m.signals if s.name.endswith("Checksum")), None)
-                         for m in self.db.messages}
-        self._fd = {m.name: bool(m.is_fd) for m in self.db.messages}
-        self._format = {m.frame_id: (bool(m.is_extended_frame), bool(m.is_fd)) for m in self.db.messages}
+                         for m in messages}
         for name, ck in self.checksum.items():
             sig = ck and self.by_name[name].get_signal_by_name(ck)
             if ck is not None and (self.codecs[name].names[-1] != ck or sig.length != 8 * CRC_BYTES
                                    or sig.start != 8 * (self.by_name[name].length - CRC_BYTES)):
                 raise CanError(f"can database {path}: {name}.{ck} must be a 32-bit CRC in the frame's last 4 bytes")
-        # decode checks, in codec order: (index, signal, min, max, float signal). The DBC writes
-        # its limits at physical resolution (0.99996 for raw 32767 x 2^-15), so an integer signal
-        # may decode up to half a step past them: whatever strict encoding accepts, decoding does.
-        self._checks = {
-            c.frame_id: tuple((i, s.name, -math.inf if s.minimum is None else s.minimum - _slack(s),
-                               math.inf if s.maximum is None else s.maximum + _slack(s), s.is_float)
-                              for i, s in enumerate(c.signals) if not s.name.endswith("Checksum"))
-            for c in self.codecs.values()
-        }
-        self._id_crc = {c.name: compute_crc32(c.frame_id, b"") if self.checksum[c.name] else None
-                        for c in self.codecs.values()}
-        # per frame id, what decode needs, looked up once: (codec, extended, fd, length, CRC of the
-        # id or None when unprotected, the range's lower and upper bounds per value (a checksum's
-        # unbounded: its check is the CRC))
-        self._rx = {}
-        for c in self.codecs.values():
-            lo, hi = [-math.inf] * len(c.names), [math.inf] * len(c.names)
-            for i, _, a, b, _ in self._checks[c.frame_id]:
-                lo[i], hi[i] = a, b
-            self._rx[c.frame_id] = (c, *self._format[c.frame_id], c.length, self._id_crc[c.name], tuple(lo),
-                                    tuple(hi))
+        #: the compiled codec's tables of every message (frame_kernels' msgs, sig_i, sig_f, ids, order)
+        self.tables = layout_tables(messages, crc_of_id=lambda fid: compute_crc32(fid, b""))
+        self.row = {m.name: i for i, m in enumerate(messages)}
+        self._codec_by_row = [self.codecs[m.name] for m in messages]
+        self._vals = np.empty(self.tables[1].shape[1])
 
     def message(self, name: str):
         try:
@@ -135,54 +120,54 @@ class FrameDatabase:
         if ck is not None:
             signals = dict(signals)
             signals[ck] = 0
-        return msg.frame_id, self._seal(name, self.codecs[name].encode(signals)), bool(msg.is_fd)
+        codec = self.codecs[name]
+        if len(signals) != len(codec.names) or not all(n in signals for n in codec.names):
+            codec.encode(signals)  # raises, naming the missing and unknown signals
+        return msg.frame_id, self._encode(name, [signals[n] for n in codec.names]), bool(msg.is_fd)
 
     def encode_ordered(self, name: str, values) -> tuple[int, bytes, bool]:
         """:meth:`encode` with the values in the order of ``codecs[name].names`` without the
         checksum (for the per-period frames: no mapping to build)."""
-        codec = self.codecs[name]
+        codec = self.codecs.get(name) or self.message(name)
         if self.checksum[name] is not None:
             values = (*values, 0)
-        return codec.frame_id, self._seal(name, codec.encode_ordered(values)), self._fd[name]
+        return codec.frame_id, self._encode(name, values), bool(codec.message.is_fd)
 
-    def _seal(self, name: str, data: bytes) -> bytes:
-        """The payload with its CRC-32 in the last four bytes, when the layout has a checksum:
-        compute_crc32(frame id, body), continued from the id's CRC computed once."""
-        id_crc = self._id_crc[name]
-        if id_crc is None:
-            return data
-        body = data[:-CRC_BYTES]
-        return body + (zlib.crc32(body, id_crc) & 0xFFFFFFFF).to_bytes(CRC_BYTES, "little")
+    def _encode(self, name: str, values) -> bytes:
+        """The payload of ``values`` (codec order, the checksum's slot 0), sealed with its CRC-32
+        (compute_crc32(frame id, body)) when the layout has a checksum."""
+        return self.codecs[name].encode_ordered(values, seal=True, tables=self.tables, row=self.row[name])
 
     def decode(self, frame_id: int, data: bytes, timestamp: float = 0.0, is_extended_id: bool = False,
                is_fd: bool = True) -> Decoded | Rejected:
         """Decode and check one frame: a :class:`Decoded` in SI units, or a :class:`Rejected`.
         ``is_extended_id`` and ``is_fd`` are the frame's flags as received (every shipped message
         is a standard-id CAN FD frame)."""
-        rx = self._rx.get(frame_id)
-        if rx is None:
-            return Rejected(frame_id, "unknown_id", timestamp)
-        codec, extended, fd, length, id_crc, lo, hi = rx
-        if bool(is_extended_id) != extended:
-            return Rejected(frame_id, "id_type", timestamp)
-        if bool(is_fd) != fd:
-            return Rejected(frame_id, "fd_flag", timestamp)
-        if len(data) != length:
-            return Rejected(frame_id, "length", timestamp)
-        data = bytes(data)
-        # compute_crc32(frame_id, body), continued from the id's CRC
-        if id_crc is not None and zlib.crc32(data[:-CRC_BYTES], id_crc) != int.from_bytes(data[-CRC_BYTES:], "little"):
-            return Rejected(frame_id, "checksum", timestamp)
-        try:
-            values = codec.decode(data)
-        except Exception:  # cantools raises several types on malformed payloads
-            return Rejected(frame_id, "decode", timestamp)
-        if not (all(map(operator.le, lo, values)) and all(map(operator.le, values, hi))):  # in C; NaN fails
-            for i, sig, lo_i, hi_i, is_float in self._checks[frame_id]:
-                v = values[i]
-                if not lo_i <= v <= hi_i:
-                    bad = is_float and not math.isfinite(v)
-                    return Rejected(frame_id, f"{'nonfinite' if bad else 'range'}:{sig}", timestamp)
+        vals = self._vals
+        verdict, row = FK.check_frame(*self.tables, int(frame_id), bool(is_extended_id), bool(is_fd), bytes(data),
+                                      vals)
+        return self.verdict(verdict, row, frame_id, data, timestamp, vals)
+
+    def verdict(self, verdict: int, row: int, frame_id: int, data, timestamp: float, vals) -> Decoded | Rejected:
+        """The :class:`Decoded` or :class:`Rejected` of a :func:`.frame_kernels.check_frame` verdict
+        on message ``row`` with the decoded ``vals``."""
+        if verdict in _REASONS:
+            return Rejected(frame_id, _REASONS[verdict], timestamp)
+        codec = self._codec_by_row[row]
+        if verdict == FK.NOT_COMPILED:  # cantools' codec, then the same range check
+            try:
+                values = codec.decode(bytes(data))
+            except Exception:  # cantools raises several types on malformed payloads
+                return Rejected(frame_id, "decode", timestamp)
+            vals = np.array(values, dtype=float)
+            sig_f = self.tables[2][row]
+            bad = [i for i, v in enumerate(vals) if not sig_f[i, FK.S_DLO] <= v <= sig_f[i, FK.S_DHI]]
+            verdict = FK.RANGE + bad[0] if bad else FK.OK
+        if verdict >= FK.RANGE:
+            i = verdict - FK.RANGE
+            bad = codec.signals[i].is_float and not math.isfinite(vals[i])
+            return Rejected(frame_id, f"{'nonfinite' if bad else 'range'}:{codec.names[i]}", timestamp)
+        values = codec.values_from(vals)
         return Decoded(codec.name, dict(zip(codec.names, values)), timestamp, values)
 
     def decode_message(self, msg) -> Decoded | Rejected:

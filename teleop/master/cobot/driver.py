@@ -2,7 +2,10 @@
 
 ``read`` takes at most ``max_frames_per_read`` frames off the bus (a flood cannot hold the cycle:
 what is left waits for the next read, and stale feedback trips the watchdog) and decodes them into
-SI values; ``send_*`` encode and transmit. Every frame that fails its id, id type, FD flag,
+SI values; ``send_*`` encode and transmit. Each frame's bytes go through one compiled call
+(:func:`.frame_kernels.rx_period_frame`: the checks, the decoding, and for the period's two device
+frames the counter checks, the wrist unwrapping and the encoder check into the driver's state
+record); each frame sent is encoded and sealed by one (:func:`.frame_kernels.pack_frame`). Every frame that fails its id, id type, FD flag,
 length, CRC, counter or DBC range is rejected, counted by reason and logged; only finite, in-range
 values reach :attr:`joints_rad_m` and :attr:`wrench_S`. Error frames feed the host's own error
 counters (:mod:`teleop.can.confinement`: TEC/REC, error-passive at 128, bus-off at 256), never a
@@ -22,8 +25,9 @@ import can
 import numpy as np
 
 from teleop.can.confinement import BUS_OFF, ErrorCounters
-from teleop.master.cobot.database import Decoded, FrameDatabase
 from teleop.errors import CanError
+from teleop.master.cobot import frame_kernels as FK
+from teleop.master.cobot.database import FrameDatabase
 
 #: SocketCAN error classes in an error frame's id (linux/can/error.h) and the protocol-error
 #: type bit "on transmission" in data[2]
@@ -41,6 +45,8 @@ ORDERED_FRAMES = {"SYNC": ("SyncCounter",), "HOST_CMD": (*CMD_SIGNALS, "CmdMode"
                   "DEV_WRENCH": (*WRENCH_SIGNALS, "WrenchCounter")}
 #: the HOST_CMD ranges of the DBC (m/s x3, rad/s x3)
 CMD_RANGE = (0.99996,) * 3 + (16.0,) * 3
+_CMD_RANGE = np.array(CMD_RANGE)
+_ZERO6 = np.zeros(6)
 
 
 class CobotDriver:
@@ -63,27 +69,39 @@ class CobotDriver:
             if self.db.codecs[name].names[: len(order)] != order:
                 raise CanError(f"can database: {name} must lay out {order} in that order, "
                                f"found {self.db.codecs[name].names}")
+            if not self.db.codecs[name].compiled:
+                raise CanError(f"can database: {name} must be a byte-aligned layout (the driver decodes and "
+                               f"encodes it compiled), found bit fields or a non-linear conversion")
         self.stale_cycles = int(stale_cycles)
         self.hb_period, self.hb_timeout = float(heartbeat_period_s), float(heartbeat_timeout_s)
         self.own_bus = own_bus
         self.log = logging.getLogger(__name__)
-        self.joints_rad_m = np.zeros(6)  # 3 gantry positions (m), 3 unwrapped wrist angles (rad)
-        self.wrench_S = np.zeros(6)  # load cell (N, N*m) in the load-cell frame
-        self.joints_counter = self.wrench_counter = -1
-        self.fresh_joints = self.fresh_wrench = False
-        self.cycles_since_joints = self.cycles_since_wrench = 0
-        self.device_state = 0
+        #: the receive state the compiled frame kernel updates (frame_kernels.DRIVER_STATE); the
+        #: attributes joints_rad_m, wrench_S, the counters and the fresh flags are its fields
+        self._ds = np.zeros(1, FK.DRIVER_STATE)
+        self._rs = self._ds[0]
+        self._ds["jc"] = self._ds["wc"] = -1
+        self._ds["step_max"] = -1.0  # no encoder check
+        self._tables = self.db.tables
+        self._rows = {name: self.db.row[name] for name in self.db.row}
+        self._vals = np.empty(self._tables[1].shape[1])
+        self._tx_vals = np.empty(self._tables[1].shape[1])
+        self._row_joints, self._row_wrench, self._row_cmd = (self.db.row[n] for n in ("DEV_JOINTS", "DEV_WRENCH",
+                                                                                     "HOST_CMD"))
+        self._cmd_id, self._cmd_fd, self._len_cmd = self._frame_format("HOST_CMD")
+        self._sync_id, self._sync_fd, _ = self._frame_format("SYNC")
+        self._sync = 0  # SYNCs sent
         self.last_device_hb_s: float | None = None
         self.fault: str | None = None
         self.rejected: Counter = Counter()
         self.errors = ErrorCounters()
         self.error_frames = self.read_bound_hits = 0
         self.max_frames_per_read = int(max_frames_per_read)
-        self.encoder_step_max = None if encoder_step_max is None else np.asarray(encoder_step_max, float).tolist()
-        self.frames_rx = self.frames_late = self.send_errors = self.watchdog_trips = 0
-        self._sync = self._cmd = self._hb = 0
+        self.encoder_step_max = encoder_step_max
+        self.frames_rx = self.send_errors = self.watchdog_trips = 0
+        self._cmd = self._hb = 0
         self._next_hb_s = -math.inf
-        self._lim_key, self._lim = None, list(CMD_RANGE)
+        self._lim_key, self._lim = None, _CMD_RANGE
         self.started = self.closed = False
 
     # -- life cycle ---------------------------------------------------------------------------------
@@ -113,6 +131,96 @@ class CobotDriver:
     def __exit__(self, *exc):
         self.close()
 
+    def _frame_format(self, name: str) -> tuple[int, bool, int]:
+        """(frame id, FD, length) of message ``name``."""
+        row = self._tables[0][self.db.row[name]]
+        return int(row[FK.M_ID]), bool(row[FK.M_FD]), int(row[FK.M_LEN])
+
+    # -- the receive state (fields of the record the compiled frame kernel updates) -----------------
+    @property
+    def joints_rad_m(self) -> np.ndarray:
+        """The last joint reading (6,: 3 gantry positions m, 3 unwrapped wrist angles rad); a view
+        the next valid reading overwrites."""
+        return self._rs["joints"]
+
+    @joints_rad_m.setter
+    def joints_rad_m(self, value) -> None:
+        self._rs["joints"][:] = value
+
+    @property
+    def wrench_S(self) -> np.ndarray:
+        """The last load-cell reading (6,: N, N*m, load-cell frame); a view, as joints_rad_m."""
+        return self._rs["wrench"]
+
+    @wrench_S.setter
+    def wrench_S(self, value) -> None:
+        self._rs["wrench"][:] = value
+
+    @property
+    def joints_counter(self) -> int:
+        """The SYNC counter of the last joint reading applied (-1: none yet)."""
+        return int(self._rs["jc"])
+
+    @property
+    def wrench_counter(self) -> int:
+        return int(self._rs["wc"])
+
+    @property
+    def fresh_joints(self) -> bool:
+        """A joint reading arrived in this cycle (cleared by :meth:`end_cycle`)."""
+        return bool(self._rs["fresh_j"])
+
+    @fresh_joints.setter
+    def fresh_joints(self, value: bool) -> None:
+        self._rs["fresh_j"] = bool(value)
+
+    @property
+    def fresh_wrench(self) -> bool:
+        return bool(self._rs["fresh_w"])
+
+    @fresh_wrench.setter
+    def fresh_wrench(self, value: bool) -> None:
+        self._rs["fresh_w"] = bool(value)
+
+    @property
+    def cycles_since_joints(self) -> int:
+        return int(self._rs["since_j"])
+
+    @cycles_since_joints.setter
+    def cycles_since_joints(self, value: int) -> None:
+        self._rs["since_j"] = value
+
+    @property
+    def cycles_since_wrench(self) -> int:
+        return int(self._rs["since_w"])
+
+    @cycles_since_wrench.setter
+    def cycles_since_wrench(self, value: int) -> None:
+        self._rs["since_w"] = value
+
+    @property
+    def device_state(self) -> int:
+        return int(self._rs["dev_state"])
+
+    @device_state.setter
+    def device_state(self, value: int) -> None:
+        self._rs["dev_state"] = value
+
+    @property
+    def frames_late(self) -> int:
+        """Valid device frames older than the last applied one (dropped)."""
+        return int(self._rs["late"])
+
+    @property
+    def encoder_step_max(self):
+        """The encoder check's limits (6,: m, rad per SYNC), or None: not checked."""
+        sm = self._rs["step_max"]
+        return None if sm[0] < 0.0 else sm.copy()
+
+    @encoder_step_max.setter
+    def encoder_step_max(self, value) -> None:
+        self._rs["step_max"][:] = -1.0 if value is None else np.broadcast_to(np.asarray(value, float), 6)
+
     # -- sending ------------------------------------------------------------------------------------
     def _send(self, name: str, signals) -> bool:
         """Encode and send; ``signals`` a mapping, or the values in codec order (no checksum)."""
@@ -120,6 +228,11 @@ class CobotDriver:
             frame_id, data, fd = self.db.encode(name, signals)
         else:
             frame_id, data, fd = self.db.encode_ordered(name, signals)
+        return self._transmit(name, frame_id, data, fd)
+
+    def _transmit(self, name: str, frame_id: int, data, fd: bool) -> bool:
+        """Put one encoded frame on the bus (a new ``data`` object per frame: a sent frame is
+        never changed); a failed send latches ``send_failed``."""
         msg = can.Message(arbitration_id=frame_id, data=data, is_extended_id=False, is_fd=fd,
                           bitrate_switch=fd, timestamp=self.clock())
         try:
@@ -131,11 +244,21 @@ class CobotDriver:
             self._trip("send_failed", f"send {name}: {e}")
             return False
 
+    def _pack(self, name: str) -> bytearray:
+        """The frame of ``name`` encoded from ``_tx_vals`` (codec order) and sealed, by the
+        compiled codec (the values are in range: counters and clipped commands)."""
+        row = self._rows[name]
+        out = bytearray(int(self._tables[0][row, FK.M_LEN]))
+        if FK.pack_frame(*self._tables[:3], row, self._tx_vals, out, True) >= 0:  # pragma: no cover - in range
+            raise CanError(f"can encode {name}: a value outside its range")
+        return out
+
     def send_sync(self) -> int:
         """SYNC with the next counter; returns the counter (0..255)."""
         c = self._sync % 256
         self._sync += 1
-        self._send("SYNC", (c,))
+        self._tx_vals[0] = c
+        self._transmit("SYNC", self._sync_id, self._pack("SYNC"), self._sync_fd)
         return c
 
     def send_heartbeat(self, force: bool = False) -> None:
@@ -148,22 +271,26 @@ class CobotDriver:
 
     def send_command(self, qd_cmd, limits=None) -> None:
         """Joint velocity commands (6,: m/s x3, rad/s x3), clipped to ``limits`` (6,) and the DBC
-        range; zero velocity with mode 0 after a fault or for non-finite input."""
-        qd = np.asarray(qd_cmd, dtype=float)
-        vals = qd.tolist() if qd.shape == (6,) else None  # six floats: scalar arithmetic is cheapest
-        mode = 1
-        if self.fault is not None or vals is None or not all(map(math.isfinite, vals)):
-            vals, mode = [0.0] * 6, 0
-        lim = CMD_RANGE if limits is None else self._limits(limits)
-        self._send("HOST_CMD", (*[min(max(v, -m), m) for v, m in zip(vals, lim)], mode, self._cmd % 256))
+        range; zero velocity with mode 0 after a fault or for non-finite input
+        (:func:`.frame_kernels.pack_command`)."""
+        qd = qd_cmd if type(qd_cmd) is np.ndarray and qd_cmd.dtype == np.float64 else np.asarray(qd_cmd, float)
+        run = self.fault is None and qd.shape == (6,)
+        if not run:
+            qd = _ZERO6
+        lim = _CMD_RANGE if limits is None else self._limits(limits)
+        row = self._row_cmd
+        out = bytearray(self._len_cmd)
+        if FK.pack_command(*self._tables[:3], row, qd, lim, run, self._cmd, self._tx_vals, out) < 0:  # pragma: no cover
+            raise CanError("can encode HOST_CMD: a value outside its range")
         self._cmd += 1
+        self._transmit("HOST_CMD", self._cmd_id, out, self._cmd_fd)
 
-    def _limits(self, limits) -> list:
+    def _limits(self, limits) -> np.ndarray:
         """min(limits, the DBC's HOST_CMD range) (6,), kept for the last ``limits`` object given
         (pass a new array to change the limits; one changed in place is not seen)."""
         if limits is not self._lim_key:
             self._lim_key = limits
-            self._lim = [min(a, b) for a, b in zip(np.asarray(limits, float).tolist(), CMD_RANGE)]
+            self._lim = np.minimum(np.asarray(limits, float), _CMD_RANGE)
         return self._lim
 
     # -- receiving ----------------------------------------------------------------------------------
@@ -171,7 +298,9 @@ class CobotDriver:
         """Take up to ``max_frames_per_read`` frames off the bus without blocking; returns the
         number of valid frames decoded."""
         n = 0
-        recv, decode = self.bus.recv, self.db.decode
+        recv, rx = self.bus.recv, FK.rx_period_frame
+        msgs, sig_i, sig_f, ids, order = self._tables
+        ds, vals, jr, wr = self._ds, self._vals, self._row_joints, self._row_wrench
         for _ in range(self.max_frames_per_read):
             msg = recv(timeout=0.0)
             if msg is None:
@@ -180,18 +309,40 @@ class CobotDriver:
             if msg.is_error_frame:
                 self._on_error_frame(msg)
                 continue
-            out = decode(msg.arbitration_id, msg.data, msg.timestamp, msg.is_extended_id, msg.is_fd)
-            if not isinstance(out, Decoded):
-                self.rejected[out.reason] += 1
+            verdict, row = rx(msgs, sig_i, sig_f, ids, order, ds, jr, wr, self._sync, msg.arbitration_id,
+                              msg.is_extended_id, msg.is_fd, msg.data, vals)
+            if verdict == FK.APPLIED or verdict == FK.LATE:
+                n += 1
+                self.errors.rx_ok()
+                continue
+            if verdict == FK.FUTURE or verdict == FK.ENCODER_JUMP:
+                n += 1
+                self.errors.rx_ok()
+                self._reject_counted(verdict)
+                continue
+            d = self.db.verdict(verdict if verdict != FK.OTHER else FK.OK, row, msg.arbitration_id, msg.data,
+                                msg.timestamp, vals)
+            if hasattr(d, "reason"):
+                self.rejected[d.reason] += 1
                 level = logging.WARNING if sum(self.rejected.values()) <= 10 else logging.DEBUG
-                self.log.log(level, "rejected CAN frame 0x%03X: %s", out.frame_id, out.reason)
+                self.log.log(level, "rejected CAN frame 0x%03X: %s", d.frame_id, d.reason)
                 continue
             n += 1
             self.errors.rx_ok()
-            self._apply(out)
+            self._apply_other(d)
         else:
             self.read_bound_hits += 1
         return n
+
+    def _reject_counted(self, verdict: int) -> None:
+        """A valid frame the period's checks refused: a counter not sent yet, or an encoder jump
+        (the fault latched)."""
+        if verdict == FK.FUTURE:
+            self.rejected["counter"] += 1
+            return
+        self.rejected["encoder_jump"] += 1
+        i, size, gap = self._rs["jump"].tolist()
+        self._trip("encoder_fault", f"joint {int(i)} moved {size:.4g} in {int(gap)} cycle(s), beyond what the device can")
 
     def _on_error_frame(self, msg: can.Message) -> None:
         """An error frame (SocketCAN's error classes in its id) through the error counters: the
@@ -213,66 +364,19 @@ class CobotDriver:
         if state == BUS_OFF:
             self._trip("bus_off", f"TEC {self.errors.tec} >= 256")
 
-    @staticmethod
-    def _newer(counter: int, last: int) -> bool:
-        return last < 0 or 0 < (counter - last) % 256 < 128
-
-    def _from_future(self, counter: int) -> bool:
-        """A counter the host has not sent yet (a corrupted or foreign frame)."""
-        return self._sync == 0 or (self._sync - 1 - counter) % 256 >= 128
-
-    def _apply(self, d: Decoded) -> None:
-        s, name = d.signals, d.name
-        if name == "DEV_JOINTS" or name == "DEV_WRENCH":
-            counter = int(d.values[7 if name == "DEV_JOINTS" else 6])  # ORDERED_FRAMES: the counter after
-            if self._from_future(counter):
-                self.rejected["counter"] += 1
-                return
-        if name == "DEV_JOINTS":
-            if not self._newer(counter, self.joints_counter):
-                self.frames_late += 1
-                return
-            meas = list(d.values[:6])  # ORDERED_FRAMES: the six joints first
-            prev = self.joints_rad_m.tolist()
-            for i in range(3, 6):  # unwrap the wrist angles next to the previous reading
-                meas[i] = prev[i] + (meas[i] - prev[i] + math.pi) % (2.0 * math.pi) - math.pi
-            if self.encoder_step_max is not None and self.joints_counter >= 0:
-                gap = (counter - self.joints_counter) % 256
-                jump = [abs(a - b) - gap * m for a, b, m in zip(meas, prev, self.encoder_step_max)]
-                if max(jump) > 0.0:
-                    i = jump.index(max(jump))
-                    self.rejected["encoder_jump"] += 1
-                    self._trip("encoder_fault", f"joint {i} moved {abs(meas[i] - prev[i]):.4g} in {gap} "
-                                                f"cycle(s), beyond what the device can")
-                    return
-            self.joints_rad_m = np.array(meas, dtype=float)
-            self.joints_counter = counter
-            self.device_state = int(d.values[6])
-            self.fresh_joints = True
-            self.cycles_since_joints = 0
-        elif name == "DEV_WRENCH":
-            if not self._newer(counter, self.wrench_counter):
-                self.frames_late += 1
-                return
-            self.wrench_S = np.array(d.values[:6], dtype=float)
-            self.wrench_counter = counter
-            self.fresh_wrench = True
-            self.cycles_since_wrench = 0
-        elif name == "DEV_HEARTBEAT":
+    def _apply_other(self, d) -> None:
+        """A valid frame other than the period's two: the device's heartbeat or emergency."""
+        s = d.signals
+        if d.name == "DEV_HEARTBEAT":
             self.last_device_hb_s = self.clock()
             self.device_state = int(s["DevHbState"])
-        elif name == "DEV_EMERGENCY" and int(s["EmcyCode"]) != 0:
+        elif d.name == "DEV_EMERGENCY" and int(s["EmcyCode"]) != 0:
             self._trip("device_emergency", f"device emergency code {int(s['EmcyCode'])}")
 
     # -- watchdog -----------------------------------------------------------------------------------
     def end_cycle(self) -> str | None:
         """Age the feedback by one cycle and check the watchdog; returns the latched fault or None."""
-        if not self.fresh_joints:
-            self.cycles_since_joints += 1
-        if not self.fresh_wrench:
-            self.cycles_since_wrench += 1
-        self.fresh_joints = self.fresh_wrench = False
-        if max(self.cycles_since_joints, self.cycles_since_wrench) >= self.stale_cycles:
+        if FK.end_cycle_counts(self._ds, self.stale_cycles):
             self._trip("watchdog", f"no fresh feedback for {self.stale_cycles} cycles")
         if self.last_device_hb_s is not None and self.clock() - self.last_device_hb_s > self.hb_timeout:
             self._trip("heartbeat", f"no device heartbeat for {self.hb_timeout} s")
