@@ -6,15 +6,14 @@ import math
 
 import cantools
 import pytest
+from crccheck.crc import Crc32
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from crccheck.crc import Crc32
-
-from teleop.master.cobot import frame_kernels as FK
+from teleop.crc32 import crc32_continue
+from teleop.errors import CanError
 from teleop.master.cobot.codec import MessageCodec, compile_layout
 from teleop.master.cobot.database import FrameDatabase
-from teleop.errors import CanError
 
 DB = FrameDatabase()
 #: layouts the shipped protocol does not use: big-endian integers and floats (compiled), bit fields
@@ -77,7 +76,7 @@ def test_a_value_table_value_outside_the_range_encodes_as_cantools_strict():
 def test_compiled_crc_is_crccheck_continued(data, start):
     """crc32_continue(CRC of a, b) = CRC of a + b, against crccheck (the wire's definition)."""
     head = start.to_bytes(4, "little")
-    assert FK.crc32_continue(Crc32.calc(head), data, len(data)) == Crc32.calc(head + data)
+    assert crc32_continue(Crc32.calc(head), data, len(data)) == Crc32.calc(head + data)
 
 
 @pytest.mark.parametrize("msg", MESSAGES, ids=IDS)

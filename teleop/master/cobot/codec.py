@@ -20,8 +20,14 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from cantools.database.conversion import BaseConversion, IdentityConversion, LinearConversion, LinearIntegerConversion
+from cantools.database.conversion import (
+    BaseConversion,
+    IdentityConversion,
+    LinearConversion,
+    LinearIntegerConversion,
+)
 
+from teleop.crc32 import crc32_continue
 from teleop.errors import CanError
 from teleop.master.cobot import frame_kernels as FK
 
@@ -177,7 +183,7 @@ class MessageCodec:
         if not seal or idcrc < 0:
             return data
         body = bytes(data[:-FK.CRC_BYTES])
-        return body + int(FK.crc32_continue(idcrc, body, len(body))).to_bytes(FK.CRC_BYTES, "little")
+        return body + int(crc32_continue(idcrc, body, len(body))).to_bytes(FK.CRC_BYTES, "little")
 
     def _check_each(self, values) -> None:
         """The range check value by value, raising :class:`CanError` for the first bad one."""

@@ -22,8 +22,8 @@ from typing import NamedTuple
 
 import cantools
 import numpy as np
-from crccheck.crc import Crc32
 
+from teleop.crc32 import crc32_continue
 from teleop.errors import CanError
 from teleop.master.cobot import frame_kernels as FK
 from teleop.master.cobot.codec import MessageCodec, layout_tables
@@ -35,17 +35,11 @@ CRC_BYTES = FK.CRC_BYTES
 
 
 def compute_crc32(frame_id: int, data: bytes) -> int:
-    """CRC-32/ISO-HDLC (crccheck's ``Crc32``) of the frame id (2 bytes, little-endian) then
-    ``data``, by the compiled codec's :func:`.frame_kernels.crc32_continue` (crccheck is pure
-    Python, ~42 us per 20-byte frame; the compiled table loop runs inside the frame checks).
-    tests/unit/test_can_database.py checks it against crccheck on random frames."""
-    head = FK.crc32_continue(0, frame_id.to_bytes(2, "little"), 2)
-    return int(FK.crc32_continue(head, bytes(data), len(data)))
-
-
-# the one definition of the wire CRC is crccheck's; the compiled CRC must compute that same CRC
-if not compute_crc32(0x3231, b"3456789") == Crc32.calc(b"123456789") == 0xCBF43926:
-    raise CanError("the compiled CRC-32 differs from crccheck's CRC-32/ISO-HDLC")
+    """CRC-32/ISO-HDLC (crccheck's ``Crc32``; computed by :func:`teleop.crc32.crc32_continue`) of
+    the frame id (2 bytes, little-endian) then ``data``. tests/unit/test_can_database.py checks it
+    against crccheck on random frames."""
+    head = crc32_continue(0, frame_id.to_bytes(2, "little"), 2)
+    return int(crc32_continue(head, bytes(data), len(data)))
 
 
 class Decoded(NamedTuple):

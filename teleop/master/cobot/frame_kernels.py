@@ -20,8 +20,8 @@ The layout tables (built by :func:`.codec.layout_tables`):
   (cantools' strict one: widened by a millionth of the scale);
 * ``ids`` int64 (n_msgs,): the frame ids sorted, ``order`` int64: their message rows.
 
-Tested against cantools (tests/property/test_can_codec.py, random frames and payloads) and the CRC
-against crccheck (the wire's definition). Set ``NUMBA_DISABLE_JIT=1`` to run them as Python.
+Tested against cantools (tests/property/test_can_codec.py, random frames and payloads); the CRC is
+:func:`teleop.crc32.crc32_continue`. Set ``NUMBA_DISABLE_JIT=1`` to run them as Python.
 """
 
 from __future__ import annotations
@@ -30,6 +30,8 @@ import math
 
 import numpy as np
 from numba import njit
+
+from teleop.crc32 import crc32_continue
 
 #: msgs columns
 M_ID, M_EXT, M_FD, M_LEN, M_IDCRC, M_NSIG, M_BIG, M_COMPILED = range(8)
@@ -50,30 +52,6 @@ RANGE = 1000
 #: rx_period_frame's verdicts beyond check_frame's: applied, late (an old counter), another valid
 #: message (values in ``vals``), a counter the host has not sent, an encoder jump (fault latched)
 APPLIED, LATE, OTHER, FUTURE, ENCODER_JUMP = 1, 2, 3, -7, -8
-
-
-def _crc_table() -> np.ndarray:
-    """The 256-entry table of the reflected CRC-32 polynomial 0xEDB88320 (CRC-32/ISO-HDLC)."""
-    t = np.empty(256, np.uint32)
-    for i in range(256):
-        c = i
-        for _ in range(8):
-            c = (c >> 1) ^ 0xEDB88320 if c & 1 else c >> 1
-        t[i] = c
-    return t
-
-
-CRC_TABLE = _crc_table()
-
-
-@njit(cache=True)
-def crc32_continue(crc, data, n):
-    """CRC-32/ISO-HDLC of the first n bytes of ``data`` continued from ``crc`` (the CRC of what
-    came before; 0 for none), as ``zlib.crc32(data[:n], crc)``."""
-    c = np.uint32(crc) ^ np.uint32(0xFFFFFFFF)
-    for i in range(n):
-        c = CRC_TABLE[(c ^ np.uint32(data[i])) & np.uint32(0xFF)] ^ (c >> np.uint32(8))
-    return np.int64(c ^ np.uint32(0xFFFFFFFF))
 
 
 @njit(cache=True)
