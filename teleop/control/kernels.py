@@ -14,6 +14,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
+from teleop.dynamics.kernels.small import matmul
 from teleop.dynamics.kernels.so3 import log3
 
 
@@ -29,7 +30,7 @@ def pid_step(p_r, R_r, nu_r, accel_r, p_v, R_v, kp, ki, kd, integral_limit, max_
     """
     e = np.empty(6)
     e[:3] = p_r - p_v
-    e[3:] = log3(R_r @ R_v.T)
+    e[3:] = log3(matmul(R_r, R_v.T))
     nu, accel_out, integral_out = np.empty(6), np.empty(6), np.empty(6)
     for i in range(6):
         integ = min(max(integral[i] + e[i] * dt, -integral_limit[i]), integral_limit[i])

@@ -83,13 +83,14 @@ class CobotDriver:
         self._ds["jc"] = self._ds["wc"] = -1
         self._ds["step_max"] = -1.0  # no encoder check
         self._tables = self.db.tables
-        self._rows = {name: self.db.row[name] for name in self.db.row}
         self._vals = np.empty(self._tables[1].shape[1])
         self._tx_vals = np.empty(self._tables[1].shape[1])
         self._row_joints, self._row_wrench, self._row_cmd = (self.db.row[n] for n in ("DEV_JOINTS", "DEV_WRENCH",
                                                                                      "HOST_CMD"))
         self._cmd_id, self._cmd_fd, self._len_cmd = self._frame_format("HOST_CMD")
-        self._sync_id, self._sync_fd, _ = self._frame_format("SYNC")
+        self._sync_id, self._sync_fd, self._len_sync = self._frame_format("SYNC")
+        self._row_sync = self.db.row["SYNC"]
+        self._tx_tables = self._tables[:3]
         self._sync = 0  # SYNCs sent
         self.last_device_hb_s: float | None = None
         self.fault: str | None = None
@@ -237,28 +238,23 @@ class CobotDriver:
                           bitrate_switch=fd, timestamp=self.clock())
         try:
             self.bus.send(msg)
-            self.errors.tx_ok()
+            if self.errors.tec:
+                self.errors.tx_ok()
             return True
         except can.CanError as e:
             self.send_errors += 1
             self._trip("send_failed", f"send {name}: {e}")
             return False
 
-    def _pack(self, name: str) -> bytearray:
-        """The frame of ``name`` encoded from ``_tx_vals`` (codec order) and sealed, by the
-        compiled codec (the values are in range: counters and clipped commands)."""
-        row = self._rows[name]
-        out = bytearray(int(self._tables[0][row, FK.M_LEN]))
-        if FK.pack_frame(*self._tables[:3], row, self._tx_vals, out, True) >= 0:  # pragma: no cover - in range
-            raise CanError(f"can encode {name}: a value outside its range")
-        return out
-
     def send_sync(self) -> int:
         """SYNC with the next counter; returns the counter (0..255)."""
         c = self._sync % 256
         self._sync += 1
         self._tx_vals[0] = c
-        self._transmit("SYNC", self._sync_id, self._pack("SYNC"), self._sync_fd)
+        out = bytearray(self._len_sync)
+        if FK.pack_frame(*self._tx_tables, self._row_sync, self._tx_vals, out, True) >= 0:
+            raise CanError(f"can encode SYNC: counter {c} outside the DBC's SyncCounter range")
+        self._transmit("SYNC", self._sync_id, out, self._sync_fd)
         return c
 
     def send_heartbeat(self, force: bool = False) -> None:
@@ -278,10 +274,9 @@ class CobotDriver:
         if not run:
             qd = _ZERO6
         lim = _CMD_RANGE if limits is None else self._limits(limits)
-        row = self._row_cmd
         out = bytearray(self._len_cmd)
-        if FK.pack_command(*self._tables[:3], row, qd, lim, run, self._cmd, self._tx_vals, out) < 0:  # pragma: no cover
-            raise CanError("can encode HOST_CMD: a value outside its range")
+        if FK.pack_command(*self._tx_tables, self._row_cmd, qd, lim, run, self._cmd, self._tx_vals, out) < 0:
+            raise CanError("can encode HOST_CMD: a clipped command outside the DBC's ranges (check CMD_RANGE)")
         self._cmd += 1
         self._transmit("HOST_CMD", self._cmd_id, out, self._cmd_fd)
 

@@ -16,6 +16,7 @@ import numpy as np
 from numba import njit
 
 from teleop.control.kernels import pid_step
+from teleop.dynamics.kernels.small import is_positive_definite, matmul, matvec, solve
 from teleop.dynamics.kernels.so3 import exp3
 
 
@@ -31,13 +32,13 @@ def distal_wrench_H(R, w_W, a_o_W, alpha_W, mass_kg, com_H, inertia_H, gravity_W
     acceleration a_o_W (m/s^2) and angular acceleration alpha_W (rad/s^2), all in the world frame;
     com_H (3,) m and inertia_H (3, 3) kg*m^2 about the COM are the handle's, in H."""
     Rt = R.T
-    w, a_o, alpha = Rt @ w_W, Rt @ a_o_W, Rt @ alpha_W
+    w, a_o, alpha = matvec(Rt, w_W), matvec(Rt, a_o_W), matvec(Rt, alpha_W)
     c = com_H
     a_c = a_o + _cross(alpha, c) + _cross(w, _cross(w, c))
-    f = mass_kg * (Rt @ gravity_W - a_c)
+    f = mass_kg * (matvec(Rt, gravity_W) - a_c)
     out = np.empty(6)
     out[:3] = f
-    out[3:] = _cross(c, f) - inertia_H @ alpha - _cross(w, inertia_H @ w)
+    out[3:] = _cross(c, f) - matvec(inertia_H, alpha) - _cross(w, matvec(inertia_H, w))
     return out
 
 
@@ -54,8 +55,8 @@ def hand_wrench_W(wrench_S, bias_S, R, accel_W, w_W, mass_kg, com_H, inertia_H, 
         if n > lim:
             F_H[lo:lo + 3] *= lim / n
     out = np.empty(6)
-    out[:3] = R @ F_H[:3]
-    out[3:] = R @ F_H[3:]
+    out[:3] = matvec(R, F_H[:3])
+    out[3:] = matvec(R, F_H[3:])
     return out
 
 
@@ -134,16 +135,12 @@ def correct_kernel(history, x, bias, y, j, k, alpha, beta, dt):
 @njit(cache=True)
 def _smallest_singular_value_above(J, sigma0):
     """Whether every singular value of J exceeds sigma0: JᵀJ - sigma0² I positive definite (its
-    Cholesky factorization exists). About a tenth of the SVD's cost in numba (measured: 1-2 µs
-    against 25 µs for the 6x6 SVD on this machine, 2026-11)."""
-    A = J.T @ J
+    Cholesky factorization exists). A tenth of the SVD's cost or less (the 6x6 SVD in numba: about
+    25 µs on this machine, 2026-11; the Cholesky in loops well under 1 µs)."""
+    A = matmul(J.T, J)
     for i in range(A.shape[0]):
         A[i, i] -= sigma0 * sigma0
-    try:
-        np.linalg.cholesky(A)
-        return True
-    except Exception:  # numba's LinAlgError: not positive definite
-        return False
+    return is_positive_definite(A)
 
 
 @njit(cache=True)
@@ -152,9 +149,10 @@ def dls_command(J, twist, joints, ws_hi, ws_lo, sigma0, lam0):
     smallest singular value of J exceeds sigma0, then lam^2 = lam0^2 (1 - (s_min/sigma0)^2)), then
     the workspace limit: a rate that drives a joint past ws_hi or ws_lo (6,) is zeroed. Undamped,
     the rates solve J qd = twist (LU); the SVD is taken only near a singularity."""
-    if _smallest_singular_value_above(J, sigma0):
-        qd = np.linalg.solve(J, twist)
-    else:
+    ok = _smallest_singular_value_above(J, sigma0)
+    if ok:
+        ok, qd = solve(J, twist)
+    if not ok:
         U, S, Vt = np.linalg.svd(J)
         smin = S[-1]
         lam2 = 0.0 if smin >= sigma0 else lam0 * lam0 * (1.0 - (smin / sigma0) ** 2)
@@ -173,8 +171,8 @@ def handle_command(J, to_handle, nu_V, a_V, tau, joints, ws_hi, ws_lo, sigma0, l
     """The virtual command (twist nu_V (6,), acceleration a_V (6,)) mapped to the handle by φ's
     6x6 ``to_handle``, and the joint rates for nu_H + tau a_H (tau: servo lag, s) by
     :func:`dls_command`. Returns nu_H, a_H, qd (6,) each."""
-    nu_H = to_handle @ nu_V
-    a_H = to_handle @ a_V
+    nu_H = matvec(to_handle, nu_V)
+    a_H = matvec(to_handle, a_V)
     return nu_H, a_H, dls_command(J, nu_H + tau * a_H, joints, ws_hi, ws_lo, sigma0, lam0)
 
 
@@ -258,10 +256,10 @@ def host_feedback(p_m, R_m, k, j, pred_p, pred_R, wrench_S, bias_S, accel_H_cmd,
         p_est, R_est = p_m, R_m
     else:
         p_est = p_m + pred_p[k] - pred_p[j]
-        R_est = pred_R[k] @ pred_R[j].T @ R_m
+        R_est = matmul(matmul(pred_R[k], pred_R[j].T), R_m)
     F = hand_wrench_W(wrench_S, bias_S, R_m, accel_H_cmd, nu_H_cmd[3:], mass_kg, com_H, inertia_H, gravity_W,
                       max_force_N, max_torque_Nm)
-    return p_est, R_est, F, wrench_map @ F, off_p + scale * (off_R @ p_est), off_R @ R_est
+    return p_est, R_est, F, matvec(wrench_map, F), off_p + scale * matvec(off_R, p_est), matmul(off_R, R_est)
 
 
 @njit(cache=True)
@@ -349,5 +347,5 @@ def host_command(hs, hc, p_r, R_r, nu_r, accel_r, joints, k, engaged):
     r["nu_H"][:] = nu_H
     r["a_H"][:] = a_H
     r["qd"][:] = qd
-    r["accel_model"][(k + 1) % HISTORY, :] = r["J"] @ servo_acceleration(u, qdm, c["tau"], c["obs_lim"][1])
+    r["accel_model"][(k + 1) % HISTORY, :] = matvec(r["J"], servo_acceleration(u, qdm, c["tau"], c["obs_lim"][1]))
     return e_p, e_r
