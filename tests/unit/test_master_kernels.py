@@ -12,6 +12,7 @@ from scipy.integrate import solve_ivp
 from teleop.control.admittance import Phi
 from teleop.control.kernels import pid_step
 from teleop.dynamics.kernels.so3 import exp3, log3
+from teleop.master.cobot.frame_kernels import DRIVER_STATE
 from teleop.master.cobot.kernels import (HOST_CONSTS, HOST_STATE, advance_prediction, correct_kernel,
                                          distal_wrench_H, dls_command, gantry_zxz_pose_jacobian, hand_wrench_W,
                                          handle_command, host_command, host_feedback, host_sense, predict_kernel,
@@ -319,10 +320,11 @@ def test_host_command_is_pid_then_handle_command_then_predictions(engaged):
 @pytest.mark.parametrize("fresh, late, servo_model", [(True, False, 1), (True, True, 0), (False, True, 1)])
 def test_host_sense_is_correction_then_kinematics_then_feedback(fresh, late, servo_model):
     """The fused feedback half on the state record: the observer's correction by a fresh reading,
-    the closed-form kinematics, :func:`host_feedback` with the servo model's or the commanded
-    handle acceleration; without ``feedback`` (a latched fault) only the correction."""
+    the feedback aged a cycle, the closed-form kinematics, :func:`host_feedback` with the servo
+    model's or the commanded handle acceleration; without ``feedback`` (a latched fault) or with
+    stale feedback only the correction and the ageing."""
     rng = np.random.default_rng(9)
-    for feedback in (True, False):
+    for feedback, since in ((True, 0), (False, 0), (True, 2)):
         hs, hc = _host_records(rng, servo_model)
         ref = {name: hs[0][name].copy() for name in HOST_STATE.names}
         c = hc[0]
@@ -330,7 +332,13 @@ def test_host_sense_is_correction_then_kinematics_then_feedback(fresh, late, ser
         k, wc = 7, 6
         j = 5 if late else k
         wrench_S, bias_S = rng.normal(size=6), rng.normal(size=6) * 0.1
-        host_sense(hs, hc, joints, j, k, fresh, wrench_S, bias_S, wc, feedback, True)
+        ds = np.zeros(1, DRIVER_STATE)
+        d = ds[0]
+        d["joints"], d["wrench"], d["jc"], d["wc"], d["fresh_j"], d["fresh_w"] = joints, wrench_S, j, wc, fresh, 1
+        d["since_j"] = 0 if fresh else since  # an arriving reading resets it (rx_period_frame)
+        stale = host_sense(hs, hc, ds, k, bias_S, 3, feedback, True)
+        assert stale == (not fresh and since == 2)  # 3 cycles without fresh joints
+        assert d["fresh_j"] == d["fresh_w"] == 0 and d["since_j"] == (0 if fresh else since + 1)
         r = hs[0]
         x, b = ref["obs"][0], ref["obs"][3]
         if fresh:
@@ -338,7 +346,7 @@ def test_host_sense_is_correction_then_kinematics_then_feedback(fresh, late, ser
         np.testing.assert_array_equal(r["obs"][0], x)
         np.testing.assert_array_equal(r["obs"][3], b)
         np.testing.assert_array_equal(r["obs_hist"], ref["obs_hist"])
-        if not feedback:
+        if not feedback or stale:
             np.testing.assert_array_equal(r["f_v"], ref["f_v"])
             continue
         p_m, R_m, J = gantry_zxz_pose_jacobian(joints)

@@ -370,12 +370,18 @@ class CobotDriver:
 
     # -- watchdog -----------------------------------------------------------------------------------
     def end_cycle(self) -> str | None:
-        """Age the feedback by one cycle and check the watchdog; returns the latched fault or None."""
-        if FK.end_cycle_counts(self._ds, self.stale_cycles):
+        """Age the feedback by one cycle and check the watchdog; returns the latched fault or None.
+        (:class:`.host.CobotMaster` ages it inside its compiled ``sense`` and calls :meth:`watch`.)"""
+        self.watch(FK.end_cycle_counts(self._ds, self.stale_cycles))
+        return self.fault
+
+    def watch(self, stale: bool) -> None:
+        """The watchdog after the feedback aged by a cycle: latch ``watchdog`` for ``stale``
+        feedback, ``heartbeat`` for a device heartbeat older than its timeout."""
+        if stale:
             self._trip("watchdog", f"no fresh feedback for {self.stale_cycles} cycles")
         if self.last_device_hb_s is not None and self.clock() - self.last_device_hb_s > self.hb_timeout:
             self._trip("heartbeat", f"no device heartbeat for {self.hb_timeout} s")
-        return self.fault
 
     def latch_fault(self, fault: str, why: str) -> None:
         """Latch a host-side fault (from then on zero velocity, mode 0), logged with ``why``."""

@@ -248,14 +248,17 @@ class CobotMaster(Master):
         if self.sim is not None:
             self.sim.apply_hand_wrench(self.clutch.phi.wrench_to_handle(_finite(hand_wrench_W)))
         k = self.counter = self._link_cycle_begin()
-        fresh = drv.fresh_joints  # a reading of SYNC joints_counter (this one, or late): corrects the observer
-        fault = drv.end_cycle()
-        joints = drv.joints_rad_m
-        if fault is None and not self.closed_form:  # Pinocchio's kinematics for any other URDF
+        drv.watch(False)  # the device's heartbeat
+        if drv.fault is None and not self.closed_form:  # Pinocchio's kinematics for any other URDF
             hs = self._hs
-            hs["p_m"][0], hs["R_m"][0], hs["J"][0] = self.model.compute_pose_and_jacobian(joints)
-        host_sense(self._hs, self._constants(), joints, drv.joints_counter, k, fresh, drv.wrench_S, self.bias_S,
-                   drv.wrench_counter, fault is None, self.closed_form)
+            hs["p_m"][0], hs["R_m"][0], hs["J"][0] = self.model.compute_pose_and_jacobian(drv.joints_rad_m)
+        # the observer's correction by a fresh reading, the feedback aged a cycle, the load cell
+        # through φ (eq. 4) unless a fault is latched or the feedback is stale
+        stale = host_sense(self._hs, self._constants(), drv._ds, k, self.bias_S, drv.stale_cycles, drv.fault is None,
+                           self.closed_form)
+        if stale:
+            drv.watch(stale)
+        fault = drv.fault
         if fault is not None:
             self.status = fault
             self._hold()

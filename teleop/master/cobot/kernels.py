@@ -18,6 +18,7 @@ from numba import njit
 from teleop.control.kernels import pid_step
 from teleop.dynamics.kernels.small import is_positive_definite, matmul, matvec, solve
 from teleop.dynamics.kernels.so3 import exp3
+from teleop.master.cobot.frame_kernels import end_cycle_counts
 
 
 @njit(cache=True)
@@ -263,31 +264,35 @@ def host_feedback(p_m, R_m, k, j, pred_p, pred_R, wrench_S, bias_S, accel_H_cmd,
 
 
 @njit(cache=True)
-def host_sense(hs, hc, joints, j, k, fresh, wrench_S, bias_S, wc, feedback, closed_form):
+def host_sense(hs, hc, ds, k, bias_S, stale_cycles, feedback, closed_form):
     """The host's ``sense`` on its state record ``hs`` (:data:`HOST_STATE`, in place) with the
-    constants ``hc`` (:data:`HOST_CONSTS`): a fresh reading (``fresh``) of the joints (6,) taken at
-    SYNC j corrects the observer (:func:`correct_kernel`) for SYNC k; then, with ``feedback``, the
-    handle's pose and Jacobian (:func:`gantry_zxz_pose_jacobian` when ``closed_form``, else the
-    caller's, already in ``p_m``, ``R_m``, ``J``) and :func:`host_feedback` on the load cell
-    ``wrench_S`` (6,) of SYNC wc, its tare ``bias_S`` (6,) removed, with the handle acceleration
-    of the servo model at SYNC wc or the commanded one (``servo_model``)."""
-    r, c = hs[0], hc[0]
-    obs = r["obs"]
-    if fresh:
+    constants ``hc`` (:data:`HOST_CONSTS`) and the driver's receive record ``ds``
+    (:data:`.frame_kernels.DRIVER_STATE`) after this period's read: a fresh joint reading (taken at
+    SYNC ``ds.jc``) corrects the observer (:func:`correct_kernel`) for SYNC k; the feedback ages by
+    the cycle (:func:`.frame_kernels.end_cycle_counts`); then, with ``feedback`` (no fault latched)
+    and the feedback not ``stale_cycles`` old, the handle's pose and Jacobian
+    (:func:`gantry_zxz_pose_jacobian` when ``closed_form``, else the caller's, already in ``p_m``,
+    ``R_m``, ``J``) and :func:`host_feedback` on the load cell reading (of SYNC ``ds.wc``), its tare
+    ``bias_S`` (6,) removed, with the handle acceleration of the servo model at that SYNC or the
+    commanded one (``servo_model``). Returns whether the feedback is stale (the watchdog trips)."""
+    r, c, d = hs[0], hc[0], ds[0]
+    obs, joints, j = r["obs"], d["joints"], d["jc"]
+    if d["fresh_j"] != 0:
         x, b = correct_kernel(r["obs_hist"], obs[0].copy(), obs[3].copy(), joints, j, k, c["alpha"], c["beta"],
                               c["obs_dt"])
         obs[0, :] = x
         obs[3, :] = b
-    if not feedback:
-        return
+    stale = end_cycle_counts(ds, stale_cycles)
+    if not feedback or stale:
+        return stale
     if closed_form:
         p, R, J = gantry_zxz_pose_jacobian(joints)
         r["p_m"][:] = p
         r["R_m"][:, :] = R
         r["J"][:, :] = J
-    accel = r["accel_model"][wc % HISTORY].copy() if c["servo_model"] else r["a_H"].copy()
+    accel = r["accel_model"][d["wc"] % HISTORY].copy() if c["servo_model"] else r["a_H"].copy()
     p_est, R_est, F, f_v, p_v, R_v = host_feedback(
-        r["p_m"].copy(), r["R_m"].copy(), k, j, r["pred_p"], r["pred_R"], wrench_S, bias_S, accel, r["nu_H"],
+        r["p_m"].copy(), r["R_m"].copy(), k, j, r["pred_p"], r["pred_R"], d["wrench"], bias_S, accel, r["nu_H"],
         c["mass"], c["com"], c["inertia"], c["gravity"], c["max_force"], c["max_torque"], c["wrench_map"], c["off_p"],
         c["scale"], c["off_R"])
     r["p_est"][:] = p_est
@@ -296,6 +301,7 @@ def host_sense(hs, hc, joints, j, k, fresh, wrench_S, bias_S, wc, feedback, clos
     r["f_v"][:] = f_v
     r["p_v"][:] = p_v
     r["R_v"][:, :] = R_v
+    return stale
 
 
 @njit(cache=True)
