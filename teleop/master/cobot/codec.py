@@ -85,8 +85,9 @@ def _signal_order(message) -> tuple:
     return compiled[1] if compiled is not None else tuple(message.signals)
 
 
-def layout_tables(messages, crc_of_id=None) -> tuple:
-    """The compiled codec's tables (msgs, sig_i, sig_f, ids, order; see :mod:`.frame_kernels`) of
+def layout_tables(messages, crc_of_id=None) -> np.ndarray:
+    """The compiled codec's tables (a record with fields msgs, sig_i, sig_f, ids, order; see
+    :mod:`.frame_kernels`) of
     ``messages`` (cantools ``Message`` objects), signals in :func:`compile_layout`'s order (the
     DBC's for a layout it cannot compile). ``crc_of_id(frame_id)``: the CRC of a protected
     message's id (a message with a ``*Checksum`` signal), None: no message is protected."""
@@ -116,7 +117,11 @@ def layout_tables(messages, crc_of_id=None) -> tuple:
                 math.inf if s.maximum is None else s.maximum + abs(scale) * 1e-6)
     ids = msgs[:, FK.M_ID]
     order = np.argsort(ids, kind="stable")
-    return msgs, sig_i, sig_f, np.ascontiguousarray(ids[order]), order.astype(np.int64)
+    n = len(messages)
+    tab = np.zeros(1, np.dtype([("msgs", "i8", msgs.shape), ("sig_i", "i8", sig_i.shape), ("sig_f", "f8", sig_f.shape),
+                                ("ids", "i8", (n,)), ("order", "i8", (n,))]))
+    tab["msgs"], tab["sig_i"], tab["sig_f"], tab["ids"], tab["order"] = msgs, sig_i, sig_f, ids[order], order
+    return tab
 
 
 class MessageCodec:
@@ -129,7 +134,7 @@ class MessageCodec:
         self.signals = _signal_order(message)
         self.names = tuple(s.name for s in self.signals)
         self.tables = layout_tables([message])
-        self.compiled = bool(self.tables[0][0, FK.M_COMPILED])
+        self.compiled = bool(self.tables[0]["msgs"][0, FK.M_COMPILED])
         # cantools gives an int for an integer signal with an integer conversion, else a float
         self._int = tuple(_base_conversion(s) in (IdentityConversion, LinearIntegerConversion) and not s.is_float
                           for s in self.signals)
@@ -158,7 +163,8 @@ class MessageCodec:
         in its last four bytes instead of the checksum signal's value."""
         if len(values) != len(self.names):
             raise CanError(f"can encode {self.name}: expected {len(self.names)} values, got {len(values)}")
-        msgs, sig_i, sig_f = (tables or self.tables)[:3]
+        tab = self.tables if tables is None else tables
+        msgs, sig_i = tab[0]["msgs"], tab[0]["sig_i"]
         if self.compiled:
             buf = self._values
             try:
@@ -167,7 +173,7 @@ class MessageCodec:
                 self._check_each(values)  # raises: a value that is not a number
                 raise
             out = bytearray(self.length)
-            bad = FK.pack_frame(msgs, sig_i, sig_f, row, buf, out, seal)
+            bad = FK.pack_frame(tab, row, buf, out, seal)
             if bad < 0:
                 return bytes(out)
             self._check_each(values)  # raises, unless the value is in the signal's value table
@@ -211,7 +217,7 @@ class MessageCodec:
     def decode(self, data: bytes) -> tuple:
         """Physical values of a payload of the right length, in the order of :attr:`names`."""
         if self.compiled:
-            FK.unpack_values(*self.tables[:3], 0, bytes(data), self._values)
+            FK.unpack_values(self.tables, 0, bytes(data), self._values)
             return self.values_from(self._values)
         raw = self.message.decode(data, decode_choices=False, scaling=False)
         return tuple(raw[n] * sc + off for n, (sc, off) in zip(self.names, self._scale_offset))

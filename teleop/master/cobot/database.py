@@ -91,11 +91,11 @@ class FrameDatabase:
             if ck is not None and (self.codecs[name].names[-1] != ck or sig.length != 8 * CRC_BYTES
                                    or sig.start != 8 * (self.by_name[name].length - CRC_BYTES)):
                 raise CanError(f"can database {path}: {name}.{ck} must be a 32-bit CRC in the frame's last 4 bytes")
-        #: the compiled codec's tables of every message (frame_kernels' msgs, sig_i, sig_f, ids, order)
+        #: the compiled codec's tables of every message (a record: frame_kernels' msgs, sig_i, sig_f, ids, order)
         self.tables = layout_tables(messages, crc_of_id=lambda fid: compute_crc32(fid, b""))
         self.row = {m.name: i for i, m in enumerate(messages)}
         self._codec_by_row = [self.codecs[m.name] for m in messages]
-        self._vals = np.empty(self.tables[1].shape[1])
+        self._vals = np.empty(self.tables[0]["sig_f"].shape[1])
 
     def message(self, name: str):
         try:
@@ -138,8 +138,7 @@ class FrameDatabase:
         ``is_extended_id`` and ``is_fd`` are the frame's flags as received (every shipped message
         is a standard-id CAN FD frame)."""
         vals = self._vals
-        verdict, row = FK.check_frame(*self.tables, int(frame_id), bool(is_extended_id), bool(is_fd), bytes(data),
-                                      vals)
+        verdict, row = FK.check_frame(self.tables, int(frame_id), bool(is_extended_id), bool(is_fd), bytes(data), vals)
         return self.verdict(verdict, row, frame_id, data, timestamp, vals)
 
     def verdict(self, verdict: int, row: int, frame_id: int, data, timestamp: float, vals) -> Decoded | Rejected:
@@ -154,7 +153,7 @@ class FrameDatabase:
             except Exception:  # cantools raises several types on malformed payloads
                 return Rejected(frame_id, "decode", timestamp)
             vals = np.array(values, dtype=float)
-            sig_f = self.tables[2][row]
+            sig_f = self.tables[0]["sig_f"][row]
             bad = [i for i, v in enumerate(vals) if not sig_f[i, FK.S_DLO] <= v <= sig_f[i, FK.S_DHI]]
             verdict = FK.RANGE + bad[0] if bad else FK.OK
         if verdict >= FK.RANGE:

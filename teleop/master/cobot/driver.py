@@ -83,14 +83,13 @@ class CobotDriver:
         self._ds["jc"] = self._ds["wc"] = -1
         self._ds["step_max"] = -1.0  # no encoder check
         self._tables = self.db.tables
-        self._vals = np.empty(self._tables[1].shape[1])
-        self._tx_vals = np.empty(self._tables[1].shape[1])
-        self._row_joints, self._row_wrench, self._row_cmd = (self.db.row[n] for n in ("DEV_JOINTS", "DEV_WRENCH",
-                                                                                     "HOST_CMD"))
+        self._vals = np.empty(self._tables[0]["sig_f"].shape[1])
+        self._tx_vals = np.empty(self._tables[0]["sig_f"].shape[1])
+        self._ds["rows"] = self.db.row["DEV_JOINTS"], self.db.row["DEV_WRENCH"]
+        self._row_cmd = self.db.row["HOST_CMD"]
         self._cmd_id, self._cmd_fd, self._len_cmd = self._frame_format("HOST_CMD")
         self._sync_id, self._sync_fd, self._len_sync = self._frame_format("SYNC")
         self._row_sync = self.db.row["SYNC"]
-        self._tx_tables = self._tables[:3]
         self._sync = 0  # SYNCs sent
         self.last_device_hb_s: float | None = None
         self.fault: str | None = None
@@ -134,7 +133,7 @@ class CobotDriver:
 
     def _frame_format(self, name: str) -> tuple[int, bool, int]:
         """(frame id, FD, length) of message ``name``."""
-        row = self._tables[0][self.db.row[name]]
+        row = self._tables[0]["msgs"][self.db.row[name]]
         return int(row[FK.M_ID]), bool(row[FK.M_FD]), int(row[FK.M_LEN])
 
     # -- the receive state (fields of the record the compiled frame kernel updates) -----------------
@@ -252,7 +251,7 @@ class CobotDriver:
         self._sync += 1
         self._tx_vals[0] = c
         out = bytearray(self._len_sync)
-        if FK.pack_frame(*self._tx_tables, self._row_sync, self._tx_vals, out, True) >= 0:
+        if FK.pack_frame(self._tables, self._row_sync, self._tx_vals, out, True) >= 0:
             raise CanError(f"can encode SYNC: counter {c} outside the DBC's SyncCounter range")
         self._transmit("SYNC", self._sync_id, out, self._sync_fd)
         return c
@@ -275,7 +274,7 @@ class CobotDriver:
             qd = _ZERO6
         lim = _CMD_RANGE if limits is None else self._limits(limits)
         out = bytearray(self._len_cmd)
-        if FK.pack_command(*self._tx_tables, self._row_cmd, qd, lim, run, self._cmd, self._tx_vals, out) < 0:
+        if FK.pack_command(self._tables, self._row_cmd, qd, lim, run, self._cmd, self._tx_vals, out) < 0:
             raise CanError("can encode HOST_CMD: a clipped command outside the DBC's ranges (check CMD_RANGE)")
         self._cmd += 1
         self._transmit("HOST_CMD", self._cmd_id, out, self._cmd_fd)
@@ -294,8 +293,7 @@ class CobotDriver:
         number of valid frames decoded."""
         n = 0
         recv, rx = self.bus.recv, FK.rx_period_frame
-        msgs, sig_i, sig_f, ids, order = self._tables
-        ds, vals, jr, wr = self._ds, self._vals, self._row_joints, self._row_wrench
+        tab, ds, vals = self._tables, self._ds, self._vals
         for _ in range(self.max_frames_per_read):
             msg = recv(timeout=0.0)
             if msg is None:
@@ -304,8 +302,7 @@ class CobotDriver:
             if msg.is_error_frame:
                 self._on_error_frame(msg)
                 continue
-            verdict, row = rx(msgs, sig_i, sig_f, ids, order, ds, jr, wr, self._sync, msg.arbitration_id,
-                              msg.is_extended_id, msg.is_fd, msg.data, vals)
+            verdict, row = rx(tab, ds, self._sync, msg.arbitration_id, msg.is_extended_id, msg.is_fd, msg.data, vals)
             if verdict == FK.APPLIED or verdict == FK.LATE:
                 n += 1
                 self.errors.rx_ok()

@@ -8,7 +8,8 @@ from the id's CRC), each signal unpacked, scaled (``raw * scale + offset``) and 
 its DBC range. Encoding is the inverse (``raw = (v - offset) / scale``, rounded half to even for
 an integer signal, as cantools and Python's ``round`` do), strict, then sealed with the CRC.
 
-The layout tables (built by :func:`.codec.layout_tables`):
+The layout tables (built by :func:`.codec.layout_tables`), the fields of one record ``tab`` (a
+numpy structured array of shape (1,), so that a kernel call passes one argument for all five):
 
 * ``msgs`` int64 (n_msgs, MSG_COLS): frame id, extended id, FD, length, the CRC of the id alone
   (-1: unprotected), number of signals, big-endian, compiled (0: a layout the tables cannot hold;
@@ -102,19 +103,23 @@ def find_message(ids, order, frame_id):
 
 
 @njit(cache=True)
-def unpack_values(msgs, sig_i, sig_f, mi, data, vals):
+def unpack_values(tab, mi, data, vals):
     """Every signal of message row mi's payload ``data`` (of its length) into ``vals``, SI."""
+    t = tab[0]
+    msgs, sig_i, sig_f = t["msgs"], t["sig_i"], t["sig_f"]
     big = msgs[mi, M_BIG] != 0
     for i in range(msgs[mi, M_NSIG]):
         vals[i] = _signal_value(data, sig_i[mi, i], sig_f[mi, i], big)
 
 
 @njit(cache=True)
-def check_frame(msgs, sig_i, sig_f, ids, order, frame_id, extended, fd, data, vals):
+def check_frame(tab, frame_id, extended, fd, data, vals):
     """Check and decode one received frame into ``vals`` (SI, in the layout's signal order).
     Returns (verdict, message row): OK, one of the rejections (UNKNOWN_ID, ID_TYPE, FD_FLAG,
     LENGTH, CHECKSUM, RANGE + i), or NOT_COMPILED (the caller decodes with cantools)."""
-    mi = find_message(ids, order, frame_id)
+    t = tab[0]
+    msgs, sig_f = t["msgs"], t["sig_f"]
+    mi = find_message(t["ids"], t["order"], frame_id)
     if mi < 0:
         return UNKNOWN_ID, mi
     m = msgs[mi]
@@ -131,7 +136,7 @@ def check_frame(msgs, sig_i, sig_f, ids, order, frame_id, extended, fd, data, va
             return CHECKSUM, mi
     if m[M_COMPILED] == 0:
         return NOT_COMPILED, mi
-    unpack_values(msgs, sig_i, sig_f, mi, data, vals)
+    unpack_values(tab, mi, data, vals)
     for i in range(m[M_NSIG]):
         if not (sig_f[mi, i, S_DLO] <= vals[i] <= sig_f[mi, i, S_DHI]):  # NaN fails too
             return RANGE + i, mi
@@ -139,12 +144,14 @@ def check_frame(msgs, sig_i, sig_f, ids, order, frame_id, extended, fd, data, va
 
 
 @njit(cache=True)
-def pack_frame(msgs, sig_i, sig_f, mi, values, out, seal):
+def pack_frame(tab, mi, values, out, seal):
     """Encode ``values`` (SI, layout order) of message row mi into ``out`` (its length). ``seal``:
     the frame's CRC goes into its last four bytes (the checksum signal's value is not read); else
     every value is encoded as given. Returns -1, or the index of the first value outside its
     encode range or its bits (nothing is then promised of ``out``)."""
-    m = msgs[mi]
+    t = tab[0]
+    sig_i, sig_f = t["sig_i"], t["sig_f"]
+    m = t["msgs"][mi]
     big = m[M_BIG] != 0
     n = m[M_LEN]
     for b in range(n):
@@ -188,11 +195,12 @@ def pack_frame(msgs, sig_i, sig_f, mi, values, out, seal):
 
 #: the driver's receive state, one record (a numpy structured array of shape (1,)) the kernel below
 #: updates in place: joints (m x3, rad x3, the wrist unwrapped), wrench (N, N*m, load-cell frame),
-#: the last applied counters (-1: none yet), fresh flags and cycles since the last fresh reading,
+#: the message rows of DEV_JOINTS and DEV_WRENCH in the codec's tables (``rows``), the last applied
+#: counters (-1: none yet), fresh flags and cycles since the last fresh reading,
 #: device state, late frames, the encoder check's limits (6,: m, rad per SYNC; negative:
 #: off) and, after an encoder jump, its joint, size and gap in SYNCs (``jump``).
 DRIVER_STATE = np.dtype([
-    ("joints", "f8", 6), ("wrench", "f8", 6), ("jc", "i8"), ("wc", "i8"), ("fresh_j", "i8"), ("fresh_w", "i8"),
+    ("rows", "i8", 2), ("joints", "f8", 6), ("wrench", "f8", 6), ("jc", "i8"), ("wc", "i8"), ("fresh_j", "i8"), ("fresh_w", "i8"),
     ("since_j", "i8"), ("since_w", "i8"), ("dev_state", "i8"), ("late", "i8"),
     ("step_max", "f8", 6), ("jump", "f8", 3)])
 
@@ -203,23 +211,22 @@ def _newer(counter, last):
 
 
 @njit(cache=True)
-def rx_period_frame(msgs, sig_i, sig_f, ids, order, ds, joints_row, wrench_row, syncs, frame_id, extended, fd,
-                    data, vals):
+def rx_period_frame(tab, ds, syncs, frame_id, extended, fd, data, vals):
     """One received frame through :func:`check_frame` and, for the period's two device frames, into
-    the driver state ``ds`` (:data:`DRIVER_STATE`): DEV_JOINTS (row ``joints_row``: six joints, the
-    device state, the counter) and DEV_WRENCH (``wrench_row``: six wrench values, the counter).
+    the driver state ``ds`` (:data:`DRIVER_STATE`): DEV_JOINTS (row ``ds.rows[0]``: six joints, the
+    device state, the counter) and DEV_WRENCH (``ds.rows[1]``: six wrench values, the counter).
     A counter the host has not sent yet (``syncs``: the SYNCs sent so far) is rejected (FUTURE), an older one than the last applied is
     LATE; the wrist angles are unwrapped next to the previous reading; a joint that moved more
     than ``step_max`` times the SYNCs between readings is an ENCODER_JUMP (``ds.jump`` says which,
     how far, over how many). Returns (verdict, message row); any other valid message is OTHER with
     its values in ``vals``."""
-    verdict, mi = check_frame(msgs, sig_i, sig_f, ids, order, frame_id, extended, fd, data, vals)
+    verdict, mi = check_frame(tab, frame_id, extended, fd, data, vals)
     if verdict != OK:
         return verdict, mi
-    if mi != joints_row and mi != wrench_row:
-        return OTHER, mi
     r = ds[0]
-    is_joints = mi == joints_row
+    if mi != r["rows"][0] and mi != r["rows"][1]:
+        return OTHER, mi
+    is_joints = mi == r["rows"][0]
     counter = np.int64(vals[7] if is_joints else vals[6])
     if syncs == 0 or (syncs - 1 - counter) % 256 >= 128:  # a SYNC not sent yet: corrupted or foreign
         return FUTURE, mi
@@ -271,7 +278,7 @@ def end_cycle_counts(ds, stale_cycles):
 
 
 @njit(cache=True)
-def pack_command(msgs, sig_i, sig_f, mi, qd, limits, run, counter, values, out):
+def pack_command(tab, mi, qd, limits, run, counter, values, out):
     """HOST_CMD (row mi: six joint rates, the mode, the counter) into ``out``: the rates (6,: m/s
     x3, rad/s x3) clipped to ``limits`` (6,), mode 1; zero rates and mode 0 when not ``run`` or a
     rate is not finite. Returns whether the command ran (mode 1), or -1 if a value did not encode."""
@@ -282,6 +289,6 @@ def pack_command(msgs, sig_i, sig_f, mi, qd, limits, run, counter, values, out):
         values[i] = min(max(qd[i], -limits[i]), limits[i]) if ok else 0.0
     values[6] = 1.0 if ok else 0.0
     values[7] = counter % 256
-    if pack_frame(msgs, sig_i, sig_f, mi, values, out, True) >= 0:
+    if pack_frame(tab, mi, values, out, True) >= 0:
         return -1
     return 1 if ok else 0
