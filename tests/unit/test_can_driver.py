@@ -241,3 +241,88 @@ def test_an_encoder_jump_beyond_what_the_device_can_move_is_a_fault():
         if fault:
             assert link.driver.joints_rad_m[1] == pytest.approx(link.joints0[1], abs=3e-5)
         link.close()
+
+
+class Wire:
+    """The driver on a lockstep channel with a bare device end whose frames are built by cantools
+    and crccheck (not by the project's codec)."""
+
+    def __init__(self, step_max=0.01):
+        ch = f"wire-{uuid.uuid4().hex}"
+        self.db = FrameDatabase()
+        self.driver = CobotDriver(can.Bus(interface="teleop_lockstep", channel=ch), self.db, clock=lambda: 0.0,
+                                  own_bus=True, encoder_step_max=[step_max] * 6)
+        self.dev = can.Bus(interface="teleop_lockstep", channel=ch)
+
+    def device_frame(self, name, **signals):
+        from crccheck.crc import Crc32
+        msg = self.db.message(name)
+        ck = next(s.name for s in msg.signals if s.name.endswith("Checksum"))
+        body = msg.encode({**signals, ck: 0}, strict=True)[:-4]
+        crc = Crc32.calc(msg.frame_id.to_bytes(2, "little") + body)
+        self.dev.send(can.Message(arbitration_id=msg.frame_id, data=body + crc.to_bytes(4, "little"), is_fd=True,
+                                  is_extended_id=False))
+
+    def joints(self, counter, x=0.01):
+        self.device_frame("DEV_JOINTS", PosX=x, PosY=0.0, PosZ=0.0, AngA=0.0, AngB=0.0, AngC=3.1, DevState=2,
+                          JointsCounter=counter)
+
+    def host_frames(self):
+        out = []
+        while (m := self.dev.recv(timeout=0.0)) is not None:
+            out.append(self.db.db.decode_message(m.arbitration_id, bytes(m.data), decode_choices=False))
+        return out
+
+    def close(self):
+        self.driver.close()
+        self.dev.shutdown()
+
+
+def test_period_frames_counters_late_future_and_unwrapping():
+    """Joints of SYNC 1 then 0 (late: dropped), a counter never sent (rejected), a wrist angle
+    across ±pi (unwrapped next to the last reading)."""
+    w = Wire(step_max=0.1)
+    w.driver.start(np.zeros(6) + [0, 0, 0, 0, 0, 3.1])
+    for _ in range(2):
+        w.driver.send_sync()
+    w.joints(1)
+    w.joints(0)
+    w.joints(7)  # SYNC 7 was never sent
+    assert w.driver.read() == 3
+    assert w.driver.joints_counter == 1 and w.driver.frames_late == 1
+    assert w.driver.stats()["can_rejected_by_reason"] == {"counter": 1}
+    w.driver.send_sync()
+    w.device_frame("DEV_JOINTS", PosX=0.01, PosY=0.0, PosZ=0.0, AngA=0.0, AngB=0.0, AngC=-3.14, DevState=2,
+                   JointsCounter=2)
+    w.driver.read()
+    assert w.driver.joints_rad_m[5] == pytest.approx(2 * np.pi - 3.14, abs=1e-3)  # not -3.14: unwrapped
+    assert w.driver.fault is None
+    w.close()
+
+
+def test_the_command_frame_is_clipped_as_cantools_reads_it():
+    w = Wire()
+    w.driver.start()
+    w.host_frames()
+    w.driver.send_command(np.array([2.0, -0.5, 0.25, -20.0, 3.0, 0.0]), np.array([0.3, 0.3, 0.3, 10.0, 10.0, 10.0]))
+    w.driver.send_command(np.array([np.nan, 0, 0, 0, 0, 0]))
+    first, second = w.host_frames()
+    assert [first[k] for k in ("CmdVelX", "CmdVelY", "CmdVelZ", "CmdRateA", "CmdRateB", "CmdRateC")] == \
+        pytest.approx([0.3, -0.3, 0.25, -10.0, 3.0, 0.0], abs=3.1e-5)
+    assert first["CmdMode"] == 1 and first["CmdCounter"] == 0
+    assert second["CmdMode"] == 0 and second["CmdVelX"] == 0 and second["CmdCounter"] == 1  # non-finite: zero
+    w.close()
+
+
+def test_an_encoder_jump_latches_the_fault_and_leaves_the_reading():
+    w = Wire()
+    w.driver.start(np.zeros(6) + [0, 0, 0, 0, 0, 3.1])
+    w.driver.send_sync()
+    w.joints(0, x=0.01)
+    w.driver.read()
+    w.driver.send_sync()
+    w.joints(1, x=0.05)  # 40 mm in one SYNC, the limit 10 mm
+    w.driver.read()
+    assert w.driver.fault == "encoder_fault" and w.driver.joints_rad_m[0] == pytest.approx(0.01, abs=3e-5)
+    assert w.driver.stats()["can_rejected_by_reason"] == {"encoder_jump": 1}
+    w.close()
