@@ -12,7 +12,10 @@ the commanded velocity when the observer goes negative and adds the accumulated 
 position drift) to the commanded pose before the slave maps it; drift compensation pulls the offset
 back with surplus energy only. The slave's fixture projection and QP rows act after the guard, so a
 correction can never take the blade past the fixture. It stamps the slave port's input energy into
-every reply.
+every reply, and adds the drift to the reply's wrench as a spring (``drift_stiffness`` times the
+offset, mapped back to P): the master feels where the slave's target is, the hand works against
+that spring, and the energy it puts in is what the slave's drift compensation then spends (the
+slave port's books keep the contact wrench alone: the spring does no work on the environment).
 
 Both ports work in M units: the slave maps its contact wrench with the registration's
 ``wrench_to_master`` (force_scale, torque_scale), so power at both ports is counted alike. See
@@ -83,17 +86,28 @@ class SlaveGuard:
                            cmd.clutch, cmd.energy_J)
 
     def reply(self, fb: ContactFeedback) -> ContactFeedback:
-        """``fb`` with the slave port's input energy; remembers its wrench for the next tick."""
+        """``fb`` with the slave port's input energy and the drift spring added to its wrench
+        (nothing added while the offset is zero); remembers the contact wrench for the next tick."""
         self.f_M = self.reg.wrench_to_master(fb.wrench_P)
-        return ContactFeedback(fb.seq, fb.t_s, fb.wrench_P, fb.status, fb.command_seq, self.port.energy_J)
+        wrench_P = fb.wrench_P
+        off = self.port.offset
+        if np.any(off):  # the drift reflected to the master: a spring pulling it toward the slave's target
+            pull_M = np.asarray(self.port.params.drift_stiffness) * off
+            R = self.reg.X_PM_R
+            wrench_P = wrench_P + np.concatenate((R @ pull_M[:3] / self.reg.force_scale,
+                                                  R @ pull_M[3:] / self.reg.torque_scale))
+        return ContactFeedback(fb.seq, fb.t_s, wrench_P, fb.status, fb.command_seq, self.port.energy_J)
 
 
 def tdpa_params(link, dt_s: float, mass_kg: float, inertia_kgm2, enabled: bool) -> TdpaParams:
     """TdpaParams from a scene's [link] table: the master damping cap ``link.alpha_max`` times what
     the tool's explicit step takes (mass/dt on force axes, the smallest principal inertia/dt on
-    torque axes), so the damping can never destabilise the tool itself."""
+    torque axes), so the damping can never destabilise the tool itself; the reflected drift
+    spring ``drift_gain`` times that cap (1/s x N*s/m = N/m; N*m/rad on torque axes): the spring
+    pulls the master back at about the drift rate against the largest damping it may feel."""
     J = np.asarray(inertia_kgm2, dtype=float)
     j_min = float(np.min(np.linalg.eigvalsh(J))) if J.ndim == 2 else float(np.min(J))
     cap = (mass_kg / dt_s,) * 3 + (j_min / dt_s,) * 3
     return TdpaParams(dt_s=dt_s, enabled=enabled, alpha_max=tuple(link.alpha_max * c for c in cap),
-                      dv_max=link.dv_max_m_s, drift_gain=link.drift_gain)
+                      dv_max=link.dv_max_m_s, drift_gain=link.drift_gain,
+                      drift_stiffness=tuple(link.drift_gain * link.alpha_max * c for c in cap))
