@@ -67,6 +67,7 @@ class SlaveGuard:
         self.port = SlavePassivity(params, log_capacity)
         self.reg = registration
         self.f_M = np.zeros(6)  # the newest contact wrench, in M (N, N*m)
+        self.speed = np.zeros(6)  # |commanded twist| low-passed (drift_speed_tau_s), m/s and rad/s in M
 
     @property
     def drift_M(self) -> np.ndarray:
@@ -79,6 +80,8 @@ class SlaveGuard:
         live = cmd is not None and cmd.clutch
         v_des = np.concatenate((cmd.v_m_s, cmd.w_rad_s)) if live else _ZERO6
         v = self.port.step(v_des, self.f_M, None if cmd is None else cmd.energy_J, t_s)
+        p = self.port.params
+        self.speed = self.speed + p.dt_s / (p.drift_speed_tau_s + p.dt_s) * (np.abs(v_des) - self.speed)
         if not live:
             return cmd
         off = self.port.offset
@@ -92,7 +95,8 @@ class SlaveGuard:
         wrench_P = fb.wrench_P
         off = self.port.offset
         if np.any(off):  # the drift reflected to the master: a spring pulling it toward the slave's target
-            pull_M = np.asarray(self.port.params.drift_stiffness) * off
+            p = self.port.params
+            pull_M = np.asarray(p.drift_stiffness) * off * np.minimum(self.speed / p.drift_speed, 1.0)
             R = self.reg.X_PM_R
             wrench_P = wrench_P + np.concatenate((R @ pull_M[:3] / self.reg.force_scale,
                                                   R @ pull_M[3:] / self.reg.torque_scale))

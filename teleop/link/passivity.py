@@ -89,6 +89,12 @@ class TdpaParams:
         drift to the master, one number or six, >= 0 (0: none, the default here; scenes use
         drift_gain x alpha_max). On the 1-DOF stiff-wall test at 200 ms round trip it takes the
         final drift from 19.5 to 6.2 mm with 1000 N/m.
+    drift_speed: the commanded speed (m/s, rad/s; |twist| per axis low-passed over
+        ``drift_speed_tau_s`` s) from which the spring is felt in full; slower, in proportion, so
+        a held contact is not pushed back by it (at rest nobody pays for a catch-up: the spring
+        would only lift the hand; on stiff_contact it took the contact force from 0.16 to 0.03 N).
+        0.01 m/s and 0.2 s: the step-gated version (full spring while moving away from the
+        target) chattered on the cut at 50 ms, 0.6 mm of 2-50 Hz motion; this one 0.33 mm.
     """
 
     dt_s: float
@@ -100,6 +106,8 @@ class TdpaParams:
     drift_gain: float = 0.0
     drift_share: float = 0.5
     drift_stiffness: float | tuple = 0.0
+    drift_speed: float = 0.01
+    drift_speed_tau_s: float = 0.2
 
     def __post_init__(self):
         a = self.alpha_max
@@ -107,7 +115,8 @@ class TdpaParams:
             if len(a) != 6 or not all(isinstance(x, (int, float, np.floating)) and math.isfinite(x) and x > 0 for x in a):
                 raise ConfigError(f"TdpaParams.alpha_max: expected one or six finite numbers > 0, got {a!r}")
             object.__setattr__(self, "alpha_max", tuple(float(x) for x in a))
-        for name, lo in (("dt_s", 0.0), ("alpha_max", 0.0), ("v_floor", 0.0), ("f_floor", 0.0), ("dv_max", 0.0)):
+        for name, lo in (("dt_s", 0.0), ("alpha_max", 0.0), ("v_floor", 0.0), ("f_floor", 0.0), ("dv_max", 0.0),
+                         ("drift_speed", 0.0), ("drift_speed_tau_s", 0.0)):
             if name == "alpha_max" and isinstance(self.alpha_max, tuple):
                 continue
             v = getattr(self, name)

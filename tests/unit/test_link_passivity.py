@@ -141,7 +141,8 @@ def test_received_energy_is_held_and_never_decreases():
 @pytest.mark.parametrize("kw", [{"dt_s": 0}, {"dt_s": DT, "alpha_max": -1}, {"dt_s": DT, "drift_gain": -1},
                                 {"dt_s": DT, "drift_share": 2}, {"dt_s": float("nan")},
                                 {"dt_s": DT, "drift_stiffness": -1.0}, {"dt_s": DT, "drift_stiffness": (1.0, 2.0)},
-                                {"dt_s": DT, "drift_stiffness": float("inf")}])
+                                {"dt_s": DT, "drift_stiffness": float("inf")}, {"dt_s": DT, "drift_speed": 0.0},
+                                {"dt_s": DT, "drift_speed_tau_s": -1.0}])
 def test_params_are_validated(kw):
     with pytest.raises(ConfigError):
         TdpaParams(**kw)
@@ -151,7 +152,8 @@ def two_masses(rt_ms, guard, T=6.0, loss=0.0, seed=0, drift_gain=0.0, drift_k=0.
     """1-DOF: a hand (spring-damper to a target ramping to 30 mm) pushes a 0.5 kg master; the
     slave (0.5 kg, PD 2000 N/m, 40 N*s/m) follows the delayed master position, a 10 kN/m wall at
     10 mm; the wall force goes back and is rendered on the master, plus ``drift_k`` (N/m) times
-    the slave's offset (the drift reflected, as :class:`SlaveGuard` does). Rows: t, x_m, x_s, f on
+    the slave's offset (the drift reflected as :class:`SlaveGuard` does, without its speed gate:
+    the spring alone). Rows: t, x_m, x_s, f on
     the master, wall force, slave offset, the force the slave port counted, the velocity it
     commanded (s, m, m, N, N, m, N, m/s)."""
     ch = SimulatedChannel(ChannelSpec(round_trip_ms=rt_ms, loss=loss), np.random.default_rng(seed))
