@@ -2,6 +2,7 @@
 
     python tools/delay_study.py [--out docs/delay] [--delays 0 10 50 100 200 500 1000]
                                 [--losses 0 0.05] [--scenes straight_incision stiff_contact]
+                                [--guards off tdpa] [--reuse CSV ...]
                                 [--workers N | --scheduler ADDRESS]
 
 For each scene, round-trip delay (ms), message loss and guard (off / tdpa) it runs the scene in
@@ -17,11 +18,14 @@ and records:
 * ``follow_um``: RMS distance of the slave from its own (delayed, corrected) target (µm);
 * ``depth_um``: the cut depth error, max while in tissue (µm; scalpel scenes);
 * ``F_tissue`` / ``F_felt``: RMS contact force at the slave / RMS force felt at the master (N);
-* ``diss_mJ``: energy the guard dissipated, both ports (mJ); ``drift_mm``: the slave's largest
-  position offset from the guard (mm at the slave);
+* ``diss_mJ``: energy the guard dissipated, both ports (mJ); ``drift_mm`` / ``drift_end_mm``: the
+  slave's largest / final position offset from the guard (mm at the slave);
 * ``tick_us``: CPU per tick, median (µs).
 
-Writes ``delay.csv``, ``delay.md`` (the table), ``delay.png`` (the panels against delay) and
+``--reuse`` reads rows from earlier ``delay.csv`` files instead of running their points (a point
+is its scene, delay, loss and guard; the unguarded rows do not depend on the guard's code), so a
+study split over processes (``--scenes``, ``--guards``) is merged by one last call that runs
+nothing. Writes ``delay.csv``, ``delay.md`` (the table), ``delay.png`` (the panels against delay) and
 ``passivity.png`` (observers, dissipation and drift of the stiff scene at 200 ms, guarded).
 """
 
@@ -90,7 +94,8 @@ def run_point(name: str, delay_ms: float, loss: float, guard: bool, seconds: flo
         "F_tissue_max": float(contact.max(initial=0.0)),
         "F_felt": float(np.sqrt(np.mean(felt.F[:k] ** 2))) if k else 0.0,
         "diss_mJ": (p.get("dissipated_master_J", 0.0) + p.get("dissipated_slave_J", 0.0)) * 1e3,
-        "drift_mm": m.get("link_drift_max_m", 0.0) * 1e3, "tick_us": s["tick_us"]["median"], "wall_s": wall,
+        "drift_mm": m.get("link_drift_max_m", 0.0) * 1e3, "drift_end_mm": m.get("link_drift_final_m", 0.0) * 1e3,
+        "tick_us": s["tick_us"]["median"], "wall_s": wall,
     }
     return row, (log if guard else {})
 
@@ -103,7 +108,7 @@ def verdict(row: dict, ref_force_max: float) -> bool:
 
 
 COLUMNS = ("scene", "delay_ms", "loss", "guard", "stable", "status", "osc_mm", "track_mm", "follow_um",
-           "depth_um", "F_tissue", "F_felt", "diss_mJ", "drift_mm", "tick_us")
+           "depth_um", "F_tissue", "F_felt", "diss_mJ", "drift_mm", "drift_end_mm", "tick_us")
 
 
 def _fmt(v) -> str:
@@ -167,6 +172,30 @@ def sweep_point(point: tuple) -> tuple[dict, dict]:
     return row, (log if point[:4] == PASSIVITY_POINT else {})
 
 
+def row_key(point: tuple) -> tuple:
+    """(scene, delay_ms, loss, guard name) of a point: the key of its row in a delay.csv."""
+    return point[0], point[1], point[2], "tdpa" if point[3] else "off"
+
+
+def read_rows(paths) -> dict:
+    """{(scene, delay_ms, loss, guard): row} from earlier ``delay.csv`` files (later files win)."""
+    rows = {}
+    for path in paths:
+        with open(path, newline="") as f:
+            for r in csv.DictReader(f):
+                row = {}
+                for k, v in r.items():
+                    if k in ("scene", "guard", "status"):
+                        row[k] = v
+                    elif k in ("nan", "stable"):
+                        row[k] = v == "True"
+                    else:
+                        row[k] = float(v) if v not in ("", None) else float("nan")
+                row.setdefault("drift_end_mm", float("nan"))
+                rows[(row["scene"], row["delay_ms"], row["loss"], row["guard"])] = row
+    return rows
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--out", default="docs/delay")
@@ -174,6 +203,9 @@ def main(argv=None) -> int:
     ap.add_argument("--losses", type=float, nargs="+", default=LOSSES)
     ap.add_argument("--scenes", nargs="+", default=SCENES)
     ap.add_argument("--seconds", type=float, help="shorten every run to this (s)")
+    ap.add_argument("--guards", nargs="+", choices=("off", "tdpa"), default=("off", "tdpa"))
+    ap.add_argument("--reuse", nargs="+", default=(), metavar="CSV",
+                    help="take the rows of these earlier delay.csv files instead of running their points")
     add_sweep_args(ap)
     args = ap.parse_args(argv)
     check_sweep_args(ap, args)
@@ -184,16 +216,23 @@ def main(argv=None) -> int:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
+    for path in args.reuse:
+        if not Path(path).is_file():
+            ap.error(f"--reuse: {path}: no such file")
+    old = read_rows(args.reuse)
     points = [(name, float(delay), float(loss), guard, args.seconds) for name in args.scenes
-              for delay in args.delays for loss in args.losses for guard in (False, True)]
-    results = run_sweep(sweep_point, points, args.workers, args.scheduler, desc="delay study")
+              for delay in args.delays for loss in args.losses for guard in (False, True)
+              if ("tdpa" if guard else "off") in args.guards]
+    todo = [p for p in points if row_key(p) not in old]
+    ran = dict(zip(map(row_key, todo), run_sweep(sweep_point, todo, args.workers, args.scheduler, desc="delay study")))
+    results = [ran[row_key(p)] if row_key(p) in ran else (dict(old[row_key(p)]), {}) for p in points]
     rows, ref_force = [], {}
     for point, (row, log) in zip(points, results):
         # each scene's first point (the first delay and loss, unguarded) is its reference force
         row["stable"] = verdict(row, ref_force.setdefault(point[0], row["F_tissue_max"]))
         rows.append(row)
         print(" ".join(f"{c}={_fmt(row[c])}" for c in COLUMNS), flush=True)
-        if point[:4] == PASSIVITY_POINT:
+        if point[:4] == PASSIVITY_POINT and log:  # a reused row has no log
             plot_passivity(plt, log, "stiff_contact, 200 ms round trip, TDPA", out / "passivity.png")
     write_table(rows, out)
     plot(rows, out)

@@ -12,7 +12,10 @@ the commanded velocity when the observer goes negative and adds the accumulated 
 position drift) to the commanded pose before the slave maps it; drift compensation pulls the offset
 back with surplus energy only. The slave's fixture projection and QP rows act after the guard, so a
 correction can never take the blade past the fixture. It stamps the slave port's input energy into
-every reply.
+every reply, and adds the drift to the reply's wrench as a spring (``drift_stiffness`` times the
+offset, mapped back to P): the master feels where the slave's target is, the hand works against
+that spring, and the energy it puts in is what the slave's drift compensation then spends (the
+slave port's books keep the contact wrench alone: the spring does no work on the environment).
 
 Both ports work in M units: the slave maps its contact wrench with the registration's
 ``wrench_to_master`` (force_scale, torque_scale), so power at both ports is counted alike. See
@@ -64,6 +67,7 @@ class SlaveGuard:
         self.port = SlavePassivity(params, log_capacity)
         self.reg = registration
         self.f_M = np.zeros(6)  # the newest contact wrench, in M (N, N*m)
+        self.speed = np.zeros(6)  # |commanded twist| low-passed (drift_speed_tau_s), m/s and rad/s in M
 
     @property
     def drift_M(self) -> np.ndarray:
@@ -76,6 +80,8 @@ class SlaveGuard:
         live = cmd is not None and cmd.clutch
         v_des = np.concatenate((cmd.v_m_s, cmd.w_rad_s)) if live else _ZERO6
         v = self.port.step(v_des, self.f_M, None if cmd is None else cmd.energy_J, t_s)
+        p = self.port.params
+        self.speed = self.speed + p.dt_s / (p.drift_speed_tau_s + p.dt_s) * (np.abs(v_des) - self.speed)
         if not live:
             return cmd
         off = self.port.offset
@@ -83,17 +89,29 @@ class SlaveGuard:
                            cmd.clutch, cmd.energy_J)
 
     def reply(self, fb: ContactFeedback) -> ContactFeedback:
-        """``fb`` with the slave port's input energy; remembers its wrench for the next tick."""
+        """``fb`` with the slave port's input energy and the drift spring added to its wrench
+        (nothing added while the offset is zero); remembers the contact wrench for the next tick."""
         self.f_M = self.reg.wrench_to_master(fb.wrench_P)
-        return ContactFeedback(fb.seq, fb.t_s, fb.wrench_P, fb.status, fb.command_seq, self.port.energy_J)
+        wrench_P = fb.wrench_P
+        off = self.port.offset
+        if np.any(off):  # the drift reflected to the master: a spring pulling it toward the slave's target
+            p = self.port.params
+            pull_M = np.asarray(p.drift_stiffness) * off * np.minimum(self.speed / p.drift_speed, 1.0)
+            R = self.reg.X_PM_R
+            wrench_P = wrench_P + np.concatenate((R @ pull_M[:3] / self.reg.force_scale,
+                                                  R @ pull_M[3:] / self.reg.torque_scale))
+        return ContactFeedback(fb.seq, fb.t_s, wrench_P, fb.status, fb.command_seq, self.port.energy_J)
 
 
 def tdpa_params(link, dt_s: float, mass_kg: float, inertia_kgm2, enabled: bool) -> TdpaParams:
     """TdpaParams from a scene's [link] table: the master damping cap ``link.alpha_max`` times what
     the tool's explicit step takes (mass/dt on force axes, the smallest principal inertia/dt on
-    torque axes), so the damping can never destabilise the tool itself."""
+    torque axes), so the damping can never destabilise the tool itself; the reflected drift
+    spring ``drift_gain`` times that cap (1/s x N*s/m = N/m; N*m/rad on torque axes): the spring
+    pulls the master back at about the drift rate against the largest damping it may feel."""
     J = np.asarray(inertia_kgm2, dtype=float)
     j_min = float(np.min(np.linalg.eigvalsh(J))) if J.ndim == 2 else float(np.min(J))
     cap = (mass_kg / dt_s,) * 3 + (j_min / dt_s,) * 3
     return TdpaParams(dt_s=dt_s, enabled=enabled, alpha_max=tuple(link.alpha_max * c for c in cap),
-                      dv_max=link.dv_max_m_s, drift_gain=link.drift_gain)
+                      dv_max=link.dv_max_m_s, drift_gain=link.drift_gain,
+                      drift_stiffness=tuple(link.drift_gain * link.alpha_max * c for c in cap))

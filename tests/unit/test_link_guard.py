@@ -44,6 +44,9 @@ def test_damping_cap_follows_the_tool():
     p = tdpa_params(scene.link, 1e-3, 0.1, [0.0004, 0.0004, 0.00002], enabled=True)
     # 0.5 * m / dt on force axes, 0.5 * J_min / dt on torque axes (by hand)
     assert p.alpha_max == pytest.approx((50.0, 50.0, 50.0, 0.01, 0.01, 0.01))
+    # the reflected drift spring: drift_gain (2/s by default) x the damping cap, N/m and N*m/rad
+    assert scene.link.drift_gain == 2.0
+    assert p.drift_stiffness == pytest.approx((100.0, 100.0, 100.0, 0.02, 0.02, 0.02))
     J = np.diag([3e-4, 2e-4, 5e-4])
     assert tdpa_params(scene.link, 1e-3, 1.0, J, True).alpha_max[3] == pytest.approx(0.5 * 2e-4 / 1e-3)
 
@@ -81,6 +84,45 @@ def test_slave_guard_corrects_velocity_and_offsets_the_pose():
     assert g.drift_M[0] == pytest.approx(-0.05 * DT)
     np.testing.assert_allclose(out.R, np.eye(3))
     assert g.command(None, 2 * DT) is None  # nothing to follow: the slave holds
+
+
+def test_slave_guard_reflects_the_drift_to_the_master():
+    """The reply carries the contact wrench plus the drift spring, mapped back to P so that the
+    master, after ``wrench_to_master``, feels exactly K * offset more once the commanded speed is
+    past ``drift_speed`` (in proportion below it, nothing at rest); the slave port's own books
+    keep the contact wrench alone (the spring does no work on the slave's environment)."""
+    Rz = np.array([[0.0, -1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, 1.0]])  # M is P turned 90 deg about z
+    reg = Registration(np.zeros(3), Rz, 1.0, 0.5, 0.25)
+    K = (100.0, 200.0, 300.0, 1.0, 2.0, 3.0)
+    g = SlaveGuard(TdpaParams(dt_s=DT, drift_stiffness=K), reg)
+    contact = np.array([1.0, 2.0, 3.0, 0.1, 0.2, 0.3])
+    fb = g.reply(ContactFeedback(1, 0.0, contact, "ok", 0))
+    np.testing.assert_array_equal(fb.wrench_P, contact)  # no drift yet: the contact as measured
+    g.port.offset = np.array([1e-3, -2e-3, 0.0, 0.0, 0.0, 0.01])
+    fb = g.reply(ContactFeedback(2, DT, contact, "ok", 1))
+    np.testing.assert_array_equal(fb.wrench_P, contact)  # a drift, but nothing moves: nothing felt
+    g.speed = np.full(6, 0.5 * g.port.params.drift_speed)
+    fb = g.reply(ContactFeedback(2, DT, contact, "ok", 1))  # half the gate's speed: half the spring
+    np.testing.assert_allclose(reg.wrench_to_master(fb.wrench_P), [1.05, -0.7, 1.5, 0.05, -0.025, 0.09], atol=1e-12)
+    g.speed = np.full(6, 2.0 * g.port.params.drift_speed)
+    fb = g.reply(ContactFeedback(2, DT, contact, "ok", 1))
+    # by hand: R^T f = (2, -1, 3) x 0.5 + K * offset (0.1, -0.4, 0); R^T tau = (0.2, -0.1, 0.3) x 0.25 + (0, 0, 0.03)
+    np.testing.assert_allclose(reg.wrench_to_master(fb.wrench_P), [1.1, -0.9, 1.5, 0.05, -0.025, 0.105], atol=1e-12)
+    np.testing.assert_allclose(g.f_M, [1.0, -0.5, 1.5, 0.05, -0.025, 0.075], atol=1e-12)
+    assert fb.energy_J is not None and fb.seq == 2 and fb.status == "ok"
+
+
+def test_slave_guard_speed_follows_the_commanded_twist():
+    """The gate's speed: |twist| through a first-order low-pass of time constant tau (by hand:
+    after one tick dt / (tau + dt) of the step)."""
+    reg = Registration(np.zeros(3), np.eye(3), 1.0, 1.0)
+    g = SlaveGuard(TdpaParams(dt_s=DT, drift_speed_tau_s=0.2), reg)
+    cmd = ToolCommand(1, 0.0, [0.1, 0, 0], np.eye(3), [-0.05, 0, 0], [0, 0, 0.3], True)
+    g.command(cmd, DT)
+    a = DT / (0.2 + DT)
+    np.testing.assert_allclose(g.speed, a * np.array([0.05, 0, 0, 0, 0, 0.3]), rtol=1e-12)
+    g.command(None, 2 * DT)  # nothing commanded: the speed decays toward zero
+    np.testing.assert_allclose(g.speed, (1 - a) * a * np.array([0.05, 0, 0, 0, 0, 0.3]), rtol=1e-12)
 
 
 def test_zero_delay_channel_is_the_lockstep_link():

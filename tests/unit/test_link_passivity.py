@@ -138,25 +138,31 @@ def test_received_energy_is_held_and_never_decreases():
     assert port.E_remote[0] == 3.0
 
 
-@pytest.mark.parametrize("kw", [dict(dt_s=0), dict(dt_s=DT, alpha_max=-1), dict(dt_s=DT, drift_gain=-1),
-                                dict(dt_s=DT, drift_share=2), dict(dt_s=float("nan"))])
+@pytest.mark.parametrize("kw", [{"dt_s": 0}, {"dt_s": DT, "alpha_max": -1}, {"dt_s": DT, "drift_gain": -1},
+                                {"dt_s": DT, "drift_share": 2}, {"dt_s": float("nan")},
+                                {"dt_s": DT, "drift_stiffness": -1.0}, {"dt_s": DT, "drift_stiffness": (1.0, 2.0)},
+                                {"dt_s": DT, "drift_stiffness": float("inf")}, {"dt_s": DT, "drift_speed": 0.0},
+                                {"dt_s": DT, "drift_speed_tau_s": -1.0}])
 def test_params_are_validated(kw):
     with pytest.raises(ConfigError):
         TdpaParams(**kw)
 
 
-def two_masses(rt_ms, guard, T=6.0, loss=0.0, seed=0, drift_gain=0.0):
+def two_masses(rt_ms, guard, T=6.0, loss=0.0, seed=0, drift_gain=0.0, drift_k=0.0):
     """1-DOF: a hand (spring-damper to a target ramping to 30 mm) pushes a 0.5 kg master; the
     slave (0.5 kg, PD 2000 N/m, 40 N*s/m) follows the delayed master position, a 10 kN/m wall at
-    10 mm; the wall force goes back and is rendered on the master. Rows: t, x_m, x_s, f on the
-    master, wall force, slave offset (s, m, m, N, N, m)."""
+    10 mm; the wall force goes back and is rendered on the master, plus ``drift_k`` (N/m) times
+    the slave's offset (the drift reflected as :class:`SlaveGuard` does, without its speed gate:
+    the spring alone). Rows: t, x_m, x_s, f on
+    the master, wall force, slave offset, the force the slave port counted, the velocity it
+    commanded (s, m, m, N, N, m, N, m/s)."""
     ch = SimulatedChannel(ChannelSpec(round_trip_ms=rt_ms, loss=loss), np.random.default_rng(seed))
     n = int(round(T / DT))
-    prm = TdpaParams(dt_s=DT, enabled=guard, drift_gain=drift_gain)
+    prm = TdpaParams(dt_s=DT, enabled=guard, drift_gain=drift_gain, drift_stiffness=drift_k)
     mp, sp = MasterPassivity(prm, n), SlavePassivity(prm, n)
     m_m, b_m, m_s, K_h, B_h, Kp, Kd, k_w, x_w = 0.5, 0.5, 0.5, 300.0, 2.0, 2000.0, 40.0, 1e4, 0.01
     xm = vm = xs = vs = x_cmd = v_cmd = f_fb = 0.0
-    out = np.zeros((n, 6))
+    out = np.zeros((n, 8))
     for k in range(n):
         t = k * DT
         fb = ch.receive_feedback(t)
@@ -171,13 +177,14 @@ def two_masses(rt_ms, guard, T=6.0, loss=0.0, seed=0, drift_gain=0.0):
         cm = ch.receive_command(t)
         if cm is not None:
             x_cmd, v_cmd = cm.p_m[0], cm.v_m_s[0]
-        Fe = -k_w * (xs - x_w) if xs > x_w else 0.0
+        Fe = f_port = -k_w * (xs - x_w) if xs > x_w else 0.0  # the force the slave port counts
         v = sp.step(v_cmd * E6, Fe * E6, None if cm is None else cm.energy_J, t)[0]
         vs += DT * (Kp * (x_cmd + sp.offset[0] - xs) + Kd * (v - vs) + Fe) / m_s
         xs += DT * vs
         Fe = -k_w * (xs - x_w) if xs > x_w else 0.0
-        ch.send_feedback(ContactFeedback(k, t, [Fe, 0, 0, 0, 0, 0], "ok", command_seq=k, energy_J=sp.energy_J))
-        out[k] = (t, xm, xs, f, Fe, sp.offset[0])
+        reflected = Fe + drift_k * sp.offset[0]
+        ch.send_feedback(ContactFeedback(k, t, [reflected, 0, 0, 0, 0, 0], "ok", command_seq=k, energy_J=sp.energy_J))
+        out[k] = (t, xm, xs, f, Fe, sp.offset[0], f_port, v)
         if not abs(xm) < 10.0:  # diverged
             return out[: k + 1], mp, sp
     return out, mp, sp
@@ -226,3 +233,34 @@ def test_drift_compensation_spends_only_surplus_and_stays_stable():
     assert np.all(np.isfinite(comp)) and np.abs(comp[:, 1]).max() < 0.05
     assert abs(comp[-1, 5]) < abs(plain[-1, 5])  # less drift
     assert sp.log.W_J[: sp.log.n, 0].min() > -0.01
+
+
+def test_reflected_drift_is_compensated_and_the_slave_port_stays_passive():
+    """The drift reflected to the master as a spring (drift_k times the offset, in the feedback)
+    makes the hand pay for the catch-up: the hand works against the spring, that energy reaches the
+    slave's observer and the drift compensation spends it. At 200 ms round trip the final drift
+    is 19.5 mm without the spring and 6.2 mm with 1000 N/m; the bound is 8 mm (0.4x the
+    unreflected run's). The slave port's net output, summed here from the force and velocity it
+    used (not from its own books), never exceeds the master's energy it had received: what is
+    left below zero is the floor (f_floor, 1 mN) and the cap, nanojoules."""
+    plain, _, _ = two_masses(200.0, True, drift_gain=2.0)
+    comp, _, sp = two_masses(200.0, True, drift_gain=2.0, drift_k=1000.0)
+    assert len(comp) == 6000 and np.all(np.isfinite(comp))
+    assert abs(plain[-1, 5]) > 0.015  # the drift the reflection is measured against
+    assert abs(comp[-1, 5]) < 0.008 and abs(comp[-1, 5]) < 0.4 * abs(plain[-1, 5])
+    xm = comp[:, 1]
+    assert np.abs(xm).max() < 0.05 and np.abs(comp[:, 4]).max() < 50.0
+    assert swing(xm, 4500, 6000) <= 1.2 * swing(xm, 3000, 4500) + 1e-4  # not growing
+    net_out = np.cumsum(-comp[:, 6] * comp[:, 7]) * DT  # J the slave port put into the slave side
+    received = sp.log.E_remote_J[: sp.log.n, 0]  # the master's E_in as the slave had it each tick
+    assert np.all(net_out <= received + 1e-8)
+    assert sp.log.W_J[: sp.log.n, 0].min() > -1e-8  # the slave's observer after its controller
+
+
+def test_reflected_drift_changes_nothing_at_zero_delay():
+    """At zero delay the guard never acts, the offset stays zero and so does the reflected spring:
+    the run is the unguarded one bit for bit."""
+    a, _, sp = two_masses(0.0, True, T=3.0, drift_gain=2.0, drift_k=1000.0)
+    b, _, _ = two_masses(0.0, False, T=3.0)
+    np.testing.assert_array_equal(a, b)
+    assert not np.any(sp.offset)
