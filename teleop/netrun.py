@@ -159,25 +159,71 @@ def _hello(master, link, timeout_s: float) -> None:
         time.sleep(0.005)
 
 
-def run_master(scene, connect: str | None, listen: str | None = None, session: str = "default",
-               timeout_s: float = CONNECT_TIMEOUT_S, config_json5: dict | None = None) -> dict:
-    """The master process: returns its summary (also the master's metrics). ``config_json5``:
-    extra Zenoh settings (TLS, see :mod:`teleop.link.zenoh_link`)."""
+class _Bench:
+    """A link that goes nowhere, for a half's warm-up twin: sends nothing, hears nothing, and to
+    a slave hands a command holding ``pose`` (master frame) with the clutch engaged."""
+
+    def __init__(self, pose=None):
+        self.pose, self.last_receive_s, self.k = pose, None, 0
+
+    def clock(self) -> float:
+        return time.monotonic()
+
+    def send_command(self, msg) -> None:
+        pass
+
+    send_feedback = send_command
+
+    def receive_feedback(self, t_s: float = 0.0):
+        return None
+
+    def receive_command(self, t_s: float = 0.0):
+        self.k += 1
+        return ToolCommand(self.k, t_s, *self.pose, _Z3, _Z3, True)
+
+
+WARMUP_TICKS = 5  # ticks a half's twin runs before the clock starts
+
+
+def _master_half(scene, link, n: int):
+    """The master's half and its hooks, built from the scene (the run's, or a warm-up twin's);
+    returns (half, recorder, metrics, guard_log or None)."""
     rng = np.random.default_rng(scene.seed)
     tool = build_tool(scene)
     spec_M = master_fixture_spec(scene)
     operator = make_operator(scene.operator, spec_M, scene.effects, rng)
-    n = int(round(scene.duration_s / scene.dt_s))
     reg = build_registration(scene)
     feedback = FeedbackPath(reg, scene.mapping.feedback_cutoff_hz, scene.dt_s)
     guard = make_guard(scene, reg, n)
     metrics = MasterMetrics(make_metrics(spec_M, n, tool.body.mass_kg))
     recorder = MasterRecorder(tool, n)
-    hooks = [recorder, metrics] + ([_GuardLog(n, 0)] if guard else [])
+    glog = _GuardLog(n, 0) if guard else None
+    hooks = [recorder, metrics] + ([glog] if glog else [])
     master = make_master(scene, tool, rng)
-    link = _open_link("master", session, listen, connect, timeout_s, config_json5)
     half = MasterHalf(tool, master, operator, scene.dt_s, link, feedback, guard[0] if guard else None, hooks,
                       scene.link.heartbeat_ms * 1e-3)
+    return half, recorder, metrics, glog
+
+
+def warm_up_master(scene) -> None:
+    """Run a twin of the master's half for a few ticks on a link to nowhere, so that the first
+    calls (numba kernels loaded from the cache, 60-170 ms each here) happen before the clock
+    starts and not in the first ticks, where they tripped the 20 ms heartbeat."""
+    half = _master_half(scene, _Bench(), WARMUP_TICKS)[0]
+    with half.master:
+        for i in range(WARMUP_TICKS):
+            half.tick(i)
+
+
+def run_master(scene, connect: str | None, listen: str | None = None, session: str = "default",
+               timeout_s: float = CONNECT_TIMEOUT_S, config_json5: dict | None = None) -> dict:
+    """The master process: returns its summary (also the master's metrics). ``config_json5``:
+    extra Zenoh settings (TLS, see :mod:`teleop.link.zenoh_link`)."""
+    n = int(round(scene.duration_s / scene.dt_s))
+    warm_up_master(scene)
+    link = _open_link("master", session, listen, connect, timeout_s, config_json5)
+    half, recorder, metrics, glog = _master_half(scene, link, n)
+    master = half.master
     status, late = "ok", 0
     with link, master:
         _hello(master, link, timeout_s)
@@ -200,9 +246,36 @@ def run_master(scene, connect: str | None, listen: str | None = None, session: s
                        "p99": float(np.percentile(ticks, 99)) if len(ticks) else 0.0},
            "heartbeat": heart, "zenoh": link_stats, "slave_statuses_heard": half.slave_status,
            "command_errors": half.command_errors, "metrics": metrics.result()}
-    if guard:
-        out["passivity_master"] = hooks[-1].summary()
+    if glog:
+        out["passivity_master"] = glog.summary()
     return out
+
+
+def _slave_half(scene, link, cap: int):
+    """The slave's half and its hooks, built from the scene (the run's, or a warm-up twin's);
+    returns (half, metrics, counter, guard_log or None, the tool's start pose)."""
+    tool = build_tool(scene)  # only for the initial pose, as in the simulated run
+    reg = build_registration(scene)
+    constraints_P = build_fixture(scene.fixture).constraints
+    slave = make_slave(scene, reg, constraints_P)
+    slave.reset(*tool.pose())
+    guard = make_guard(scene, reg, cap)
+    rcm = [c for c in constraints_P if isinstance(c, RemoteCenter)]
+    metrics, counter = SlaveMetrics(scene.fixture, cap, slave.arm.nv, rcm), SlaveCounter()
+    glog = _GuardLog(cap, 1) if guard else None
+    hooks = [metrics, counter] + ([glog] if glog else [])
+    half = SlaveHalf(slave, link, guard[1] if guard else None, hooks, scene.link.heartbeat_ms * 1e-3, scene.dt_s)
+    return half, metrics, counter, glog, tool.pose()
+
+
+def warm_up_slave(scene) -> None:
+    """Run a twin of the slave's half for a few ticks, following a command that holds the start
+    pose (see :func:`warm_up_master`; here the fixture projection's kernels, 165 ms)."""
+    bench = _Bench()
+    half, _, _, _, pose = _slave_half(scene, bench, WARMUP_TICKS)
+    bench.pose = pose
+    for i in range(WARMUP_TICKS):
+        half.tick(i)
 
 
 def run_slave(scene, listen: str | None, connect: str | None = None, session: str = "default",
@@ -210,21 +283,11 @@ def run_slave(scene, listen: str | None, connect: str | None = None, session: st
     """The slave process: returns its summary (the slave's metrics)."""
     if scene.slave is None:
         raise TeleopError(f"{scene.path}: slave: the scene has no [slave] table: nothing to run on this side")
-    tool = build_tool(scene)  # only for the initial pose, as in the simulated run
-    reg = build_registration(scene)
-    constraints_P = build_fixture(scene.fixture).constraints
-    slave = make_slave(scene, reg, constraints_P)
-    slave.reset(*tool.pose())
-    for _ in range(3):  # warm up (first calls compile and allocate): holding still, no metrics
-        slave.follow(None, 0.0)
     n = int(round(scene.duration_s / scene.dt_s))
     cap = n + int(round(GRACE_S / scene.dt_s)) + 1
-    guard = make_guard(scene, reg, n)
-    rcm = [c for c in constraints_P if isinstance(c, RemoteCenter)]
-    metrics, counter = SlaveMetrics(scene.fixture, cap, slave.arm.nv, rcm), SlaveCounter()
-    hooks = [metrics, counter] + ([_GuardLog(cap, 1)] if guard else [])
+    warm_up_slave(scene)
     link = _open_link("slave", session, listen, connect, timeout_s, config_json5)
-    half = SlaveHalf(slave, link, guard[1] if guard else None, hooks, scene.link.heartbeat_ms * 1e-3, scene.dt_s)
+    half, metrics, counter, glog, _ = _slave_half(scene, link, cap)
     late = steps = 0
     tick_ns = []
     with link:
@@ -262,8 +325,8 @@ def run_slave(scene, listen: str | None, connect: str | None = None, session: st
            "zenoh": link_stats, "tick_us": {"median": float(np.median(tick_ns)) * 1e-3 if tick_ns else 0.0,
                                            "p99": float(np.percentile(tick_ns, 99)) * 1e-3 if tick_ns else 0.0},
            "metrics": metrics.result()}
-    if guard:
-        out["passivity_slave"] = hooks[-1].summary()
+    if glog:
+        out["passivity_slave"] = glog.summary()
     return out
 
 
