@@ -23,6 +23,7 @@ the safe state, s) in its summary; a run with any lost tick is ``link_lost``, no
 from __future__ import annotations
 
 import json
+import math
 import os
 import socket
 import subprocess
@@ -42,7 +43,8 @@ from teleop.runtime import make_guard, make_master, make_slave
 from teleop.scenario.build import build_fixture, build_registration, build_tool, master_fixture_spec
 from teleop.scenario.metrics import MasterMetrics, SlaveMetrics, make_metrics
 from teleop.scenario.operators import make_operator
-from teleop.session import GuardRecorder, MasterRecorder, SlaveCounter, _pace, run_status
+from teleop.session import (PACE_SPIN_S, GuardRecorder, MasterRecorder, SlaveCounter, _fine_timer_slack, _pace,
+                            run_status)
 
 GRACE_S = 2.0          # the slave's run beyond the scene's duration when the master is gone (s)
 CONNECT_TIMEOUT_S = 120.0  # the first message must come within this (s): a loaded machine is slow
@@ -51,8 +53,15 @@ _Z3 = np.zeros(3)
 
 
 class MasterHalf:
-    """The master's half of the tick (operator, sense, tool step, command, send; feedback in),
-    with the safe state on a lost link. Attributes as :class:`BilateralLoop` for the hooks."""
+    """The master's half of the tick (the slave's newest reply felt, operator, sense, tool step,
+    command, send), with the safe state on a lost link. Attributes as :class:`BilateralLoop` for
+    the hooks.
+
+    The reply is felt at the start of the tick, before the step: the reply to the command sent at
+    the end of the tick before, when the slave answered within the period, is then felt at the same
+    step as in one process (where it is felt at the end of the tick before); ``reply_lag`` counts
+    the ticks by how many ticks older the newest reply was (0: in step with one process; "none":
+    no new reply)."""
 
     def __init__(self, tool, master, operator, dt_s, link, feedback, guard, hooks, heartbeat_s):
         self.tool, self.master, self.operator, self.dt = tool, master, operator, dt_s
@@ -63,13 +72,25 @@ class MasterHalf:
         self.hand_W, self.feedback_W = np.zeros(6), np.zeros(6)
         self.tick_ns, self.status, self.command_errors = 0, "ok", 0
         self.slave_status: dict[str, int] = {}
+        self.reply_lag: dict = {}  # ticks whose newest reply answered the command of k ticks before the last
 
     def tick(self, i: int) -> str:
         t, master, tool = i * self.dt, self.master, self.tool
         for h in self.hooks:
             h.before_tick(i, t, self)
         t0 = time.perf_counter_ns()
+        msg = self.link.receive_feedback(t)  # the reply to the last command, if it is back
+        if msg is not None and msg.t_s >= 0:
+            self.slave_status[msg.status] = self.slave_status.get(msg.status, 0) + 1
+            self.peer_lost = msg.status == "link_lost"
+        lag = "none" if msg is None or msg.command_seq < 0 else min(i - msg.command_seq, 5)
+        self.reply_lag[lag] = self.reply_lag.get(lag, 0) + 1
         lost = self.heart.update(self.link.clock(), self.link.last_receive_s, self.peer_lost)
+        if not lost and i > 0:  # felt before the step, as one process feels it at the end of the tick before
+            self.feedback_W = self.feedback.update(msg)
+            if self.master_guard is not None:
+                self.feedback_W = self.master_guard.feedback(self.feedback_W, np.concatenate(tool.twist()), msg,
+                                                             t - self.dt)
         self.hand_W = self.operator.wrench(t, *master.hand_state())
         master.set_clutch(self.operator.clutch_engaged)
         f_v = master.sense(self.hand_W)
@@ -88,14 +109,6 @@ class MasterHalf:
                                                self.operator.clutch_engaged and not lost, energy))
         except MessageError:
             self.command_errors += 1
-        msg = self.link.receive_feedback(t)
-        if msg is not None and msg.t_s >= 0:
-            self.slave_status[msg.status] = self.slave_status.get(msg.status, 0) + 1
-            self.peer_lost = msg.status == "link_lost"
-        if not lost:
-            self.feedback_W = self.feedback.update(msg)
-            if self.master_guard is not None:
-                self.feedback_W = self.master_guard.feedback(self.feedback_W, np.concatenate(tool.twist()), msg, t)
         self.tick_ns = time.perf_counter_ns() - t0
         self.heart.motion(tool.pose()[0], float(np.linalg.norm(tool.qd)))
         for h in self.hooks:
@@ -132,6 +145,38 @@ class SlaveHalf:
         self.heart.motion(self.slave.state.p, float(np.linalg.norm(self.slave.arm.qd)))
         for h in self.hooks:
             h.after_tick(i, t, self)
+
+
+POLL_S = 1e-4  # the slave's poll period while it waits for the master's next command, unpinned (s)
+
+
+def claim_core(role: str) -> int | None:
+    """Pin this process to one core of those it may run on, the master to the first, the slave to
+    the second, so the two halves never share one (the threads started afterwards, Zenoh's,
+    inherit it; no root needed). Returns the core, or None (nothing done) with fewer than two.
+    A pinned half waits by spinning, not sleeping: a sleeping half's core goes to other jobs,
+    whose caches it then ticks in (measured on this 2-core machine under load: each tick's CPU
+    time doubled and the halves fell to 0.4-0.7 of real time; pinned and spinning, both held it)."""
+    cores = sorted(os.sched_getaffinity(0))
+    if len(cores) < 2:
+        return None
+    core = cores[0 if role == "master" else 1]
+    os.sched_setaffinity(0, {core})
+    return core
+
+
+def _await_command(link, seq: int, timeout: float, poll_s: float = POLL_S) -> None:
+    """Slave: wait until the command numbered ``seq`` (or a later one) has come, or the wall clock
+    (perf_counter, s) reaches ``timeout``, polling every ``poll_s`` (0: without sleeping). The slave ticks when the
+    master's command arrives, so its reply is back before the master's next tick (one process's
+    timing); the timeout, one period after the tick's nominal start, keeps it ticking (and its
+    heartbeat checked) when no command comes. (The caller's thread has 1 us timer slack.)"""
+    while link.newest_seq() < seq:
+        left = timeout - time.perf_counter()
+        if left <= 0:
+            return
+        if poll_s > 0:
+            time.sleep(min(left, poll_s))
 
 
 def _open_link(role: str, session: str, listen, connect, timeout_s: float, config_json5=None):
@@ -216,10 +261,12 @@ def warm_up_master(scene) -> None:
 
 
 def run_master(scene, connect: str | None, listen: str | None = None, session: str = "default",
-               timeout_s: float = CONNECT_TIMEOUT_S, config_json5: dict | None = None) -> dict:
+               timeout_s: float = CONNECT_TIMEOUT_S, config_json5: dict | None = None, pin: bool = True) -> dict:
     """The master process: returns its summary (also the master's metrics). ``config_json5``:
-    extra Zenoh settings (TLS, see :mod:`teleop.link.zenoh_link`)."""
+    extra Zenoh settings (TLS, see :mod:`teleop.link.zenoh_link`); ``pin``: :func:`claim_core`."""
     n = int(round(scene.duration_s / scene.dt_s))
+    core = claim_core("master") if pin else None
+    spin_s = math.inf if core is not None else PACE_SPIN_S
     warm_up_master(scene)
     link = _open_link("master", session, listen, connect, timeout_s, config_json5)
     half, recorder, metrics, glog = _master_half(scene, link, n)
@@ -235,8 +282,8 @@ def run_master(scene, connect: str | None, listen: str | None = None, session: s
             status = half.tick(i)
             if status != "ok":
                 break
-            late += _pace(wall0 + (i + 1) * scene.dt_s)
-        clock = _clock(wall0, recorder.n, scene.dt_s, behind)
+            late += _pace(wall0 + (i + 1) * scene.dt_s, spin_s)
+        clock = _clock(wall0, recorder.n, scene.dt_s, behind, core)
         link_stats = link.stats()
     ticks = recorder.log["tick_us"][: recorder.n]
     heart = half.heart.summary()
@@ -245,6 +292,7 @@ def run_master(scene, connect: str | None, listen: str | None = None, session: s
            "tick_us": {"median": float(np.median(ticks)) if len(ticks) else 0.0,
                        "p99": float(np.percentile(ticks, 99)) if len(ticks) else 0.0},
            "heartbeat": heart, "zenoh": link_stats, "slave_statuses_heard": half.slave_status,
+           "reply_lag_ticks": {str(k): v for k, v in sorted(half.reply_lag.items(), key=str)},
            "command_errors": half.command_errors, "metrics": metrics.result()}
     if glog:
         out["passivity_master"] = glog.summary()
@@ -279,10 +327,12 @@ def warm_up_slave(scene) -> None:
 
 
 def run_slave(scene, listen: str | None, connect: str | None = None, session: str = "default",
-              timeout_s: float = CONNECT_TIMEOUT_S, config_json5: dict | None = None) -> dict:
-    """The slave process: returns its summary (the slave's metrics)."""
+              timeout_s: float = CONNECT_TIMEOUT_S, config_json5: dict | None = None, pin: bool = True) -> dict:
+    """The slave process: returns its summary (the slave's metrics); ``pin``: :func:`claim_core`."""
     if scene.slave is None:
         raise TeleopError(f"{scene.path}: slave: the scene has no [slave] table: nothing to run on this side")
+    core = claim_core("slave") if pin else None
+    poll_s = 0.0 if core is not None else POLL_S
     n = int(round(scene.duration_s / scene.dt_s))
     cap = n + int(round(GRACE_S / scene.dt_s)) + 1
     warm_up_slave(scene)
@@ -303,6 +353,7 @@ def run_slave(scene, listen: str | None, connect: str | None = None, session: st
             if link.last_receive_s is not None:
                 link.send_feedback(ContactFeedback(0, -1.0, _Z6, "hold", -1))
             time.sleep(0.001)
+        _fine_timer_slack()
         wall0, behind = time.perf_counter(), 0.0
         for i in range(cap):
             half.heart.tick_late_s = max(0.0, time.perf_counter() - (wall0 + i * scene.dt_s))
@@ -312,8 +363,9 @@ def run_slave(scene, listen: str | None, connect: str | None = None, session: st
             steps = i + 1
             if half.last_seq >= n:
                 break
-            late += _pace(wall0 + (i + 1) * scene.dt_s)
-        clock = _clock(wall0, steps, scene.dt_s, behind)
+            late += time.perf_counter() > wall0 + (i + 1) * scene.dt_s
+            _await_command(link, i + 2, wall0 + (i + 2) * scene.dt_s, poll_s)
+        clock = _clock(wall0, steps, scene.dt_s, behind, core)
         link_stats = link.stats()
     heart = half.heart.summary()
     counts = counter.counts
@@ -330,15 +382,16 @@ def run_slave(scene, listen: str | None, connect: str | None = None, session: st
     return out
 
 
-def _clock(wall0: float, steps: int, dt_s: float, behind_s: float) -> dict:
+def _clock(wall0: float, steps: int, dt_s: float, behind_s: float, core: int | None = None) -> dict:
     """How the wall clock kept up: ``wall_s`` the tick loop took (s), ``realtime_factor`` the
     simulated time over it (1: real time), ``behind_max_ms`` the furthest a tick started behind
     its deadline (ms; once behind, the ticks run back to back until caught up, so late_ticks
     counts every one of those), ``load_1min`` the machine's load average at the end (the other
-    jobs' share of the cores: on 2 cores, a load of 4 leaves each process about half a core)."""
+    jobs' share of the cores: on 2 cores, a load of 4 leaves each process about half a core),
+    ``core`` the core the side was pinned to (None: not pinned)."""
     wall = time.perf_counter() - wall0
     return {"wall_s": wall, "realtime_factor": steps * dt_s / wall if wall > 0 else 0.0,
-            "behind_max_ms": behind_s * 1e3, "load_1min": os.getloadavg()[0]}
+            "behind_max_ms": behind_s * 1e3, "load_1min": os.getloadavg()[0], "core": core}
 
 
 class _GuardLog:

@@ -175,6 +175,12 @@ class ZenohLink(Link):
         self.poll()
         return self._box.take()
 
+    def newest_seq(self) -> int:
+        """The sequence number of the newest message received (taken or not; -1 before any)."""
+        self.poll()
+        box = self._box
+        return box.pending.seq if box.pending is not None else box.last_seq
+
     def send_command(self, msg: ToolCommand) -> None:
         self._send(msg, "master")
 
