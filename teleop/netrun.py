@@ -125,6 +125,7 @@ class SlaveHalf:
         self.master_guard = None
         self.heart = HeartbeatState(heartbeat_s)
         self.dt, self.tick_ns, self.last_seq = dt_s, 0, 0
+        self.without_command = self.skipped = 0  # ticks with no new command; commands never followed
         self.pending = None  # the first command, taken while answering hellos
 
     def tick(self, i: int) -> None:
@@ -138,7 +139,9 @@ class SlaveHalf:
         if cmd is not None and cmd.t_s < 0:
             cmd = None  # a hello
         if cmd is not None and not lost:
+            self.skipped += max(0, cmd.seq - self.last_seq - 1)
             self.last_seq = cmd.seq
+        self.without_command += cmd is None
         reply = follow_or_hold(self.slave, self.slave_guard, cmd, t, lost)  # lost: hold, say link_lost
         self.link.send_feedback(reply)
         self.tick_ns = time.perf_counter_ns() - t0
@@ -165,13 +168,14 @@ def claim_core(role: str) -> int | None:
     return core
 
 
-def _await_command(link, seq: int, timeout: float, poll_s: float = POLL_S) -> None:
-    """Slave: wait until the command numbered ``seq`` (or a later one) has come, or the wall clock
-    (perf_counter, s) reaches ``timeout``, polling every ``poll_s`` (0: without sleeping). The slave ticks when the
-    master's command arrives, so its reply is back before the master's next tick (one process's
-    timing); the timeout, one period after the tick's nominal start, keeps it ticking (and its
-    heartbeat checked) when no command comes. (The caller's thread has 1 us timer slack.)"""
-    while link.newest_seq() < seq:
+def _await_command(link, timeout: float, poll_s: float = POLL_S) -> None:
+    """Slave: wait until a command newer than the last one taken has come, or the wall clock
+    (perf_counter, s) reaches ``timeout``, polling every ``poll_s`` (0: without sleeping). The
+    slave ticks when the master's command arrives, so its reply is back before the master's next
+    tick (one process's timing); the timeout, one period after the tick's nominal start, keeps it
+    ticking (and its heartbeat checked) when no command comes; a slave behind its clock does not
+    wait (it replays the ticks it owes, as before)."""
+    while link.peek() is None:
         left = timeout - time.perf_counter()
         if left <= 0:
             return
@@ -364,7 +368,7 @@ def run_slave(scene, listen: str | None, connect: str | None = None, session: st
             if half.last_seq >= n:
                 break
             late += time.perf_counter() > wall0 + (i + 1) * scene.dt_s
-            _await_command(link, i + 2, wall0 + (i + 2) * scene.dt_s, poll_s)
+            _await_command(link, wall0 + (i + 2) * scene.dt_s, poll_s)
         clock = _clock(wall0, steps, scene.dt_s, behind, core)
         link_stats = link.stats()
     heart = half.heart.summary()
@@ -374,6 +378,7 @@ def run_slave(scene, listen: str | None, connect: str | None = None, session: st
         status = "link_lost"  # this side's own word for it (the lost ticks were counted as such)
     out = {"side": "slave", "status": status, "steps": steps, "late_ticks": late, "clock": clock,
            "followed_last_command": half.last_seq >= n, "slave_statuses": counts, "heartbeat": heart,
+           "ticks_without_command": half.without_command, "commands_skipped": half.skipped,
            "zenoh": link_stats, "tick_us": {"median": float(np.median(tick_ns)) * 1e-3 if tick_ns else 0.0,
                                            "p99": float(np.percentile(tick_ns, 99)) * 1e-3 if tick_ns else 0.0},
            "metrics": metrics.result()}

@@ -175,11 +175,10 @@ class ZenohLink(Link):
         self.poll()
         return self._box.take()
 
-    def newest_seq(self) -> int:
-        """The sequence number of the newest message received (taken or not; -1 before any)."""
+    def peek(self):
+        """The newest in-order message received and not yet taken (None if none), left in place."""
         self.poll()
-        box = self._box
-        return box.pending.seq if box.pending is not None else box.last_seq
+        return self._box.pending
 
     def send_command(self, msg: ToolCommand) -> None:
         self._send(msg, "master")
