@@ -8,10 +8,15 @@ Each process runs its half of :class:`teleop.loop.BilateralLoop`'s tick (the sam
 same order) and the two halves meet only in :class:`~teleop.link.zenoh_link.ZenohLink`. The
 passivity guard of the scene's [link] table runs at both ends, as in the simulated run.
 
-Start-up: the master sends hello commands (``t_s = -1``, clutch out) until a reply comes; the slave
-answers every hello. Both then run on their own clocks; the master ticks ``duration_s / dt_s``
-times, the slave until it has followed the master's last command (or, if the master is gone, for
-as long again plus ``GRACE_S``).
+Start-up: each side first runs a twin of its half for a few ticks on a link to nowhere (the
+numba kernels' first loads, not the first ticks). The master sends hello commands (``t_s = -1``,
+clutch out) until a reply comes; the slave answers every hello. The master then ticks
+``duration_s / dt_s`` times on the wall clock; the slave ticks when the master's next command
+arrives (or one period past its own nominal tick start if none comes; when behind, back to back),
+until it has followed the master's last command (or, if the master is gone, for as long again plus
+``GRACE_S``). The master feels the newest reply at the start of its tick: a reply back within the
+period is felt at the same step as in one process (``reply_lag_ticks`` 0). Each side is pinned to
+a core of its own and waits by spinning (:func:`claim_core`; ``--no-pin``: sleep instead).
 
 Heartbeat and safe states: :mod:`teleop.link.heartbeat`, the same as the in-process run's (a side
 that has heard nothing for ``link.heartbeat_ms``, 20 ms by default, goes to its safe state at once;
@@ -362,12 +367,12 @@ def run_slave(scene, listen: str | None, connect: str | None = None, session: st
         for i in range(cap):
             half.heart.tick_late_s = max(0.0, time.perf_counter() - (wall0 + i * scene.dt_s))
             behind = max(behind, half.heart.tick_late_s)
+            late += half.heart.tick_late_s > scene.dt_s  # past its timeout: a tick owed, run back to back
             half.tick(i)
             tick_ns.append(half.tick_ns)
             steps = i + 1
             if half.last_seq >= n:
                 break
-            late += time.perf_counter() > wall0 + (i + 1) * scene.dt_s
             _await_command(link, wall0 + (i + 2) * scene.dt_s, poll_s)
         clock = _clock(wall0, steps, scene.dt_s, behind, core)
         link_stats = link.stats()
