@@ -48,7 +48,7 @@ from teleop.runtime import make_guard, make_master, make_slave
 from teleop.scenario.build import build_fixture, build_registration, build_tool, master_fixture_spec
 from teleop.scenario.metrics import MasterMetrics, SlaveMetrics, make_metrics
 from teleop.scenario.operators import make_operator
-from teleop.session import (PACE_SPIN_S, GuardRecorder, MasterRecorder, SlaveCounter, _fine_timer_slack, _pace,
+from teleop.session import (_YIELD, PACE_SPIN_S, GuardRecorder, MasterRecorder, SlaveCounter, _fine_timer_slack, _pace,
                             run_status)
 
 GRACE_S = 2.0          # the slave's run beyond the scene's duration when the master is gone (s)
@@ -186,6 +186,8 @@ def _await_command(link, timeout: float, poll_s: float = POLL_S) -> None:
             return
         if poll_s > 0:
             time.sleep(min(left, poll_s))
+        elif _YIELD:
+            os.sched_yield()
 
 
 def _open_link(role: str, session: str, listen, connect, timeout_s: float, config_json5=None):

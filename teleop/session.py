@@ -19,6 +19,7 @@ from __future__ import annotations
 import ctypes
 import json
 import logging
+import os
 import signal
 import sys
 import threading
@@ -276,6 +277,7 @@ def _stop_requests():
 #: threads and the other side's process (two spinning processes on two cores starve them).
 PACE_SPIN_S = 5e-5
 _slack_threads: set[int] = set()
+_YIELD = hasattr(os, "sched_yield") and os.environ.get("TELEOP_NO_YIELD") is None
 
 
 def _fine_timer_slack() -> None:
@@ -301,7 +303,8 @@ def _pace(deadline: float, spin_s: float = PACE_SPIN_S) -> int:
     if deadline - now > spin_s:
         time.sleep(deadline - now - spin_s)
     while time.perf_counter() < deadline:
-        pass
+        if _YIELD:
+            os.sched_yield()  # a thread of this process's link woken on this core runs at once
     return 0
 
 
