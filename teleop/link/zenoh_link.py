@@ -13,8 +13,8 @@ frames to a ring of the newest ``RING`` (a Zenoh ``RingChannel``, in Rust); the 
 thread drains it (:meth:`ZenohLink.poll`, called by ``receive_*``, ``last_receive_s`` and
 ``stats``), decodes each frame and puts it in a :class:`Mailbox`. No Python code runs on Zenoh's
 threads: a Python callback there would wake a Python thread for every frame and make it and the
-control loop take turns at the GIL (measured: ticks of 5-6 ms, the interpreter's switch interval,
-and twice the CPU per tick; see the README, "Two processes over Zenoh"). ``receive_*`` never blocks
+control loop take turns at the GIL (measured: ticks of 5-6 ms, the interpreter's switch interval;
+see the README, "Two processes over Zenoh"). ``receive_*`` never blocks
 and returns the newest in-order message (or None). A frame that fails to decode is counted
 (``bad_frames``) and dropped. ``last_receive_s`` feeds the heartbeat (``alive(now_s,
 timeout_s=0.02)``): the clock's time of the poll *before* the one that found the last valid frame
