@@ -20,6 +20,8 @@ def add_subcommands(sub) -> None:
         p.add_argument("--set", action="append", default=[], metavar="KEY=VALUE", help="set any scene key (as 'run')")
         p.add_argument("--zenoh-config", metavar="FILE.json",
                        help='extra Zenoh settings, a JSON object {"path/to/key": "json5 value"} (e.g. TLS)')
+        p.add_argument("--no-pin", dest="pin", action="store_false",
+                       help="do not pin this side to a core of its own (pinned, it spins instead of sleeping)")
         p.add_argument("--json", help="write this side's summary as JSON here")
         p.set_defaults(func=cmd_side, role=role)
 
@@ -38,9 +40,11 @@ def cmd_side(args) -> int:
     scene = load_scene(args.scene, sets=args.set)
     extra = _zenoh_config(args.zenoh_config) if args.zenoh_config else None
     if args.role == "slave":
-        out = run_slave(scene, listen=args.endpoint, session=args.session, timeout_s=args.timeout, config_json5=extra)
+        out = run_slave(scene, listen=args.endpoint, session=args.session, timeout_s=args.timeout, config_json5=extra,
+                        pin=args.pin)
     else:
-        out = run_master(scene, connect=args.endpoint, session=args.session, timeout_s=args.timeout, config_json5=extra)
+        out = run_master(scene, connect=args.endpoint, session=args.session, timeout_s=args.timeout, config_json5=extra,
+                         pin=args.pin)
     out = {"scenario": scene.name, **out}
     if args.json:
         Path(args.json).parent.mkdir(parents=True, exist_ok=True)

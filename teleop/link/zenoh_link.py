@@ -8,11 +8,18 @@ are the :mod:`teleop.link.wire` bytes, put on two key expressions::
     teleop/<session>/fb    slave -> master (ContactFeedback)
 
 published with congestion control DROP, priority REAL_TIME and express (no batching): a late
-message is worth less than the next one, so nothing queues behind it. The subscriber callback
-(Zenoh's thread) decodes and hands the message to a :class:`Mailbox` under a lock; ``receive_*``
-never blocks and returns the newest in-order message (or None). A frame that fails to decode is
-counted (``bad_frames``) and dropped. ``last_receive_s`` (the clock's time of the last valid frame,
-even one not newer) feeds the heartbeat: ``alive(now_s, timeout_s=0.02)``.
+message is worth less than the next one, so nothing queues behind it. The subscriber hands the
+frames to a ring of the newest ``RING`` (a Zenoh ``RingChannel``, in Rust); the control loop's own
+thread drains it (:meth:`ZenohLink.poll`, called by ``receive_*``, ``last_receive_s`` and
+``stats``), decodes each frame and puts it in a :class:`Mailbox`. No Python code runs on Zenoh's
+threads: a Python callback there would wake a Python thread for every frame and make it and the
+control loop take turns at the GIL (measured: ticks of 5-6 ms, the interpreter's switch interval;
+see the README, "Two processes over Zenoh"). ``receive_*`` never blocks
+and returns the newest in-order message (or None). A frame that fails to decode is counted
+(``bad_frames``) and dropped. ``last_receive_s`` feeds the heartbeat (``alive(now_s,
+timeout_s=0.02)``): the clock's time of the poll *before* the one that found the last valid frame
+(even one not newer), a time the frame certainly arrived after, so the silence the heartbeat sees
+is never shorter than the real one.
 
 Two hosts, TLS with mutual authentication (zenoh 1.x configuration keys; certificates from your
 own CA). On the slave host, listening on its address::
@@ -41,7 +48,6 @@ Keep the TCP endpoint off anything but loopback; open only the TLS port between 
 from __future__ import annotations
 
 import json
-import threading
 import time
 from collections.abc import Callable
 
@@ -51,6 +57,7 @@ from teleop.link.base import Link, Mailbox
 from teleop.link.messages import ContactFeedback, MessageError, ToolCommand
 
 DEFAULT_ENDPOINT = "tcp/127.0.0.1:7447"
+RING = 64  # frames kept between two polls (the newest; 64 ms at 1 kHz)
 ROLES = ("master", "slave")
 
 
@@ -100,9 +107,9 @@ class ZenohLink(Link):
             listen, connect = (DEFAULT_ENDPOINT, None) if role == "slave" else (None, DEFAULT_ENDPOINT)
         self.role, self.session_name, self.clock = role, session, clock
         self.listen, self.connect = listen, connect
-        self._lock = threading.Lock()
         self._box = Mailbox()
-        self.last_receive_s: float | None = None
+        self._heard_s: float | None = None  # see last_receive_s
+        self._polled_s = clock()  # the clock's time of the last poll
         self.received = self.bad_frames = self.sent = 0
         self._closed = False
         try:
@@ -115,22 +122,41 @@ class ZenohLink(Link):
             f"teleop/{session}/{out_key}", congestion_control=zenoh.CongestionControl.DROP,
             priority=zenoh.Priority.REAL_TIME, express=True)
         self._in_type = ContactFeedback if role == "master" else ToolCommand
-        self._sub = self._session.declare_subscriber(f"teleop/{session}/{in_key}", self._on_sample)
+        self._sub = self._session.declare_subscriber(f"teleop/{session}/{in_key}", zenoh.handlers.RingChannel(RING))
 
-    def _on_sample(self, sample) -> None:
-        now = self.clock()
-        try:
-            msg = wire.decode(sample.payload.to_bytes())
-            if not isinstance(msg, self._in_type):
-                raise MessageError(f"wire: a {type(msg).__name__} on the {self._in_type.__name__} key")
-        except MessageError:
-            with self._lock:
+    def poll(self) -> int:
+        """Drain the frames Zenoh has received since the last poll into the mailbox (on the
+        caller's thread); returns how many were valid. Frames found now arrived after the last
+        poll, so ``last_receive_s`` becomes that poll's time."""
+        before, self._polled_s = self._polled_s, self.clock()
+        if self._closed:
+            return 0
+        valid = 0
+        while True:
+            try:
+                sample = self._sub.try_recv()
+            except Exception:  # the subscriber is gone (session closed): nothing more to take
+                return valid
+            if sample is None:
+                return valid
+            try:
+                msg = wire.decode(sample.payload.to_bytes())
+                if not isinstance(msg, self._in_type):
+                    raise MessageError(f"wire: a {type(msg).__name__} on the {self._in_type.__name__} key")
+            except MessageError:
                 self.bad_frames += 1
-            return
-        with self._lock:
+                continue
+            valid += 1
             self.received += 1
-            self.last_receive_s = now
+            self._heard_s = before
             self._box.put(msg)
+
+    @property
+    def last_receive_s(self) -> float | None:
+        """The clock's time (s) the last valid frame had certainly arrived after (the poll before
+        the one that found it; polled now); None before the first frame."""
+        self.poll()
+        return self._heard_s
 
     def _send(self, msg, role: str) -> None:
         if self.role != role:
@@ -146,8 +172,13 @@ class ZenohLink(Link):
     def _take(self, role: str):
         if self.role != role:
             raise LinkError(f"ZenohLink: the {self.role} side receives no such message")
-        with self._lock:
-            return self._box.take()
+        self.poll()
+        return self._box.take()
+
+    def peek(self):
+        """The newest in-order message received and not yet taken (None if none), left in place."""
+        self.poll()
+        return self._box.pending
 
     def send_command(self, msg: ToolCommand) -> None:
         self._send(msg, "master")
@@ -172,9 +203,9 @@ class ZenohLink(Link):
         return (self.clock() if now_s is None else now_s) - last <= timeout_s
 
     def stats(self) -> dict:
-        with self._lock:
-            return {"sent": self.sent, "received": self.received, "delivered": self._box.delivered,
-                    "dropped_old": self._box.dropped_old, "bad_frames": self.bad_frames}
+        self.poll()
+        return {"sent": self.sent, "received": self.received, "delivered": self._box.delivered,
+                "dropped_old": self._box.dropped_old, "bad_frames": self.bad_frames}
 
     def close(self) -> None:
         """Undeclare and close the session; safe to call twice."""

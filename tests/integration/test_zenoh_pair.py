@@ -46,6 +46,9 @@ def test_two_process_cut_over_zenoh_writes_one_summary(tmp_path):
     assert s["master"]["steps"] == 1000 and s["slave"]["followed_last_command"]
     assert s["nan"] is False and s["master"]["zenoh"]["bad_frames"] == 0
     assert s["metrics"]["cut_depth_error_max_m"] <= 50e-6
+    assert sum(s["master"]["reply_lag_ticks"].values()) == 1000  # every tick's reply accounted for
+    if len(os.sched_getaffinity(0)) >= 2:  # each side on a core of its own
+        assert {s["master"]["clock"]["core"], s["slave"]["clock"]["core"]} == set(sorted(os.sched_getaffinity(0))[:2])
     assert s["status"] == "ok", (s["status"], rc.stderr[-2000:])
     assert rc.returncode == 0
 

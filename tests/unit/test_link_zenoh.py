@@ -78,7 +78,7 @@ def test_hundred_messages_each_way_in_order(pair):
         assert s["received"] - base == 100 and s["bad_frames"] == 0
     m = ContactFeedback(seq=101, t_s=0.5, wrench_P=[1, 2, 3, 4, 5, 6], status="hold", command_seq=7, energy_J=[1] * 6)
     slave.send_feedback(m)
-    assert wait_for(lambda: master._box.pending is not None)
+    assert wait_for(lambda: master.poll() >= 0 and master._box.pending is not None)
     back = master.receive_feedback()
     assert back.seq == 101 and back.status == "hold" and list(back.wrench_P) == [1, 2, 3, 4, 5, 6]
 

@@ -1,0 +1,87 @@
+"""The two-process run's timing pieces: the pacing (sleep then spin, or spin all the way), the
+slave's wait for the master's next command, pinning each side to a core of its own, and the link's
+``last_receive_s`` never later than the frame's arrival."""
+
+import math
+import os
+import socket
+import time
+
+import numpy as np
+import pytest
+
+from teleop import netrun
+from teleop.link import ToolCommand
+from teleop.session import _pace
+
+
+def test_pace_returns_at_the_deadline_sleeping_or_spinning():
+    for spin_s in (5e-5, math.inf):
+        deadline = time.perf_counter() + 2e-3
+        assert _pace(deadline, spin_s) == 0
+        assert 0.0 <= time.perf_counter() - deadline < 1e-3  # not before it, soon after it
+    assert _pace(time.perf_counter() - 1e-3) == 1  # already late: counted, no wait
+
+
+class _Mailbox:
+    """A link whose next command shows up at a given wall-clock time."""
+
+    def __init__(self, at_s):
+        self.at_s = at_s
+
+    def peek(self):
+        return object() if time.perf_counter() >= self.at_s else None
+
+
+@pytest.mark.parametrize("poll_s", [0.0, 1e-4])
+def test_the_slave_ticks_when_the_command_comes_not_at_its_timeout(poll_s):
+    t0 = time.perf_counter()
+    netrun._await_command(_Mailbox(t0 + 2e-3), t0 + 0.5, poll_s)
+    waited = time.perf_counter() - t0
+    assert 2e-3 <= waited < 0.1  # returned on the command, far before the 0.5 s timeout
+
+
+def test_the_slave_stops_waiting_at_its_timeout_when_no_command_comes():
+    t0 = time.perf_counter()
+    netrun._await_command(_Mailbox(math.inf), t0 + 3e-3, 1e-4)
+    assert 3e-3 <= time.perf_counter() - t0 < 0.1
+
+
+def test_claim_core_pins_master_and_slave_to_different_cores(monkeypatch):
+    pinned = {}
+    monkeypatch.setattr(os, "sched_getaffinity", lambda pid: {3, 1, 5})
+    monkeypatch.setattr(os, "sched_setaffinity", lambda pid, cores: pinned.setdefault("cores", set(cores)))
+    assert netrun.claim_core("master") == 1 and pinned["cores"] == {1}
+    pinned.clear()
+    assert netrun.claim_core("slave") == 3 and pinned["cores"] == {3}
+    pinned.clear()
+    monkeypatch.setattr(os, "sched_getaffinity", lambda pid: {0})
+    assert netrun.claim_core("slave") is None and not pinned  # one core: nothing to share out
+
+
+def test_last_receive_s_is_never_later_than_the_frame_s_arrival():
+    pytest.importorskip("zenoh")
+    from teleop.link.zenoh_link import ZenohLink
+
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        ep = f"tcp/127.0.0.1:{s.getsockname()[1]}"
+    cmd = ToolCommand(1, 0.0, np.zeros(3), np.eye(3), np.zeros(3), np.zeros(3))
+    with ZenohLink("slave", session="lr", listen=ep) as slave, ZenohLink("master", session="lr", connect=ep) as master:
+        end = time.monotonic() + 20.0
+        while slave.last_receive_s is None and time.monotonic() < end:  # until the route is up
+            master.send_command(cmd)
+            time.sleep(0.01)
+        assert slave.last_receive_s is not None
+        t_empty = time.monotonic()
+        slave.receive_command()  # a poll that finds nothing new
+        time.sleep(0.05)
+        master.send_command(ToolCommand(2, 0.0, np.zeros(3), np.eye(3), np.zeros(3), np.zeros(3)))
+        end = time.monotonic() + 20.0
+        while slave.peek() is None and time.monotonic() < end:
+            time.sleep(0.001)
+        t_found = time.monotonic()
+        # the time of the poll before the one that found it: no earlier than the last empty poll,
+        # no later than the frame's arrival (so before it was found)
+        assert t_empty <= slave.last_receive_s <= t_found
+        assert slave.receive_command().seq == 2
