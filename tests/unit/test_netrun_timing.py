@@ -19,7 +19,9 @@ def test_pace_returns_at_the_deadline_sleeping_or_spinning():
     for spin_s in (5e-5, math.inf):
         deadline = time.perf_counter() + 2e-3
         assert _pace(deadline, spin_s) == 0
-        assert 0.0 <= time.perf_counter() - deadline < 1e-3  # not before it, soon after it
+        # never before it; after it by scheduling only (a loaded CI core may be taken for ms; a
+        # pacing bug that sleeps a period or more too long still shows)
+        assert 0.0 <= time.perf_counter() - deadline < 0.25
     assert _pace(time.perf_counter() - 1e-3) == 1  # already late: counted, no wait
 
 
@@ -36,15 +38,15 @@ class _Mailbox:
 @pytest.mark.parametrize("poll_s", [0.0, 1e-4])
 def test_the_slave_ticks_when_the_command_comes_not_at_its_timeout(poll_s):
     t0 = time.perf_counter()
-    netrun._await_command(_Mailbox(t0 + 2e-3), t0 + 0.5, poll_s)
+    netrun._await_command(_Mailbox(t0 + 2e-3), t0 + 2.0, poll_s)
     waited = time.perf_counter() - t0
-    assert 2e-3 <= waited < 0.1  # returned on the command, far before the 0.5 s timeout
+    assert 2e-3 <= waited < 0.5  # returned on the command, far before the 2 s timeout (slack: a loaded core)
 
 
 def test_the_slave_stops_waiting_at_its_timeout_when_no_command_comes():
     t0 = time.perf_counter()
     netrun._await_command(_Mailbox(math.inf), t0 + 3e-3, 1e-4)
-    assert 3e-3 <= time.perf_counter() - t0 < 0.1
+    assert 3e-3 <= time.perf_counter() - t0 < 0.5  # slack: a loaded core
 
 
 def test_claim_core_pins_master_and_slave_to_different_cores(monkeypatch):
