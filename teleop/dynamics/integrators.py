@@ -180,6 +180,7 @@ class Parametric(Integrator):
         #: one kernel call per step (kernels.steps) where psi is affine and the model all compiled
         self._fused = bool(parametrization.flat and model.fused)
         self._nonholonomic = bool(model.nonholonomic)
+        self._args = None  # (chart, the fused kernels' leading arguments for it)
         state.z, state.zd = parametrization.from_q(state.chart, state.q, state.qd)
 
     def _jac(self, chart, z):
@@ -232,21 +233,31 @@ class Parametric(Integrator):
             state.zd, state.qd = model.project_parameter_rates(pt, state.qd, P, Pinv)
         return ev
 
-    def _unpack(self, model, state, out, mats):
-        """The state and the start's evaluation from a fused kernel's (out, mats), as views."""
+    def _fused_args(self, model, chart) -> tuple:
+        """The fused kernels' arguments up to the state: :meth:`ConstrainedBody.fused_args`, then
+        P, P^+ and psi(0); kept for the chart last asked for."""
+        a = self._args
+        if a is None or a[0] is not chart:
+            a = self._args = (chart, (*model.fused_args(chart), self._P, self._pinv, self._q0))
+        return a[1]
+
+    def _unpack(self, model, state, out, mats, end: bool = False):
+        """The state and the start's evaluation from a fused kernel's (out, mats), as views;
+        ``end``: out ends with the step's end checks and twist (9,) (:attr:`Evaluation.end`)."""
         k = self._P.shape[1]
         o = 12 + 2 * k
         state.q, state.qd, state.z, state.zd = out[0:6], out[6:12], out[12:12 + k], out[12 + k:o]
         model.keep_pose_terms(state.chart, state.q, mats)
+        if end:
+            return model.evaluation(out[o:-9], None, out[-9:])
         return model.evaluation(out[o:], None)
 
     def _fused_step(self, model, state, h, operator_W):
         """The flat step (:meth:`step`, :meth:`_flat_step`) in one call of
         :func:`kernels.steps.flat_parametric_step`."""
-        F = model.operator_wrench(operator_W)
-        out, mats = flat_parametric_step(*model.fused_args(state.chart), self._P, self._pinv, self._q0, state.q,
-                                         state.qd, state.z, state.zd, F, h, self._nonholonomic)
-        return self._unpack(model, state, out, mats)
+        out, mats = flat_parametric_step(*self._fused_args(model, state.chart), state.q, state.qd, state.z,
+                                         state.zd, model.operator_wrench(operator_W), h, self._nonholonomic)
+        return self._unpack(model, state, out, mats, True)
 
 
 class EnergyConsistent(Parametric):
@@ -294,9 +305,8 @@ class EnergyConsistent(Parametric):
         Returns the start's evaluation and (a0, b0, K, a, b) of :func:`kernels.motion.energy_rates`;
         the non-conservative wrench is held at the start's over the step."""
         if self._fused:
-            F = model.operator_wrench(operator_W)
-            out, mats = flat_split_step(*model.fused_args(state.chart), self._P, self._pinv, self._q0, state.q,
-                                        state.qd, state.z, state.zd, F, h)
+            out, mats = flat_split_step(*self._fused_args(model, state.chart), state.q, state.qd, state.z,
+                                        state.zd, model.operator_wrench(operator_W), h)
             ev = self._unpack(model, state, out, mats)
             return ev, tuple(out[-5:].tolist())
         param, chart = self.param, state.chart

@@ -51,12 +51,13 @@ class PoseTerms:
 
     ``terms`` holds (R, E_B, E_B^-1, dE, E_W) as the kernel gave them, a tuple or a (5, 3, 3) array
     (a fused step's); the rate maps are read from it on demand (unpacking a 3-d array into five
-    views costs about 1.5 us, more than a fused step reads of them)."""
+    views costs about 1.5 us, more than a fused step reads of them). ``chart`` and ``q`` are the
+    objects they were computed for (the cache's key)."""
 
-    __slots__ = ("key", "p", "R", "terms")
+    __slots__ = ("chart", "q", "p", "R", "terms")
 
-    def __init__(self, key, p, terms):
-        self.key, self.p, self.terms, self.R = key, p, terms, terms[0]
+    def __init__(self, chart, q, terms):
+        self.chart, self.q, self.p, self.terms, self.R = chart, q, q[:3], terms, terms[0]
 
     @property
     def E_B(self) -> np.ndarray:
@@ -78,13 +79,17 @@ class PoseTerms:
 class Evaluation:
     """One evaluation at (q, qd): qdd (6,) chart accel., nudot (6,) world (vdot, wdot), lam (m,)
     (N, N*m), rank of the Delassus matrix, the applied wrench (6,), the constraint wrench
-    G^T lam (6,) (N, N*m, world, at the body origin) and the pose terms (None in twist form)."""
+    G^T lam (6,) (N, N*m, world, at the body origin) and the pose terms (None in twist form).
 
-    __slots__ = ("qdd", "nudot", "lam", "rank", "wrench_W", "constraint_wrench_W", "pose")
+    ``end``: None, or (the fused parametric step's) the checks and twist at the end of the step
+    that started with this evaluation, (9,): :func:`kernels.steps.end_checks`'s (total, v2, w2),
+    then the world twist nu (6,: m/s, rad/s)."""
 
-    def __init__(self, qdd, nudot, lam, rank, wrench_W, constraint_wrench_W, pose):
+    __slots__ = ("qdd", "nudot", "lam", "rank", "wrench_W", "constraint_wrench_W", "pose", "end")
+
+    def __init__(self, qdd, nudot, lam, rank, wrench_W, constraint_wrench_W, pose, end=None):
         self.qdd, self.nudot, self.lam, self.rank = qdd, nudot, lam, rank
-        self.wrench_W, self.constraint_wrench_W, self.pose = wrench_W, constraint_wrench_W, pose
+        self.wrench_W, self.constraint_wrench_W, self.pose, self.end = wrench_W, constraint_wrench_W, pose, end
 
 
 class ConstrainedBody:
@@ -120,18 +125,21 @@ class ConstrainedBody:
 
     # -- pose-only terms --------------------------------------------------------------------------
     def pose_terms(self, chart: EulerChart, q: np.ndarray) -> PoseTerms:
-        """The chart terms at q (6,), cached for the last pose asked for."""
-        qb = q.tobytes()
+        """The chart terms at q (6,), cached for the last pose asked for.
+
+        The key is the chart object and the q array object themselves (not their ids, not q's
+        values): the engine replaces its state arrays and never writes into them, so the same
+        object holds the same pose. (An equal q in another array is computed again, to the same
+        values.) Do not write into an array after asking for its pose terms."""
         c = self._cache
-        if c is not None and c.key[0] is chart and c.key[1] == qb:  # the chart object itself, not its id
+        if c is not None and c.q is q and c.chart is chart:
             return c
-        pt = PoseTerms((chart, qb), q[:3], K.rate_map_terms(chart.R0, chart.axes_array, q[3:]))
-        self._cache = pt
+        pt = self._cache = PoseTerms(chart, q, K.rate_map_terms(chart.R0, chart.axes_array, q[3:]))
         return pt
 
     def keep_pose_terms(self, chart: EulerChart, q: np.ndarray, mats: np.ndarray) -> PoseTerms:
         """Cache the pose terms mats (5, 3, 3) (R, E_B, E_B^-1, dE, E_W) a fused kernel computed at q."""
-        pt = self._cache = PoseTerms((chart, q.tobytes()), q[:3], mats)
+        pt = self._cache = PoseTerms(chart, q, mats)
         return pt
 
     def fused_args(self, chart: EulerChart) -> tuple:
@@ -187,11 +195,11 @@ class ConstrainedBody:
         out, mats = S.evaluate_at(*self.fused_args(chart), q, qd, F)
         return self.evaluation(out, self.keep_pose_terms(chart, q, mats))
 
-    def evaluation(self, out: np.ndarray, pose: PoseTerms | None) -> Evaluation:
+    def evaluation(self, out: np.ndarray, pose: PoseTerms | None, end=None) -> Evaluation:
         """The :class:`Evaluation` packed by a fused kernel in out (25 + m,) (see
-        :func:`kernels.steps.evaluate_at`), views into it."""
+        :func:`kernels.steps.evaluate_at`), views into it; ``end`` its :attr:`Evaluation.end`."""
         m = self.m
-        return Evaluation(out[0:6], out[6:12], out[24:24 + m], int(out[24 + m]), out[12:18], out[18:24], pose)
+        return Evaluation(out[0:6], out[6:12], out[24:24 + m], int(out[24 + m]), out[12:18], out[18:24], pose, end)
 
     def project_rates(self, pt: PoseTerms, qd: np.ndarray) -> np.ndarray:
         """The admissible rates closest to qd (6,) in kinetic energy, at the pose of ``pt``."""

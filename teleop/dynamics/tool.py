@@ -21,6 +21,7 @@ from teleop.dynamics.integrators import (
     project_position,
     project_velocity,
 )
+from teleop.dynamics.kernels.steps import end_checks
 from teleop.dynamics.model import ConstrainedBody
 from teleop.dynamics.rotations import EulerChart, chart_conditioning, rechart
 from teleop.errors import ConfigError, TeleopError
@@ -77,6 +78,9 @@ class ReferenceTool:
         if not (max_speed_m_s > 0 and max_rate_rad_s > 0):
             raise ConfigError("max_speed_m_s and max_rate_rad_s must be positive")
         self._max_v2, self._max_w2 = max_speed_m_s**2, max_rate_rad_s**2
+        #: (qd, q, chart, end) of the last fused parametric step: ``end`` (9,) holds the world twist
+        #: at that state in [3:9] (:attr:`~teleop.dynamics.model.Evaluation.end`); None: no such step
+        self._end = None
 
     # -- set-up -------------------------------------------------------------------------------------
     def reset(self, q0=None, qd0=None, t0: float = 0.0) -> None:
@@ -114,10 +118,9 @@ class ReferenceTool:
             operator_W = None  # a non-finite or misshapen input never reaches the math
         try:
             ev = self.integrator.step(self.model, s, h, operator_W)
-            x, y, z, a, b, c = s.qd.tolist()  # scalar arithmetic: cheaper than numpy for 6 values
-            v2, w2 = x * x + y * y + z * z, a * a + b * b + c * c
-            # a sum is finite only if every term is (inf - inf is NaN); cheaper than numpy for short arrays
-            ok = math.isfinite(sum(s.q.tolist()) + v2 + w2 + sum(ev.lam.tolist()) + sum(ev.nudot.tolist()))
+            end = ev.end  # the fused parametric step computed the checks in its kernel
+            total, v2, w2 = end_checks(s.q, s.qd, ev.lam, ev.nudot) if end is None else end[:3].tolist()
+            ok = math.isfinite(total)  # finite only if every term of the sum is
         except (TeleopError, FloatingPointError, np.linalg.LinAlgError, ValueError):
             ok, ev = False, None
         if not ok:
@@ -133,6 +136,7 @@ class ReferenceTool:
         self.lam, self.rank, self.wrench_W = ev.lam, ev.rank, ev.wrench_W
         self.acceleration_W = ev.nudot  # (vdot m/s^2, wdot rad/s^2), world: eq. 19's feedforward
         self._constraint_wrench = ev.constraint_wrench_W
+        self._end = None if end is None else (s.qd, s.q, s.chart, end)
         self._maybe_rechart()
         self.status = STATUS_NAN if bad_input else STATUS_OK
         return self.status
@@ -191,9 +195,13 @@ class ReferenceTool:
         return pt.p.copy(), pt.R
 
     def twist(self):
-        """(v (3,) m/s, w (3,) rad/s), world frame."""
-        pt = self.model.pose_terms(self.state.chart, self.state.q)
-        return self.state.qd[:3].copy(), pt.E_W @ self.state.qd[3:]
+        """(v (3,) m/s, w (3,) rad/s), world frame: the fused step's (the same product), while its
+        state stands (a re-chart, the safe state or a reset replace the arrays)."""
+        s, e = self.state, self._end
+        if e is not None and e[0] is s.qd and e[1] is s.q and e[2] is s.chart:
+            return e[3][3:6].copy(), e[3][6:9].copy()
+        pt = self.model.pose_terms(s.chart, s.q)
+        return s.qd[:3].copy(), pt.E_W @ s.qd[3:]
 
     def residual(self) -> np.ndarray:
         """Holonomic residuals (m or rad) at the current pose."""

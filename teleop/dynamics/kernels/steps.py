@@ -6,7 +6,9 @@ Python integrators chain them (:class:`teleop.dynamics.integrators.Parametric` a
 its own. Why: a Python-to-numba call costs about 1-3 us of dispatch, and every array a kernel
 returns costs a boxing (one ``_numba_unpickle`` of its type); on the paper's rolling disk the split
 path made five calls returning sixteen arrays per step. Here a step is one call returning two
-arrays, the packed output and the pose terms at its end.
+arrays, the packed output and the pose terms at its end. The parametric step also packs what the
+tool checks after a step (:func:`end_checks`) and the world twist at its end, so that neither
+needs another call or a numpy operation in Python.
 
 Inputs shared by the kernels: the chart (R0 (3, 3), axes (3,) int64), the compiled rows (``table``
 (k, 2) int64, ``params`` (k, NPAR), ``m`` rows in all, as in :func:`.rows.stack_rows`) and ``body``,
@@ -38,6 +40,26 @@ def body_pack(J, J_inv, mass: float, coriolis: bool, rtol: float, fx) -> np.ndar
     m (19), coriolis 0 or 1 (20), rtol (21), fx (22:27)."""
     return np.concatenate([np.ravel(J), np.ravel(J_inv), [1.0 / mass, mass, float(coriolis), rtol],
                            np.asarray(fx, dtype=float)])
+
+
+@njit(cache=True)
+def end_checks(q, qd, lam, nudot):
+    """(total, v2 (m/s)^2, w2 (rad/s)^2) after a step to (q (6,), qd (6,)) whose evaluation gave
+    lam (m,) and nudot (6,): total = sum q + v2 + w2 + sum lam + sum nudot, finite only if every
+    term is (inf - inf is NaN); v2 = |qd[:3]|^2, w2 = |qd[3:]|^2 the squared chart rates. The sums
+    run left to right, as Python's ``sum`` of floats (3.11) does."""
+    v2 = qd[0] * qd[0] + qd[1] * qd[1] + qd[2] * qd[2]
+    w2 = qd[3] * qd[3] + qd[4] * qd[4] + qd[5] * qd[5]
+    sq = 0.0
+    for x in q:
+        sq += x
+    sl = 0.0
+    for x in lam:
+        sl += x
+    sn = 0.0
+    for x in nudot:
+        sn += x
+    return sq + v2 + w2 + sl + sn, v2, w2
 
 
 @njit(cache=True)
@@ -93,12 +115,15 @@ def flat_parametric_step(R0, axes, table, params, m, body, P, Pinv, q0, q, qd, z
     :func:`.motion.project_parameter_rates` at the end pose.
 
     Returns (out, mats): out = (q, qd, z, zd, then the start's evaluation as in
-    :func:`evaluate_at`), length 12 + 2k + 25 + m; mats the pose terms at the end."""
+    :func:`evaluate_at`, then the end's :func:`end_checks` (3,) and world twist nu = (v, E_W thetadot)
+    (6,)), length 12 + 2k + 25 + m + 9; mats the pose terms at the end. (E_W thetadot is numpy's
+    dot, the BLAS product numpy's ``@`` gives.)"""
     k = P.shape[1]
     o = 12 + 2 * k
-    out = np.empty(o + 25 + m)
+    e = o + 25 + m
+    out = np.empty(e + 9)
     mats = np.empty((5, 3, 3))
-    ev = out[o:]
+    ev = out[o:e]
     ev[24 + m] = _evaluate_at(R0, axes, table, params, m, body, q, qd, F, mats, ev)
     z1, zd1, q1, qd1 = flat_advance(z, zd, ev[0:6], P, Pinv, q0, h)
     _pose(R0, axes, q1, mats)
@@ -108,6 +133,9 @@ def flat_parametric_step(R0, axes, table, params, m, body, P, Pinv, q0, q, qd, z
         J_inv = body[9:18].copy().reshape((3, 3))
         zd1, qd1 = project_parameter_rates(mats[0], mats[1], mats[2], J_inv, body[18], G, qd1, P, Pinv, body[21])
     out[0:6], out[6:12], out[12:12 + k], out[12 + k:o] = q1, qd1, z1, zd1
+    out[e], out[e + 1], out[e + 2] = end_checks(q1, qd1, ev[24:24 + m], ev[6:12])
+    out[e + 3:e + 6] = qd1[:3]
+    out[e + 6:e + 9] = np.dot(mats[4], qd1[3:])
     return out, mats
 
 
