@@ -137,7 +137,8 @@ class ReferenceTool:
         self.acceleration_W = ev.nudot  # (vdot m/s^2, wdot rad/s^2), world: eq. 19's feedforward
         self._constraint_wrench = ev.constraint_wrench_W
         self._end = None if end is None else (s.qd, s.q, s.chart, end)
-        self._maybe_rechart()
+        if self._rechartable:
+            self._maybe_rechart()
         self.status = STATUS_NAN if bad_input else STATUS_OK
         return self.status
 
@@ -163,7 +164,7 @@ class ReferenceTool:
 
     def _maybe_rechart(self) -> None:
         s = self.state
-        if not self._rechartable or chart_conditioning(s.chart, s.q[3:]) >= RECHART_BELOW:
+        if chart_conditioning(s.chart, s.q[3:]) >= RECHART_BELOW:
             return
         s.chart, theta, thetad = rechart(s.chart, s.q[3:], s.qd[3:])
         s.q = np.concatenate([s.q[:3], theta])
