@@ -81,7 +81,7 @@ class Evaluation:
     (N, N*m), rank of the Delassus matrix, the applied wrench (6,), the constraint wrench
     G^T lam (6,) (N, N*m, world, at the body origin) and the pose terms (None in twist form).
 
-    ``end``: None, or (the fused parametric step's) the checks and twist at the end of the step
+    ``end``: None, or (a fused step's) the checks and twist at the end of the step
     that started with this evaluation, (9,): :func:`kernels.steps.end_checks`'s (total, v2, w2),
     then the world twist nu (6,: m/s, rad/s)."""
 
@@ -231,8 +231,7 @@ class ConstrainedBody:
     # -- energy -------------------------------------------------------------------------------------
     def potential_energy(self, p, R) -> float:
         """Potential energy (J) of the conservative effects (gravity, springs) at pose (p, R)."""
-        g = self._fx
-        V = -(g[2] * p[0] + g[3] * p[1] + g[4] * p[2])
+        V = K.gravity_potential(self._fx, p)
         for e in self._conservative_py:
             V += e.potential_energy(p, R)
         return V

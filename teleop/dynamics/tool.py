@@ -78,7 +78,7 @@ class ReferenceTool:
         if not (max_speed_m_s > 0 and max_rate_rad_s > 0):
             raise ConfigError("max_speed_m_s and max_rate_rad_s must be positive")
         self._max_v2, self._max_w2 = max_speed_m_s**2, max_rate_rad_s**2
-        #: (qd, q, chart, end) of the last fused parametric step: ``end`` (9,) holds the world twist
+        #: (qd, q, chart, end) of the last fused step: ``end`` (9,) holds the world twist
         #: at that state in [3:9] (:attr:`~teleop.dynamics.model.Evaluation.end`); None: no such step
         self._end = None
 
@@ -118,7 +118,7 @@ class ReferenceTool:
             operator_W = None  # a non-finite or misshapen input never reaches the math
         try:
             ev = self.integrator.step(self.model, s, h, operator_W)
-            end = ev.end  # the fused parametric step computed the checks in its kernel
+            end = ev.end  # a fused step computed the checks in its kernel
             total, v2, w2 = end_checks(s.q, s.qd, ev.lam, ev.nudot) if end is None else end[:3].tolist()
             ok = math.isfinite(total)  # finite only if every term of the sum is
         except (TeleopError, FloatingPointError, np.linalg.LinAlgError, ValueError):

@@ -1,5 +1,5 @@
-"""What the tool checks after a step (kernels.steps.end_checks) and the twist the fused parametric
-step hands over, held against plain Python and numpy: the finiteness verdict and the squared speeds
+"""What the tool checks after a step (kernels.steps.end_checks) and the twist a fused step
+hands over, held against plain Python and numpy: the finiteness verdict and the squared speeds
 must be the ones Python's float arithmetic gives, and tool.twist() the product numpy's ``@`` gives
 at the tool's current state, whichever path computed it; a twist kept from a step never outlives
 the state it was computed for."""
@@ -11,6 +11,7 @@ import pytest
 from hypothesis import example, given, settings
 from hypothesis import strategies as st
 
+from teleop.dynamics.kernels.motion import energy_scale
 from teleop.dynamics.kernels.steps import end_checks
 from teleop.scenario.build import build_tool
 from teleop.scenario.operators import ScriptedWrench
@@ -62,7 +63,7 @@ def test_twist_is_numpys_product_at_the_current_state(integrator):
         np.testing.assert_allclose(w, pt.R @ (pt.E_B @ tool.qd[3:]), rtol=1e-12, atol=1e-15)
         v[0] = w[0] = 1e9  # the caller's copies: writing into them changes nothing of the tool's
         assert np.array_equal(tool.twist()[0], v_ref) and np.array_equal(tool.twist()[1], w_ref)
-    assert fused_twists == (300 if integrator == "parametric" else 0)  # energy rescales the rates after its kernel
+    assert fused_twists == (0 if integrator == "projection" else 300)  # the fused steps hand over their twist
 
 
 def test_a_kept_twist_does_not_outlive_its_state():
@@ -87,3 +88,20 @@ def test_a_kept_twist_does_not_outlive_its_state():
     v, w = tool.twist()
     v_ref, w_ref = _numpy_twist(tool)
     assert np.array_equal(v, v_ref) and np.array_equal(w, w_ref)
+
+
+def test_energy_scale_by_hand():
+    """The correction's root on hand-computed cases: no forces, an energy defect of 1 % on K = 1 J
+    (s = sqrt(1.01), then E1 = s^2 K); a defect beyond the bound (not applied, E1 = K + V); and
+    no kinetic energy to carry it (NaN, not applied)."""
+    s, E1, applied = energy_scale(1.01, 1.0, 0.0, 0.0, 0.0, 0.0, 0.0, 1e-3, 0.05)
+    assert applied and s == pytest.approx(math.sqrt(1.01), rel=1e-15) and E1 == pytest.approx(1.01, rel=1e-15)
+    s, E1, applied = energy_scale(1.5, 1.0, 0.0, 0.0, 0.0, 0.0, 0.25, 1e-3, 0.05)
+    assert not applied and s == pytest.approx(math.sqrt(1.25)) and E1 == 1.25
+    s, E1, applied = energy_scale(1.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 1e-3, 0.05)
+    assert not applied and math.isnan(s) and E1 == 0.0
+    # a power a = 2 W held over h at rates s: s^2 K - (h a / 2) s - (E0 + h a0 / 2) = 0
+    E0, K, a, h = 1.0, 1.0, 2.0, 1e-3
+    s, E1, applied = energy_scale(E0, K, a, 0.0, a, 0.0, 0.0, h, 0.05)
+    assert applied and s * s * K - 0.5 * h * a * s - (E0 + 0.5 * h * a) == pytest.approx(0.0, abs=1e-15)
+    assert E1 == pytest.approx(E0 + 0.5 * h * (a + a * s), rel=1e-15)

@@ -23,8 +23,10 @@ import numpy as np
 from numba import njit
 
 from teleop.dynamics.kernels.motion import (
+    energy_scale,
     evaluate,
     flat_advance,
+    gravity_potential,
     project_parameter_rates,
     rate_map_terms,
     split_end,
@@ -140,18 +142,22 @@ def flat_parametric_step(R0, axes, table, params, m, body, P, Pinv, q0, q, qd, z
 
 
 @njit(cache=True)
-def flat_split_step(R0, axes, table, params, m, body, P, Pinv, q0, q, qd, z, zd, F, h):
-    """Steps 1-3 of the ``energy`` integrator on psi(z) = q0 + P z, with the correction's terms:
-    the evaluation at the start, the half kick zd_h = zd + h/2 P^+ qdd, :func:`.motion.split_twist`,
-    the drift z1 = z + h zd_h, q1 = q0 + P z1 (:func:`.motion.flat_advance` with no acceleration),
-    and :func:`.motion.split_end` on every row at q1. F (6,) is the working wrench (the operator's).
+def flat_split_step(R0, axes, table, params, m, body, P, Pinv, q0, q, qd, z, zd, F, h, E0, max_scale):
+    """The ``energy`` integrator's step on psi(z) = q0 + P z: the evaluation at the start, the half
+    kick zd_h = zd + h/2 P^+ qdd, :func:`.motion.split_twist`, the drift z1 = z + h zd_h,
+    q1 = q0 + P z1 (:func:`.motion.flat_advance` with no acceleration), :func:`.motion.split_end` on
+    every row at q1, then the correction :func:`.motion.energy_scale` from the energy E0 (J)
+    before the step (the potential energy that of the compiled gravity, :func:`.motion.gravity_potential`;
+    a fused model has no other) and its rates scaled when it applies. F (6,) is the working wrench
+    (the operator's).
 
     Returns (out, mats): out = (q1, qd1, z1, zd1, the start's evaluation as in :func:`evaluate_at`,
-    a0, b0, K, a, b), length 12 + 2k + 25 + m + 5; mats the pose terms at the end."""
+    E1, applied (1.0 or 0.0), then the end's :func:`end_checks` (3,) and world twist (6,) as in
+    :func:`flat_parametric_step`), length 12 + 2k + 25 + m + 11; mats the pose terms at the end."""
     n, k = P.shape
     o = 12 + 2 * k
     e = o + 25 + m
-    out = np.empty(e + 5)
+    out = np.empty(e + 11)
     mats = np.empty((5, 3, 3))
     ev = out[o:e]
     ev[24 + m] = _evaluate_at(R0, axes, table, params, m, body, q, qd, F, mats, ev)
@@ -169,6 +175,15 @@ def flat_split_step(R0, axes, table, params, m, body, P, Pinv, q0, q, qd, z, zd,
     zero = np.zeros(3)
     G, _, _ = _rows(table, params, m, q1, mats[0], zero, zero)
     zd1, qd1, K, a, b = split_end(mats[0], mats[4], mats[2], J, J_inv, body[19], G, nu, P, Pinv, F, fx, body[21])
+    sc, E1, applied = energy_scale(E0, K, a, b, a0, b0, gravity_potential(fx, q1), h, max_scale)
+    if applied:
+        for i in range(n):
+            qd1[i] = sc * qd1[i]
+        for i in range(k):
+            zd1[i] = sc * zd1[i]
     out[0:6], out[6:12], out[12:12 + k], out[12 + k:o] = q1, qd1, z1, zd1
-    out[e], out[e + 1], out[e + 2], out[e + 3], out[e + 4] = a0, b0, K, a, b
+    out[e], out[e + 1] = E1, 1.0 if applied else 0.0
+    out[e + 2], out[e + 3], out[e + 4] = end_checks(q1, qd1, ev[24:24 + m], ev[6:12])
+    out[e + 5:e + 8] = qd1[:3]
+    out[e + 8:e + 11] = np.dot(mats[4], qd1[3:])
     return out, mats
