@@ -247,7 +247,7 @@ class Parametric(Integrator):
         o = 12 + 2 * k
         state.q, state.qd, state.z, state.zd = out[0:6], out[6:12], out[12:12 + k], out[12 + k:o]
         model.keep_pose_terms(state.chart, state.q, mats)
-        return model.evaluation(out[o:o + 25 + model.m], None, out[-9:])
+        return model.evaluation(out, None, out[-9:], o)
 
     def _fused_step(self, model, state, h, operator_W):
         """The flat step (:meth:`step`, :meth:`_flat_step`) in one call of

@@ -67,12 +67,12 @@ class ReferenceTool:
         )
         self.state = ToolState(chart, np.zeros(6), np.zeros(6))
         self.status = STATUS_OK
-        self.lam = np.zeros(self.model.m)
-        self.rank = self.model.m
-        self.wrench_W = np.zeros(6)
-        self._constraint_wrench = np.zeros(6)
+        #: the last ok step's evaluation, read by :attr:`lam`, :attr:`rank`, :attr:`wrench_W`,
+        #: :attr:`acceleration_W`, :attr:`constraint_wrench_W` (views, on demand); None: the values
+        #: held in ``_held`` (before any step, after a safe state)
+        self._ev = None
+        self._held = (np.zeros(self.model.m), self.model.m, np.zeros(6), np.zeros(6), np.zeros(6))
         self.recharts = 0
-        self.acceleration_W = np.zeros(6)
         #: the wrench (6,) the last step applied (operator and feedback; None: none), for energy audits
         self.applied_W = None
         if not (max_speed_m_s > 0 and max_rate_rad_s > 0):
@@ -133,9 +133,7 @@ class ReferenceTool:
             return self.status
         s.t += h
         self.applied_W = operator_W
-        self.lam, self.rank, self.wrench_W = ev.lam, ev.rank, ev.wrench_W
-        self.acceleration_W = ev.nudot  # (vdot m/s^2, wdot rad/s^2), world: eq. 19's feedforward
-        self._constraint_wrench = ev.constraint_wrench_W
+        self._ev = ev
         self._end = None if end is None else (s.qd, s.q, s.chart, end)
         if self._rechartable:
             self._maybe_rechart()
@@ -152,15 +150,41 @@ class ReferenceTool:
             s.zd = np.zeros_like(s.zd)
         self.integrator.reset(self.model, s, self.fixture.parametrization)
         self.status = STATUS_SINGULAR
-        self.lam = np.zeros(self.model.m)
-        self.acceleration_W = np.zeros(6)
-        self._constraint_wrench = np.zeros(6)
+        rank, wrench = self.rank, self.wrench_W  # kept from the last ok step
+        self._ev = None
+        self._held = (np.zeros(self.model.m), rank, wrench, np.zeros(6), np.zeros(6))
+
+    @property
+    def lam(self) -> np.ndarray:
+        """The multipliers (m,: N, N*m) of the last step (zeros after a safe state)."""
+        ev = self._ev
+        return self._held[0] if ev is None else ev.lam
+
+    @property
+    def rank(self) -> int:
+        """The Delassus matrix's numerical rank at the last ok step."""
+        ev = self._ev
+        return self._held[1] if ev is None else ev.rank
+
+    @property
+    def wrench_W(self) -> np.ndarray:
+        """The applied wrench (6,: N, N*m, world, at the body origin) of the last ok step."""
+        ev = self._ev
+        return self._held[2] if ev is None else ev.wrench_W
+
+    @property
+    def acceleration_W(self) -> np.ndarray:
+        """(vdot m/s^2, wdot rad/s^2) (6,), world, of the last step (zeros after a safe state):
+        eq. 19's feedforward."""
+        ev = self._ev
+        return self._held[3] if ev is None else ev.nudot
 
     @property
     def constraint_wrench_W(self) -> np.ndarray:
         """G^T lam (6,): the wrench (N, N*m, world, at the body origin) the constraints applied
         over the last step, the force the master renders."""
-        return self._constraint_wrench
+        ev = self._ev
+        return self._held[4] if ev is None else ev.constraint_wrench_W
 
     def _maybe_rechart(self) -> None:
         s = self.state
