@@ -97,7 +97,7 @@ class PackedEvaluation(Evaluation):
     wrench, G^T lam, lam, rank) (see :func:`kernels.steps.evaluate_at`), read on demand as views
     into out (a slice costs about 0.2 us; a step reads some of them, a tick not all)."""
 
-    __slots__ = ("_out", "_o", "_m")
+    __slots__ = ("_m", "_o", "_out")
 
     def __init__(self, out, o, m, pose, end=None):
         self._out, self._o, self._m, self.pose, self.end = out, o, m, pose, end
