@@ -19,7 +19,6 @@ twist evaluation) at the start of the step, whose multipliers are the step's con
 
 from __future__ import annotations
 
-import math
 from abc import ABC, abstractmethod
 from dataclasses import dataclass
 
@@ -28,7 +27,7 @@ import numpy as np
 import pinocchio as pin
 
 from teleop.dynamics.body import Kinematics
-from teleop.dynamics.kernels.motion import flat_advance, left_pinv, split_end, split_twist
+from teleop.dynamics.kernels.motion import energy_scale, flat_advance, left_pinv, split_end, split_twist
 from teleop.dynamics.kernels.steps import flat_parametric_step, flat_split_step
 from teleop.dynamics.multipliers import RANK_RTOL
 from teleop.dynamics.model import ConstrainedBody
@@ -180,6 +179,7 @@ class Parametric(Integrator):
         #: one kernel call per step (kernels.steps) where psi is affine and the model all compiled
         self._fused = bool(parametrization.flat and model.fused)
         self._nonholonomic = bool(model.nonholonomic)
+        self._args = None  # (chart, the fused kernels' leading arguments for it)
         state.z, state.zd = parametrization.from_q(state.chart, state.q, state.qd)
 
     def _jac(self, chart, z):
@@ -232,20 +232,28 @@ class Parametric(Integrator):
             state.zd, state.qd = model.project_parameter_rates(pt, state.qd, P, Pinv)
         return ev
 
+    def _fused_args(self, model, chart) -> tuple:
+        """The fused kernels' arguments up to the state: :meth:`ConstrainedBody.fused_args`, then
+        P, P^+ and psi(0); kept for the chart last asked for."""
+        a = self._args
+        if a is None or a[0] is not chart:
+            a = self._args = (chart, (*model.fused_args(chart), self._P, self._pinv, self._q0))
+        return a[1]
+
     def _unpack(self, model, state, out, mats):
-        """The state and the start's evaluation from a fused kernel's (out, mats), as views."""
+        """The state and the start's evaluation from a fused kernel's (out, mats), as views; out
+        ends with the step's end checks and twist (9,) (:attr:`Evaluation.end`)."""
         k = self._P.shape[1]
         o = 12 + 2 * k
         state.q, state.qd, state.z, state.zd = out[0:6], out[6:12], out[12:12 + k], out[12 + k:o]
         model.keep_pose_terms(state.chart, state.q, mats)
-        return model.evaluation(out[o:], None)
+        return model.evaluation(out, None, out[-9:], o)
 
     def _fused_step(self, model, state, h, operator_W):
         """The flat step (:meth:`step`, :meth:`_flat_step`) in one call of
         :func:`kernels.steps.flat_parametric_step`."""
-        F = model.operator_wrench(operator_W)
-        out, mats = flat_parametric_step(*model.fused_args(state.chart), self._P, self._pinv, self._q0, state.q,
-                                         state.qd, state.z, state.zd, F, h, self._nonholonomic)
+        out, mats = flat_parametric_step(*self._fused_args(model, state.chart), state.q, state.qd, state.z,
+                                         state.zd, model.operator_wrench(operator_W), h, self._nonholonomic)
         return self._unpack(model, state, out, mats)
 
 
@@ -292,13 +300,8 @@ class EnergyConsistent(Parametric):
     def _split_step(self, model, state, h, operator_W):
         """Steps 1-3 of the class docstring, then the correction's terms at both ends.
         Returns the start's evaluation and (a0, b0, K, a, b) of :func:`kernels.motion.energy_rates`;
-        the non-conservative wrench is held at the start's over the step."""
-        if self._fused:
-            F = model.operator_wrench(operator_W)
-            out, mats = flat_split_step(*model.fused_args(state.chart), self._P, self._pinv, self._q0, state.q,
-                                        state.qd, state.z, state.zd, F, h)
-            ev = self._unpack(model, state, out, mats)
-            return ev, tuple(out[-5:].tolist())
+        the non-conservative wrench is held at the start's over the step. (A fused model does the
+        whole step, the correction included, in :func:`kernels.steps.flat_split_step`.)"""
         param, chart = self.param, state.chart
         ev = model.evaluate(chart, state.q, state.qd, state.t, operator_W)
         pt0, body = ev.pose, model.body
@@ -317,6 +320,14 @@ class EnergyConsistent(Parametric):
         return ev, (a0, b0, K, a, b)
 
     def step(self, model, state, h, operator_W):
+        if self._base is None and self._fused:
+            out, mats = flat_split_step(*self._fused_args(model, state.chart), state.q, state.qd, state.z,
+                                        state.zd, model.operator_wrench(operator_W), h, self.E, self.MAX_SCALE)
+            ev = self._unpack(model, state, out, mats)
+            self.E, applied = out[-11:-9].tolist()
+            if not applied:
+                self.corrections_skipped += 1
+            return ev
         if self._base is None:
             ev, (a0, b0, K, a, b) = self._split_step(model, state, h, operator_W)
         else:
@@ -325,18 +336,13 @@ class EnergyConsistent(Parametric):
             K, a, b = model.energy_rates(model.pose_terms(state.chart, state.q), state.qd, state.t + h, operator_W)
         pt = model.pose_terms(state.chart, state.q)
         V = model.potential_energy(pt.p, pt.R)
-        # s^2 (K + h b / 2) - (h a / 2) s - (E0 + h P0 / 2 - V) = 0, the root near 1
-        A, B, C = K + 0.5 * h * b, 0.5 * h * a, self.E + 0.5 * h * (a0 - b0) - V
-        disc = B * B + 4.0 * A * C
-        s = (B + math.sqrt(disc)) / (2.0 * A) if A > 0.0 and disc >= 0.0 else math.nan
-        if abs(s - 1.0) <= self.MAX_SCALE:  # False for NaN
+        s, self.E, applied = energy_scale(self.E, K, a, b, a0, b0, V, h, self.MAX_SCALE)
+        if applied:
             state.qd = s * state.qd
             if self._base is None:
                 state.zd = s * state.zd
-            self.E = C + V + 0.5 * h * (a * s - b * s * s)  # = E0 + h/2 (P0 + P1(s)) = s^2 K + V
         else:
             self.corrections_skipped += 1
-            self.E = K + V
         return ev
 
 

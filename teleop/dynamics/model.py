@@ -51,12 +51,13 @@ class PoseTerms:
 
     ``terms`` holds (R, E_B, E_B^-1, dE, E_W) as the kernel gave them, a tuple or a (5, 3, 3) array
     (a fused step's); the rate maps are read from it on demand (unpacking a 3-d array into five
-    views costs about 1.5 us, more than a fused step reads of them)."""
+    views costs about 1.5 us, more than a fused step reads of them). ``chart`` and ``q`` are the
+    objects they were computed for (the cache's key)."""
 
-    __slots__ = ("key", "p", "R", "terms")
+    __slots__ = ("chart", "q", "p", "R", "terms")
 
-    def __init__(self, key, p, terms):
-        self.key, self.p, self.terms, self.R = key, p, terms, terms[0]
+    def __init__(self, chart, q, terms):
+        self.chart, self.q, self.p, self.terms, self.R = chart, q, q[:3], terms, terms[0]
 
     @property
     def E_B(self) -> np.ndarray:
@@ -78,13 +79,52 @@ class PoseTerms:
 class Evaluation:
     """One evaluation at (q, qd): qdd (6,) chart accel., nudot (6,) world (vdot, wdot), lam (m,)
     (N, N*m), rank of the Delassus matrix, the applied wrench (6,), the constraint wrench
-    G^T lam (6,) (N, N*m, world, at the body origin) and the pose terms (None in twist form)."""
+    G^T lam (6,) (N, N*m, world, at the body origin) and the pose terms (None in twist form).
 
-    __slots__ = ("qdd", "nudot", "lam", "rank", "wrench_W", "constraint_wrench_W", "pose")
+    ``end``: None, or (a fused step's) the checks and twist at the end of the step
+    that started with this evaluation, (9,): :func:`kernels.steps.end_checks`'s (total, v2, w2),
+    then the world twist nu (6,: m/s, rad/s)."""
 
-    def __init__(self, qdd, nudot, lam, rank, wrench_W, constraint_wrench_W, pose):
+    __slots__ = ("qdd", "nudot", "lam", "rank", "wrench_W", "constraint_wrench_W", "pose", "end")
+
+    def __init__(self, qdd, nudot, lam, rank, wrench_W, constraint_wrench_W, pose, end=None):
         self.qdd, self.nudot, self.lam, self.rank = qdd, nudot, lam, rank
-        self.wrench_W, self.constraint_wrench_W, self.pose = wrench_W, constraint_wrench_W, pose
+        self.wrench_W, self.constraint_wrench_W, self.pose, self.end = wrench_W, constraint_wrench_W, pose, end
+
+
+class PackedEvaluation(Evaluation):
+    """An :class:`Evaluation` packed by a fused kernel, out[o:o + 25 + m] = (qdd, nudot, total
+    wrench, G^T lam, lam, rank) (see :func:`kernels.steps.evaluate_at`), read on demand as views
+    into out (a slice costs about 0.2 us; a step reads some of them, a tick not all)."""
+
+    __slots__ = ("_m", "_o", "_out")
+
+    def __init__(self, out, o, m, pose, end=None):
+        self._out, self._o, self._m, self.pose, self.end = out, o, m, pose, end
+
+    @property
+    def qdd(self):
+        return self._out[self._o:self._o + 6]
+
+    @property
+    def nudot(self):
+        return self._out[self._o + 6:self._o + 12]
+
+    @property
+    def wrench_W(self):
+        return self._out[self._o + 12:self._o + 18]
+
+    @property
+    def constraint_wrench_W(self):
+        return self._out[self._o + 18:self._o + 24]
+
+    @property
+    def lam(self):
+        return self._out[self._o + 24:self._o + 24 + self._m]
+
+    @property
+    def rank(self):
+        return int(self._out[self._o + 24 + self._m])
 
 
 class ConstrainedBody:
@@ -120,18 +160,21 @@ class ConstrainedBody:
 
     # -- pose-only terms --------------------------------------------------------------------------
     def pose_terms(self, chart: EulerChart, q: np.ndarray) -> PoseTerms:
-        """The chart terms at q (6,), cached for the last pose asked for."""
-        qb = q.tobytes()
+        """The chart terms at q (6,), cached for the last pose asked for.
+
+        The key is the chart object and the q array object themselves (not their ids, not q's
+        values): the engine replaces its state arrays and never writes into them, so the same
+        object holds the same pose. (An equal q in another array is computed again, to the same
+        values.) Do not write into an array after asking for its pose terms."""
         c = self._cache
-        if c is not None and c.key[0] is chart and c.key[1] == qb:  # the chart object itself, not its id
+        if c is not None and c.q is q and c.chart is chart:
             return c
-        pt = PoseTerms((chart, qb), q[:3], K.rate_map_terms(chart.R0, chart.axes_array, q[3:]))
-        self._cache = pt
+        pt = self._cache = PoseTerms(chart, q, K.rate_map_terms(chart.R0, chart.axes_array, q[3:]))
         return pt
 
     def keep_pose_terms(self, chart: EulerChart, q: np.ndarray, mats: np.ndarray) -> PoseTerms:
         """Cache the pose terms mats (5, 3, 3) (R, E_B, E_B^-1, dE, E_W) a fused kernel computed at q."""
-        pt = self._cache = PoseTerms((chart, q.tobytes()), q[:3], mats)
+        pt = self._cache = PoseTerms(chart, q, mats)
         return pt
 
     def fused_args(self, chart: EulerChart) -> tuple:
@@ -187,11 +230,11 @@ class ConstrainedBody:
         out, mats = S.evaluate_at(*self.fused_args(chart), q, qd, F)
         return self.evaluation(out, self.keep_pose_terms(chart, q, mats))
 
-    def evaluation(self, out: np.ndarray, pose: PoseTerms | None) -> Evaluation:
-        """The :class:`Evaluation` packed by a fused kernel in out (25 + m,) (see
-        :func:`kernels.steps.evaluate_at`), views into it."""
-        m = self.m
-        return Evaluation(out[0:6], out[6:12], out[24:24 + m], int(out[24 + m]), out[12:18], out[18:24], pose)
+    def evaluation(self, out: np.ndarray, pose: PoseTerms | None, end=None, o: int = 0) -> Evaluation:
+        """The :class:`Evaluation` packed by a fused kernel in out[o:o + 25 + m] (see
+        :func:`kernels.steps.evaluate_at`), views into it (:class:`PackedEvaluation`); ``end`` its
+        :attr:`Evaluation.end`."""
+        return PackedEvaluation(out, o, self.m, pose, end)
 
     def project_rates(self, pt: PoseTerms, qd: np.ndarray) -> np.ndarray:
         """The admissible rates closest to qd (6,) in kinetic energy, at the pose of ``pt``."""
@@ -223,8 +266,7 @@ class ConstrainedBody:
     # -- energy -------------------------------------------------------------------------------------
     def potential_energy(self, p, R) -> float:
         """Potential energy (J) of the conservative effects (gravity, springs) at pose (p, R)."""
-        g = self._fx
-        V = -(g[2] * p[0] + g[3] * p[1] + g[4] * p[2])
+        V = K.gravity_potential(self._fx, p)
         for e in self._conservative_py:
             V += e.potential_energy(p, R)
         return V

@@ -21,6 +21,7 @@ from teleop.dynamics.integrators import (
     project_position,
     project_velocity,
 )
+from teleop.dynamics.kernels.steps import end_checks
 from teleop.dynamics.model import ConstrainedBody
 from teleop.dynamics.rotations import EulerChart, chart_conditioning, rechart
 from teleop.errors import ConfigError, TeleopError
@@ -66,17 +67,20 @@ class ReferenceTool:
         )
         self.state = ToolState(chart, np.zeros(6), np.zeros(6))
         self.status = STATUS_OK
-        self.lam = np.zeros(self.model.m)
-        self.rank = self.model.m
-        self.wrench_W = np.zeros(6)
-        self._constraint_wrench = np.zeros(6)
+        #: the last ok step's evaluation, read by :attr:`lam`, :attr:`rank`, :attr:`wrench_W`,
+        #: :attr:`acceleration_W`, :attr:`constraint_wrench_W` (views, on demand); None: the values
+        #: held in ``_held`` (before any step, after a safe state)
+        self._ev = None
+        self._held = (np.zeros(self.model.m), self.model.m, np.zeros(6), np.zeros(6), np.zeros(6))
         self.recharts = 0
-        self.acceleration_W = np.zeros(6)
         #: the wrench (6,) the last step applied (operator and feedback; None: none), for energy audits
         self.applied_W = None
         if not (max_speed_m_s > 0 and max_rate_rad_s > 0):
             raise ConfigError("max_speed_m_s and max_rate_rad_s must be positive")
         self._max_v2, self._max_w2 = max_speed_m_s**2, max_rate_rad_s**2
+        #: (qd, q, chart, end) of the last fused step: ``end`` (9,) holds the world twist
+        #: at that state in [3:9] (:attr:`~teleop.dynamics.model.Evaluation.end`); None: no such step
+        self._end = None
 
     # -- set-up -------------------------------------------------------------------------------------
     def reset(self, q0=None, qd0=None, t0: float = 0.0) -> None:
@@ -114,10 +118,9 @@ class ReferenceTool:
             operator_W = None  # a non-finite or misshapen input never reaches the math
         try:
             ev = self.integrator.step(self.model, s, h, operator_W)
-            x, y, z, a, b, c = s.qd.tolist()  # scalar arithmetic: cheaper than numpy for 6 values
-            v2, w2 = x * x + y * y + z * z, a * a + b * b + c * c
-            # a sum is finite only if every term is (inf - inf is NaN); cheaper than numpy for short arrays
-            ok = math.isfinite(sum(s.q.tolist()) + v2 + w2 + sum(ev.lam.tolist()) + sum(ev.nudot.tolist()))
+            end = ev.end  # a fused step computed the checks in its kernel
+            total, v2, w2 = end_checks(s.q, s.qd, ev.lam, ev.nudot) if end is None else end[:3].tolist()
+            ok = math.isfinite(total)  # finite only if every term of the sum is
         except (TeleopError, FloatingPointError, np.linalg.LinAlgError, ValueError):
             ok, ev = False, None
         if not ok:
@@ -130,10 +133,10 @@ class ReferenceTool:
             return self.status
         s.t += h
         self.applied_W = operator_W
-        self.lam, self.rank, self.wrench_W = ev.lam, ev.rank, ev.wrench_W
-        self.acceleration_W = ev.nudot  # (vdot m/s^2, wdot rad/s^2), world: eq. 19's feedforward
-        self._constraint_wrench = ev.constraint_wrench_W
-        self._maybe_rechart()
+        self._ev = ev
+        self._end = None if end is None else (s.qd, s.q, s.chart, end)
+        if self._rechartable:
+            self._maybe_rechart()
         self.status = STATUS_NAN if bad_input else STATUS_OK
         return self.status
 
@@ -147,19 +150,45 @@ class ReferenceTool:
             s.zd = np.zeros_like(s.zd)
         self.integrator.reset(self.model, s, self.fixture.parametrization)
         self.status = STATUS_SINGULAR
-        self.lam = np.zeros(self.model.m)
-        self.acceleration_W = np.zeros(6)
-        self._constraint_wrench = np.zeros(6)
+        rank, wrench = self.rank, self.wrench_W  # kept from the last ok step
+        self._ev = None
+        self._held = (np.zeros(self.model.m), rank, wrench, np.zeros(6), np.zeros(6))
+
+    @property
+    def lam(self) -> np.ndarray:
+        """The multipliers (m,: N, N*m) of the last step (zeros after a safe state)."""
+        ev = self._ev
+        return self._held[0] if ev is None else ev.lam
+
+    @property
+    def rank(self) -> int:
+        """The Delassus matrix's numerical rank at the last ok step."""
+        ev = self._ev
+        return self._held[1] if ev is None else ev.rank
+
+    @property
+    def wrench_W(self) -> np.ndarray:
+        """The applied wrench (6,: N, N*m, world, at the body origin) of the last ok step."""
+        ev = self._ev
+        return self._held[2] if ev is None else ev.wrench_W
+
+    @property
+    def acceleration_W(self) -> np.ndarray:
+        """(vdot m/s^2, wdot rad/s^2) (6,), world, of the last step (zeros after a safe state):
+        eq. 19's feedforward."""
+        ev = self._ev
+        return self._held[3] if ev is None else ev.nudot
 
     @property
     def constraint_wrench_W(self) -> np.ndarray:
         """G^T lam (6,): the wrench (N, N*m, world, at the body origin) the constraints applied
         over the last step, the force the master renders."""
-        return self._constraint_wrench
+        ev = self._ev
+        return self._held[4] if ev is None else ev.constraint_wrench_W
 
     def _maybe_rechart(self) -> None:
         s = self.state
-        if not self._rechartable or chart_conditioning(s.chart, s.q[3:]) >= RECHART_BELOW:
+        if chart_conditioning(s.chart, s.q[3:]) >= RECHART_BELOW:
             return
         s.chart, theta, thetad = rechart(s.chart, s.q[3:], s.qd[3:])
         s.q = np.concatenate([s.q[:3], theta])
@@ -191,9 +220,13 @@ class ReferenceTool:
         return pt.p.copy(), pt.R
 
     def twist(self):
-        """(v (3,) m/s, w (3,) rad/s), world frame."""
-        pt = self.model.pose_terms(self.state.chart, self.state.q)
-        return self.state.qd[:3].copy(), pt.E_W @ self.state.qd[3:]
+        """(v (3,) m/s, w (3,) rad/s), world frame: the fused step's (the same product), while its
+        state stands (a re-chart, the safe state or a reset replace the arrays)."""
+        s, e = self.state, self._end
+        if e is not None and e[0] is s.qd and e[1] is s.q and e[2] is s.chart:
+            return e[3][3:6].copy(), e[3][6:9].copy()
+        pt = self.model.pose_terms(s.chart, s.q)
+        return s.qd[:3].copy(), pt.E_W @ s.qd[3:]
 
     def residual(self) -> np.ndarray:
         """Holonomic residuals (m or rad) at the current pose."""

@@ -430,6 +430,30 @@ def energy_rates(R, E_W, J, mass, qd, F, fx):
 
 
 @njit(cache=True)
+def gravity_potential(fx, p):
+    """-g . p (J): the potential energy of the compiled gravity (fx[2:5], the weight, N; fx as in
+    :func:`newton_euler`) at the body origin p (3,) m."""
+    return -(fx[2] * p[0] + fx[3] * p[1] + fx[4] * p[2])
+
+
+@njit(cache=True)
+def energy_scale(E0, K, a, b, a0, b0, V, h, max_scale):
+    """The energy-consistent correction of :class:`teleop.dynamics.integrators.EnergyConsistent`:
+    the scale s of the end rates that solves s^2 (K + h b / 2) - (h a / 2) s - (E0 + h P0 / 2 - V) = 0
+    (the root near 1), i.e. E(q1, s qd1) - E0 = h/2 (P0 + P1(s)) with P = a - b (:func:`energy_rates`
+    at the start, a0 and b0, and at the end, a and b; K the end's kinetic energy, V its potential
+    energy, E0 the energy before the step, J). Returns (s, E1, applied): applied when |s - 1| <=
+    max_scale (then the rates are scaled and E1 = s^2 K + V), otherwise (NaN included) the step's
+    own energy E1 = K + V is kept."""
+    A, B, C = K + 0.5 * h * b, 0.5 * h * a, E0 + 0.5 * h * (a0 - b0) - V
+    disc = B * B + 4.0 * A * C
+    s = (B + math.sqrt(disc)) / (2.0 * A) if A > 0.0 and disc >= 0.0 else math.nan
+    if abs(s - 1.0) <= max_scale:  # False for NaN
+        return s, C + V + 0.5 * h * (a * s - b * s * s), True  # = E0 + h/2 (P0 + P1(s)) = s^2 K + V
+    return s, K + V, False
+
+
+@njit(cache=True)
 def constraint_acceleration(R, J_inv, inv_m, g):
     """M_nu^-1 g (6,): the twist acceleration (world) a wrench g (6,: N, N*m, world, at the body
     origin) gives the body at attitude R; for g = G^T lam, the constraints' share of nudot."""

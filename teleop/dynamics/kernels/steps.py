@@ -6,7 +6,9 @@ Python integrators chain them (:class:`teleop.dynamics.integrators.Parametric` a
 its own. Why: a Python-to-numba call costs about 1-3 us of dispatch, and every array a kernel
 returns costs a boxing (one ``_numba_unpickle`` of its type); on the paper's rolling disk the split
 path made five calls returning sixteen arrays per step. Here a step is one call returning two
-arrays, the packed output and the pose terms at its end.
+arrays, the packed output and the pose terms at its end. The parametric step also packs what the
+tool checks after a step (:func:`end_checks`) and the world twist at its end, so that neither
+needs another call or a numpy operation in Python.
 
 Inputs shared by the kernels: the chart (R0 (3, 3), axes (3,) int64), the compiled rows (``table``
 (k, 2) int64, ``params`` (k, NPAR), ``m`` rows in all, as in :func:`.rows.stack_rows`) and ``body``,
@@ -21,8 +23,10 @@ import numpy as np
 from numba import njit
 
 from teleop.dynamics.kernels.motion import (
+    energy_scale,
     evaluate,
     flat_advance,
+    gravity_potential,
     project_parameter_rates,
     rate_map_terms,
     split_end,
@@ -38,6 +42,26 @@ def body_pack(J, J_inv, mass: float, coriolis: bool, rtol: float, fx) -> np.ndar
     m (19), coriolis 0 or 1 (20), rtol (21), fx (22:27)."""
     return np.concatenate([np.ravel(J), np.ravel(J_inv), [1.0 / mass, mass, float(coriolis), rtol],
                            np.asarray(fx, dtype=float)])
+
+
+@njit(cache=True)
+def end_checks(q, qd, lam, nudot):
+    """(total, v2 (m/s)^2, w2 (rad/s)^2) after a step to (q (6,), qd (6,)) whose evaluation gave
+    lam (m,) and nudot (6,): total = sum q + v2 + w2 + sum lam + sum nudot, finite only if every
+    term is (inf - inf is NaN); v2 = |qd[:3]|^2, w2 = |qd[3:]|^2 the squared chart rates. The sums
+    run left to right, as Python's ``sum`` of floats (3.11) does."""
+    v2 = qd[0] * qd[0] + qd[1] * qd[1] + qd[2] * qd[2]
+    w2 = qd[3] * qd[3] + qd[4] * qd[4] + qd[5] * qd[5]
+    sq = 0.0
+    for x in q:
+        sq += x
+    sl = 0.0
+    for x in lam:
+        sl += x
+    sn = 0.0
+    for x in nudot:
+        sn += x
+    return sq + v2 + w2 + sl + sn, v2, w2
 
 
 @njit(cache=True)
@@ -93,12 +117,15 @@ def flat_parametric_step(R0, axes, table, params, m, body, P, Pinv, q0, q, qd, z
     :func:`.motion.project_parameter_rates` at the end pose.
 
     Returns (out, mats): out = (q, qd, z, zd, then the start's evaluation as in
-    :func:`evaluate_at`), length 12 + 2k + 25 + m; mats the pose terms at the end."""
+    :func:`evaluate_at`, then the end's :func:`end_checks` (3,) and world twist nu = (v, E_W thetadot)
+    (6,)), length 12 + 2k + 25 + m + 9; mats the pose terms at the end. (E_W thetadot is numpy's
+    dot, the BLAS product numpy's ``@`` gives.)"""
     k = P.shape[1]
     o = 12 + 2 * k
-    out = np.empty(o + 25 + m)
+    e = o + 25 + m
+    out = np.empty(e + 9)
     mats = np.empty((5, 3, 3))
-    ev = out[o:]
+    ev = out[o:e]
     ev[24 + m] = _evaluate_at(R0, axes, table, params, m, body, q, qd, F, mats, ev)
     z1, zd1, q1, qd1 = flat_advance(z, zd, ev[0:6], P, Pinv, q0, h)
     _pose(R0, axes, q1, mats)
@@ -108,22 +135,29 @@ def flat_parametric_step(R0, axes, table, params, m, body, P, Pinv, q0, q, qd, z
         J_inv = body[9:18].copy().reshape((3, 3))
         zd1, qd1 = project_parameter_rates(mats[0], mats[1], mats[2], J_inv, body[18], G, qd1, P, Pinv, body[21])
     out[0:6], out[6:12], out[12:12 + k], out[12 + k:o] = q1, qd1, z1, zd1
+    out[e], out[e + 1], out[e + 2] = end_checks(q1, qd1, ev[24:24 + m], ev[6:12])
+    out[e + 3:e + 6] = qd1[:3]
+    out[e + 6:e + 9] = np.dot(mats[4], qd1[3:])
     return out, mats
 
 
 @njit(cache=True)
-def flat_split_step(R0, axes, table, params, m, body, P, Pinv, q0, q, qd, z, zd, F, h):
-    """Steps 1-3 of the ``energy`` integrator on psi(z) = q0 + P z, with the correction's terms:
-    the evaluation at the start, the half kick zd_h = zd + h/2 P^+ qdd, :func:`.motion.split_twist`,
-    the drift z1 = z + h zd_h, q1 = q0 + P z1 (:func:`.motion.flat_advance` with no acceleration),
-    and :func:`.motion.split_end` on every row at q1. F (6,) is the working wrench (the operator's).
+def flat_split_step(R0, axes, table, params, m, body, P, Pinv, q0, q, qd, z, zd, F, h, E0, max_scale):
+    """The ``energy`` integrator's step on psi(z) = q0 + P z: the evaluation at the start, the half
+    kick zd_h = zd + h/2 P^+ qdd, :func:`.motion.split_twist`, the drift z1 = z + h zd_h,
+    q1 = q0 + P z1 (:func:`.motion.flat_advance` with no acceleration), :func:`.motion.split_end` on
+    every row at q1, then the correction :func:`.motion.energy_scale` from the energy E0 (J)
+    before the step (the potential energy that of the compiled gravity, :func:`.motion.gravity_potential`;
+    a fused model has no other) and its rates scaled when it applies. F (6,) is the working wrench
+    (the operator's).
 
     Returns (out, mats): out = (q1, qd1, z1, zd1, the start's evaluation as in :func:`evaluate_at`,
-    a0, b0, K, a, b), length 12 + 2k + 25 + m + 5; mats the pose terms at the end."""
+    E1, applied (1.0 or 0.0), then the end's :func:`end_checks` (3,) and world twist (6,) as in
+    :func:`flat_parametric_step`), length 12 + 2k + 25 + m + 11; mats the pose terms at the end."""
     n, k = P.shape
     o = 12 + 2 * k
     e = o + 25 + m
-    out = np.empty(e + 5)
+    out = np.empty(e + 11)
     mats = np.empty((5, 3, 3))
     ev = out[o:e]
     ev[24 + m] = _evaluate_at(R0, axes, table, params, m, body, q, qd, F, mats, ev)
@@ -141,6 +175,15 @@ def flat_split_step(R0, axes, table, params, m, body, P, Pinv, q0, q, qd, z, zd,
     zero = np.zeros(3)
     G, _, _ = _rows(table, params, m, q1, mats[0], zero, zero)
     zd1, qd1, K, a, b = split_end(mats[0], mats[4], mats[2], J, J_inv, body[19], G, nu, P, Pinv, F, fx, body[21])
+    sc, E1, applied = energy_scale(E0, K, a, b, a0, b0, gravity_potential(fx, q1), h, max_scale)
+    if applied:
+        for i in range(n):
+            qd1[i] = sc * qd1[i]
+        for i in range(k):
+            zd1[i] = sc * zd1[i]
     out[0:6], out[6:12], out[12:12 + k], out[12 + k:o] = q1, qd1, z1, zd1
-    out[e], out[e + 1], out[e + 2], out[e + 3], out[e + 4] = a0, b0, K, a, b
+    out[e], out[e + 1] = E1, 1.0 if applied else 0.0
+    out[e + 2], out[e + 3], out[e + 4] = end_checks(q1, qd1, ev[24:24 + m], ev[6:12])
+    out[e + 5:e + 8] = qd1[:3]
+    out[e + 8:e + 11] = np.dot(mats[4], qd1[3:])
     return out, mats
