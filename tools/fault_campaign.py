@@ -46,11 +46,11 @@ import argparse
 import json
 import math
 import sys
-import zlib
 from dataclasses import replace
 
 import numpy as np
 
+from teleop.crc32 import crc32
 from teleop.runtime import run_scene
 from teleop.scenario.schema import list_scenes, load_scene
 
@@ -228,7 +228,7 @@ def run_campaign(scenes, trials: int, seed: int, t_range=(0.6, 2.0), progress=No
     ``faults`` nor the other scenes (a subset reruns the same instants)."""
     rows = []
     for name in scenes:  # each scene's own stream: a subset of scenes reruns the same instants
-        rng = np.random.default_rng([seed, zlib.crc32(name.encode())])
+        rng = np.random.default_rng([seed, crc32(name.encode())])
         hi = min(t_range[1], load_scene(name).duration_s - WINDOW_S)
         for fault in FAULTS:
             for _ in range(trials):
