@@ -1,5 +1,7 @@
 """The workspace and speed limits on an operator's wrench (teleop.scenario.limits)."""
 
+from dataclasses import replace
+
 import numpy as np
 import pinocchio as pin
 import pytest
@@ -23,7 +25,7 @@ class Push(Operator):
 
 BOX = Workspace(np.zeros(3), np.eye(3), np.array([0.1, 0.2, 0.3]))
 LIM = Limits(BOX, speed_m_s=0.1, angular_speed_rad_s=1.0, mass_kg=0.2, inertia_kgm2=np.diag([1e-3, 2e-3, 3e-3]),
-             max_force_N=5.0, max_torque_Nm=0.5, zone_m=0.01, brake_s=0.02, wall_s=0.08)
+             max_force_N=5.0, max_torque_Nm=0.5, zone_m=0.01, brake_s=0.02, wall_s=0.08, dt_s=0.001)
 
 
 def test_the_device_workspace_is_the_travel_through_phi():
@@ -62,6 +64,22 @@ def test_inside_and_slow_the_hand_is_untouched():
     op = LimitedOperator(Push(W), LIM)
     np.testing.assert_array_equal(op.wrench(0.0, np.zeros(3), np.eye(3), np.full(3, 0.01), np.full(3, 0.1)), W)
     assert op.active == () and op.braked_ticks == 0
+
+
+def test_no_push_carries_the_tool_past_a_speed_limit_within_one_period():
+    """A stiff hand on a light blade: 0.04 N*m on 2e-5 kg*m^2 turns it 2 rad/s in one millisecond
+    (the limit 1 rad/s), 50 N on 0.2 kg moves it 0.25 m/s (the limit 0.1): each is cut to what
+    reaches the limit in the period, along the push, by the tool's own dynamics (oracle: the
+    explicit step v + dt M^-1 F)."""
+    lim = replace(LIM, inertia_kgm2=np.diag([2e-5] * 3))
+    op = LimitedOperator(Push([50.0, 0, 0, 0, 0, 0.04]), lim)
+    v0, w0 = np.array([0.0, 0.02, 0.0]), np.array([0.0, 0.0, 0.1])
+    W = op.wrench(0.0, np.zeros(3), np.eye(3), v0, w0)
+    v1 = v0 + lim.dt_s * W[:3] / lim.mass_kg
+    w1 = w0 + lim.dt_s * np.linalg.solve(lim.inertia_kgm2, W[3:])
+    assert np.linalg.norm(v1) == pytest.approx(lim.speed_m_s, rel=1e-12)
+    assert np.linalg.norm(w1) == pytest.approx(lim.angular_speed_rad_s, rel=1e-12)
+    assert W[0] > 0 and W[5] > 0 and W[1] == W[2] == W[3] == W[4] == 0  # cut, not turned
 
 
 def test_at_a_face_the_push_out_is_gone_and_the_push_in_kept():
