@@ -18,6 +18,7 @@ import math
 import numpy as np
 from numba import njit
 
+from teleop.dynamics.kernels.small import solve_into
 from teleop.dynamics.kernels.so3 import log3
 
 
@@ -109,32 +110,8 @@ def solve_unbounded(K, rhs, nv, lb, ub, z):
     (rad/s) of qd = z[-nv:] to its bounds lb, ub (nv,): >= 0 when qd is within them, negative when
     a bound binds, NaN when K is singular or z is not finite."""
     n = K.shape[0]
-    A = K.copy()
-    for i in range(n):
-        z[i] = rhs[i]
-    for k in range(n):
-        piv, best = k, abs(A[k, k])
-        for r in range(k + 1, n):
-            if abs(A[r, k]) > best:
-                piv, best = r, abs(A[r, k])
-        if not best > 0.0:
-            return np.nan
-        if piv != k:
-            for c in range(n):
-                A[k, c], A[piv, c] = A[piv, c], A[k, c]
-            z[k], z[piv] = z[piv], z[k]
-        inv = 1.0 / A[k, k]
-        for r in range(k + 1, n):
-            f = A[r, k] * inv
-            if f != 0.0:
-                for c in range(k + 1, n):
-                    A[r, c] -= f * A[k, c]
-                z[r] -= f * z[k]
-    for k in range(n - 1, -1, -1):
-        s = z[k]
-        for c in range(k + 1, n):
-            s -= A[k, c] * z[c]
-        z[k] = s / A[k, k]
+    if not solve_into(K, rhs, z):
+        return np.nan
     check = 0.0
     for i in range(n):
         check += z[i] * z[i]

@@ -23,6 +23,7 @@ import numpy as np
 from numba import njit
 
 from teleop.dynamics.kernels.rows import _cross, _dot, _rv
+from teleop.dynamics.kernels.small import cholesky
 
 @njit(cache=True, inline="always")
 def _matmul3(A, B):
@@ -118,33 +119,6 @@ def rate_map_terms(R0, axes, theta):
     _cross(ec, col2, r)
     dE[2] = r
     return R, E, Einv, dE, _matmul3(R, E)
-
-
-@njit(cache=True)
-def cholesky(K, rtol):
-    """(L, ok): the lower Cholesky factor of K (m, m), and whether it exists with every pivot
-    ratio min(d)^2 / max(d)^2 above ``rtol`` (otherwise the caller takes the eigen fallback)."""
-    m = K.shape[0]
-    L = np.zeros((m, m))
-    for j in range(m):
-        s = K[j, j]
-        for k in range(j):
-            s -= L[j, k] * L[j, k]
-        if not s > 0.0:  # also catches NaN
-            return L, False
-        L[j, j] = math.sqrt(s)
-        for i in range(j + 1, m):
-            t = K[i, j]
-            for k in range(j):
-                t -= L[i, k] * L[j, k]
-            L[i, j] = t / L[j, j]
-    if m:
-        dmin = dmax = L[0, 0]
-        for j in range(1, m):
-            dmin, dmax = min(dmin, L[j, j]), max(dmax, L[j, j])
-        if not dmin * dmin > rtol * dmax * dmax:
-            return L, False
-    return L, True
 
 
 @njit(cache=True)

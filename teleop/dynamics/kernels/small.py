@@ -46,58 +46,75 @@ def matvec(A, x):
 
 
 @njit(cache=True)
-def is_positive_definite(A):
-    """Whether the symmetric matrix A (n, n) is positive definite: its Cholesky factorization
-    (lower triangle, in a scratch copy) meets no non-positive pivot."""
-    n = A.shape[0]
-    L = np.zeros((n, n))
-    for j in range(n):
-        d = A[j, j]
+def cholesky(K, rtol):
+    """(L, ok): the lower Cholesky factor of the symmetric K (m, m), and whether it exists with
+    every pivot ratio min(d)^2 / max(d)^2 above ``rtol`` (rtol 0: K positive definite)."""
+    m = K.shape[0]
+    L = np.zeros((m, m))
+    for j in range(m):
+        s = K[j, j]
         for k in range(j):
-            d -= L[j, k] * L[j, k]
-        if not d > 0.0:  # NaN too
-            return False
-        L[j, j] = math.sqrt(d)
-        for i in range(j + 1, n):
-            s = A[i, j]
+            s -= L[j, k] * L[j, k]
+        if not s > 0.0:  # also catches NaN
+            return L, False
+        L[j, j] = math.sqrt(s)
+        for i in range(j + 1, m):
+            t = K[i, j]
             for k in range(j):
-                s -= L[i, k] * L[j, k]
-            L[i, j] = s / L[j, j]
+                t -= L[i, k] * L[j, k]
+            L[i, j] = t / L[j, j]
+    if m:
+        dmin = dmax = L[0, 0]
+        for j in range(1, m):
+            dmin, dmax = min(dmin, L[j, j]), max(dmax, L[j, j])
+        if not dmin * dmin > rtol * dmax * dmax:
+            return L, False
+    return L, True
+
+
+@njit(cache=True)
+def is_positive_definite(A):
+    """Whether the symmetric matrix A (n, n) is positive definite (its Cholesky factor exists)."""
+    return cholesky(A, 0.0)[1]
+
+
+@njit(cache=True)
+def solve_into(A, b, x):
+    """x (n,) <- the solution of A x = b (A (n, n), b (n,)) by Gaussian elimination with partial
+    pivoting (LAPACK's getrf/getrs algorithm) on a copy of A. Returns False for a zero or
+    non-finite pivot (x is then not meaningful)."""
+    n = A.shape[0]
+    M = A.copy()
+    for i in range(n):
+        x[i] = b[i]
+    for k in range(n):
+        piv, best = k, abs(M[k, k])
+        for r in range(k + 1, n):
+            if abs(M[r, k]) > best:
+                piv, best = r, abs(M[r, k])
+        if not best > 0.0 or not math.isfinite(best):
+            return False
+        if piv != k:
+            for c in range(n):
+                M[k, c], M[piv, c] = M[piv, c], M[k, c]
+            x[k], x[piv] = x[piv], x[k]
+        inv = 1.0 / M[k, k]
+        for r in range(k + 1, n):
+            f = M[r, k] * inv
+            if f != 0.0:
+                for c in range(k + 1, n):
+                    M[r, c] -= f * M[k, c]
+                x[r] -= f * x[k]
+    for k in range(n - 1, -1, -1):
+        s = x[k]
+        for c in range(k + 1, n):
+            s -= M[k, c] * x[c]
+        x[k] = s / M[k, k]
     return True
 
 
 @njit(cache=True)
 def solve(A, b):
-    """x with A x = b (A (n, n), b (n,)) by Gaussian elimination with partial pivoting (LAPACK's
-    getrf/getrs algorithm). Returns (ok, x); ok is False for an exactly singular or non-finite
-    pivot (x is then not meaningful)."""
-    n = A.shape[0]
-    M = np.empty((n, n))
-    x = np.empty(n)
-    for i in range(n):
-        x[i] = b[i]
-        for j in range(n):
-            M[i, j] = A[i, j]
-    for c in range(n):
-        p, big = c, abs(M[c, c])
-        for r in range(c + 1, n):
-            if abs(M[r, c]) > big:
-                p, big = r, abs(M[r, c])
-        if not big > 0.0 or not math.isfinite(big):
-            return False, x
-        if p != c:
-            for j in range(n):
-                M[c, j], M[p, j] = M[p, j], M[c, j]
-            x[c], x[p] = x[p], x[c]
-        for r in range(c + 1, n):
-            f = M[r, c] / M[c, c]
-            if f != 0.0:
-                for j in range(c + 1, n):
-                    M[r, j] -= f * M[c, j]
-                x[r] -= f * x[c]
-    for i in range(n - 1, -1, -1):
-        s = x[i]
-        for j in range(i + 1, n):
-            s -= M[i, j] * x[j]
-        x[i] = s / M[i, i]
-    return True, x
+    """(ok, x): :func:`solve_into` into a new array."""
+    x = np.empty(A.shape[0])
+    return solve_into(A, b, x), x
