@@ -17,6 +17,7 @@ import numpy as np
 
 from teleop.control.kernels import pid_step
 from teleop.errors import ConfigError
+from teleop.views import view
 
 
 def _vec6(value, key: str, where: str, positive: bool = False) -> np.ndarray:
@@ -141,14 +142,10 @@ class AdmittanceController:
         self.reset()
 
     # the state's rows, read as views and assigned in place
-    nu_cmd = property(lambda self: self.state[0], lambda self, v: self.state.__setitem__(0, v),
-                      doc="commanded virtual twist ν_c (6,: m/s, rad/s, world)")
-    accel_cmd = property(lambda self: self.state[1], lambda self, v: self.state.__setitem__(1, v),
-                         doc="commanded acceleration q̈_v (6,: m/s^2, rad/s^2)")
-    error = property(lambda self: self.state[2], lambda self, v: self.state.__setitem__(2, v),
-                     doc="the last error e (6,: m, rad)")
-    integral = property(lambda self: self.state[3], lambda self, v: self.state.__setitem__(3, v),
-                        doc="the integral of e (6,: m*s, rad*s)")
+    nu_cmd = view("state", 0, "commanded virtual twist ν_c (6,: m/s, rad/s, world)")
+    accel_cmd = view("state", 1, "commanded acceleration q̈_v (6,: m/s^2, rad/s^2)")
+    error = view("state", 2, "the last error e (6,: m, rad)")
+    integral = view("state", 3, "the integral of e (6,: m*s, rad*s)")
 
     def reset(self, nu0=None) -> None:
         self.integral = 0.0

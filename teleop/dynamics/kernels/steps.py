@@ -110,6 +110,30 @@ def evaluate_at(R0, axes, table, params, m, body, q, qd, F):
     return out, mats
 
 
+@njit(cache=True, inline="always")
+def _start(R0, axes, table, params, m, body, q, qd, F, k, tail):
+    """A fused step's output and its start: out (12 + 2k + 25 + m + tail,), the pose terms mats,
+    the start's evaluation written into out (``ev``, as :func:`evaluate_at`), and the offsets of
+    the evaluation (o) and of the tail (e)."""
+    o = 12 + 2 * k
+    e = o + 25 + m
+    out = np.empty(e + tail)
+    mats = np.empty((5, 3, 3))
+    ev = out[o:e]
+    ev[24 + m] = _evaluate_at(R0, axes, table, params, m, body, q, qd, F, mats, ev)
+    return out, mats, ev, o, e
+
+
+@njit(cache=True, inline="always")
+def _finish(out, mats, ev, m, k, o, at, q1, qd1, z1, zd1):
+    """A fused step's end state into out, then from ``at`` its :func:`end_checks` (3,) and world
+    twist (v, E_W thetadot) (6,) (numpy's dot: the BLAS product numpy's ``@`` gives)."""
+    out[0:6], out[6:12], out[12:12 + k], out[12 + k:o] = q1, qd1, z1, zd1
+    out[at], out[at + 1], out[at + 2] = end_checks(q1, qd1, ev[24:24 + m], ev[6:12])
+    out[at + 3:at + 6] = qd1[:3]
+    out[at + 6:at + 9] = np.dot(mats[4], qd1[3:])
+
+
 @njit(cache=True)
 def flat_parametric_step(R0, axes, table, params, m, body, P, Pinv, q0, q, qd, z, zd, F, h, project):
     """The parametric step on psi(z) = q0 + P z (P (6, k), Pinv its pseudo-inverse): evaluation
@@ -121,12 +145,7 @@ def flat_parametric_step(R0, axes, table, params, m, body, P, Pinv, q0, q, qd, z
     (6,)), length 12 + 2k + 25 + m + 9; mats the pose terms at the end. (E_W thetadot is numpy's
     dot, the BLAS product numpy's ``@`` gives.)"""
     k = P.shape[1]
-    o = 12 + 2 * k
-    e = o + 25 + m
-    out = np.empty(e + 9)
-    mats = np.empty((5, 3, 3))
-    ev = out[o:e]
-    ev[24 + m] = _evaluate_at(R0, axes, table, params, m, body, q, qd, F, mats, ev)
+    out, mats, ev, o, e = _start(R0, axes, table, params, m, body, q, qd, F, k, 9)
     z1, zd1, q1, qd1 = flat_advance(z, zd, ev[0:6], P, Pinv, q0, h)
     _pose(R0, axes, q1, mats)
     if project:
@@ -134,10 +153,7 @@ def flat_parametric_step(R0, axes, table, params, m, body, P, Pinv, q0, q, qd, z
         G, _, _ = _rows(table, params, m, q1, mats[0], zero, zero)
         J_inv = body[9:18].copy().reshape((3, 3))
         zd1, qd1 = project_parameter_rates(mats[0], mats[1], mats[2], J_inv, body[18], G, qd1, P, Pinv, body[21])
-    out[0:6], out[6:12], out[12:12 + k], out[12 + k:o] = q1, qd1, z1, zd1
-    out[e], out[e + 1], out[e + 2] = end_checks(q1, qd1, ev[24:24 + m], ev[6:12])
-    out[e + 3:e + 6] = qd1[:3]
-    out[e + 6:e + 9] = np.dot(mats[4], qd1[3:])
+    _finish(out, mats, ev, m, k, o, e, q1, qd1, z1, zd1)
     return out, mats
 
 
@@ -155,12 +171,7 @@ def flat_split_step(R0, axes, table, params, m, body, P, Pinv, q0, q, qd, z, zd,
     E1, applied (1.0 or 0.0), then the end's :func:`end_checks` (3,) and world twist (6,) as in
     :func:`flat_parametric_step`), length 12 + 2k + 25 + m + 11; mats the pose terms at the end."""
     n, k = P.shape
-    o = 12 + 2 * k
-    e = o + 25 + m
-    out = np.empty(e + 11)
-    mats = np.empty((5, 3, 3))
-    ev = out[o:e]
-    ev[24 + m] = _evaluate_at(R0, axes, table, params, m, body, q, qd, F, mats, ev)
+    out, mats, ev, o, e = _start(R0, axes, table, params, m, body, q, qd, F, k, 11)
     J, J_inv = body[0:9].copy().reshape((3, 3)), body[9:18].copy().reshape((3, 3))
     fx = body[22:27]
     nu, a0, b0 = split_twist(mats[0], mats[4], J_inv, body[18], qd, ev[6:12], ev[18:24], F, fx, h)
@@ -181,9 +192,6 @@ def flat_split_step(R0, axes, table, params, m, body, P, Pinv, q0, q, qd, z, zd,
             qd1[i] = sc * qd1[i]
         for i in range(k):
             zd1[i] = sc * zd1[i]
-    out[0:6], out[6:12], out[12:12 + k], out[12 + k:o] = q1, qd1, z1, zd1
     out[e], out[e + 1] = E1, 1.0 if applied else 0.0
-    out[e + 2], out[e + 3], out[e + 4] = end_checks(q1, qd1, ev[24:24 + m], ev[6:12])
-    out[e + 5:e + 8] = qd1[:3]
-    out[e + 8:e + 11] = np.dot(mats[4], qd1[3:])
+    _finish(out, mats, ev, m, k, o, e + 2, q1, qd1, z1, zd1)
     return out, mats

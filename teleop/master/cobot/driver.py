@@ -28,6 +28,7 @@ from teleop.can.confinement import BUS_OFF, ErrorCounters
 from teleop.errors import CanError
 from teleop.master.cobot import frame_kernels as FK
 from teleop.master.cobot.database import FrameDatabase
+from teleop.views import view
 
 #: SocketCAN error classes in an error frame's id (linux/can/error.h) and the protocol-error
 #: type bit "on transmission" in data[2]
@@ -137,79 +138,17 @@ class CobotDriver:
         return int(row[FK.M_ID]), bool(row[FK.M_FD]), int(row[FK.M_LEN])
 
     # -- the receive state (fields of the record the compiled frame kernel updates) -----------------
-    @property
-    def joints_rad_m(self) -> np.ndarray:
-        """The last joint reading (6,: 3 gantry positions m, 3 unwrapped wrist angles rad); a view
-        the next valid reading overwrites."""
-        return self._rs["joints"]
-
-    @joints_rad_m.setter
-    def joints_rad_m(self, value) -> None:
-        self._rs["joints"][:] = value
-
-    @property
-    def wrench_S(self) -> np.ndarray:
-        """The last load-cell reading (6,: N, N*m, load-cell frame); a view, as joints_rad_m."""
-        return self._rs["wrench"]
-
-    @wrench_S.setter
-    def wrench_S(self, value) -> None:
-        self._rs["wrench"][:] = value
-
-    @property
-    def joints_counter(self) -> int:
-        """The SYNC counter of the last joint reading applied (-1: none yet)."""
-        return int(self._rs["jc"])
-
-    @property
-    def wrench_counter(self) -> int:
-        return int(self._rs["wc"])
-
-    @property
-    def fresh_joints(self) -> bool:
-        """A joint reading arrived in this cycle (cleared by :meth:`end_cycle`)."""
-        return bool(self._rs["fresh_j"])
-
-    @fresh_joints.setter
-    def fresh_joints(self, value: bool) -> None:
-        self._rs["fresh_j"] = bool(value)
-
-    @property
-    def fresh_wrench(self) -> bool:
-        return bool(self._rs["fresh_w"])
-
-    @fresh_wrench.setter
-    def fresh_wrench(self, value: bool) -> None:
-        self._rs["fresh_w"] = bool(value)
-
-    @property
-    def cycles_since_joints(self) -> int:
-        return int(self._rs["since_j"])
-
-    @cycles_since_joints.setter
-    def cycles_since_joints(self, value: int) -> None:
-        self._rs["since_j"] = value
-
-    @property
-    def cycles_since_wrench(self) -> int:
-        return int(self._rs["since_w"])
-
-    @cycles_since_wrench.setter
-    def cycles_since_wrench(self, value: int) -> None:
-        self._rs["since_w"] = value
-
-    @property
-    def device_state(self) -> int:
-        return int(self._rs["dev_state"])
-
-    @device_state.setter
-    def device_state(self, value: int) -> None:
-        self._rs["dev_state"] = value
-
-    @property
-    def frames_late(self) -> int:
-        """Valid device frames older than the last applied one (dropped)."""
-        return int(self._rs["late"])
+    joints_rad_m = view("_rs", "joints", "the last joint reading (6,: 3 gantry positions m, 3 unwrapped wrist "
+                        "angles rad); a view the next valid reading overwrites")
+    wrench_S = view("_rs", "wrench", "the last load-cell reading (6,: N, N*m, load-cell frame); a view")
+    joints_counter = view("_rs", "jc", "the SYNC counter of the last joint reading applied (-1: none yet)", int)
+    wrench_counter = view("_rs", "wc", "the SYNC counter of the last load-cell reading applied (-1: none yet)", int)
+    fresh_joints = view("_rs", "fresh_j", "a joint reading arrived in this cycle (cleared by end_cycle)", bool)
+    fresh_wrench = view("_rs", "fresh_w", "a load-cell reading arrived in this cycle (cleared by end_cycle)", bool)
+    cycles_since_joints = view("_rs", "since_j", "cycles since the last fresh joint reading", int)
+    cycles_since_wrench = view("_rs", "since_w", "cycles since the last fresh load-cell reading", int)
+    device_state = view("_rs", "dev_state", "the device's state, from its last joints or heartbeat frame", int)
+    frames_late = view("_rs", "late", "valid device frames older than the last applied one (dropped)", int)
 
     @property
     def encoder_step_max(self):
@@ -237,8 +176,7 @@ class CobotDriver:
                           bitrate_switch=fd, timestamp=self.clock())
         try:
             self.bus.send(msg)
-            if self.errors.tec:
-                self.errors.tx_ok()
+            self.errors.tx_ok()
             return True
         except can.CanError as e:
             self.send_errors += 1
@@ -368,17 +306,20 @@ class CobotDriver:
     # -- watchdog -----------------------------------------------------------------------------------
     def end_cycle(self) -> str | None:
         """Age the feedback by one cycle and check the watchdog; returns the latched fault or None.
-        (:class:`.host.CobotMaster` ages it inside its compiled ``sense`` and calls :meth:`watch`.)"""
-        self.watch(FK.end_cycle_counts(self._ds, self.stale_cycles))
+        (:class:`.host.CobotMaster` ages it inside its compiled ``sense`` and calls the two checks.)"""
+        if FK.end_cycle_counts(self._ds, self.stale_cycles):
+            self.trip_stale()
+        self.check_heartbeat()
         return self.fault
 
-    def watch(self, stale: bool) -> None:
-        """The watchdog after the feedback aged by a cycle: latch ``watchdog`` for ``stale``
-        feedback, ``heartbeat`` for a device heartbeat older than its timeout."""
-        if stale:
-            self._trip("watchdog", f"no fresh feedback for {self.stale_cycles} cycles")
+    def check_heartbeat(self) -> None:
+        """Latch ``heartbeat`` when the device's heartbeat is older than its timeout."""
         if self.last_device_hb_s is not None and self.clock() - self.last_device_hb_s > self.hb_timeout:
             self._trip("heartbeat", f"no device heartbeat for {self.hb_timeout} s")
+
+    def trip_stale(self) -> None:
+        """Latch ``watchdog``: the feedback is ``stale_cycles`` old."""
+        self._trip("watchdog", f"no fresh feedback for {self.stale_cycles} cycles")
 
     def latch_fault(self, fault: str, why: str) -> None:
         """Latch a host-side fault (from then on zero velocity, mode 0), logged with ``why``."""

@@ -243,7 +243,7 @@ def rx_period_frame(tab, ds, syncs, frame_id, extended, fd, data, vals):
         r["late"] += 1
         return LATE, mi
     prev, step_max = r["joints"], r["step_max"]
-    meas = vals[:6].copy()
+    meas = vals[:6]  # the scratch values, unwrapped in place (no allocation in the tick)
     for i in range(3, 6):  # unwrap the wrist angles next to the previous reading
         meas[i] = prev[i] + (meas[i] - prev[i] + math.pi) % (2.0 * math.pi) - math.pi
     if step_max[0] >= 0.0 and r["jc"] >= 0:

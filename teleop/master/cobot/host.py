@@ -248,7 +248,7 @@ class CobotMaster(Master):
         if self.sim is not None:
             self.sim.apply_hand_wrench(self.clutch.phi.wrench_to_handle(_finite(hand_wrench_W)))
         k = self.counter = self._link_cycle_begin()
-        drv.watch(False)  # the device's heartbeat
+        drv.check_heartbeat()
         if drv.fault is None and not self.closed_form:  # Pinocchio's kinematics for any other URDF
             hs = self._hs
             hs["p_m"][0], hs["R_m"][0], hs["J"][0] = self.model.compute_pose_and_jacobian(drv.joints_rad_m)
@@ -257,7 +257,7 @@ class CobotMaster(Master):
         stale = host_sense(self._hs, self._constants(), drv._ds, k, self.bias_S, drv.stale_cycles, drv.fault is None,
                            self.closed_form)
         if stale:
-            drv.watch(stale)
+            drv.trip_stale()
         fault = drv.fault
         if fault is not None:
             self.status = fault

@@ -28,6 +28,7 @@ import math
 import numpy as np
 
 from teleop.master.cobot.kernels import HISTORY, correct_kernel, predict_kernel
+from teleop.views import view
 
 
 class JointObserver:
@@ -51,14 +52,10 @@ class JointObserver:
         self.reset(joints0)
 
     # the estimate's rows, read as views and assigned in place
-    x = property(lambda self: self.state[0], lambda self, v: self.state.__setitem__(0, v),
-                 doc="estimate (6,) at the last SYNC")
-    qd_model = property(lambda self: self.state[1], lambda self, v: self.state.__setitem__(1, v),
-                        doc="servo-model rate (6,) at the last SYNC")
-    u = property(lambda self: self.state[2], lambda self, v: self.state.__setitem__(2, v),
-                 doc="the command in force (6,)")
-    bias = property(lambda self: self.state[3], lambda self, v: self.state.__setitem__(3, v),
-                    doc="rate bias (6,)")
+    x = view("state", 0, "estimate (6,) at the last SYNC")
+    qd_model = view("state", 1, "servo-model rate (6,) at the last SYNC")
+    u = view("state", 2, "the command in force (6,)")
+    bias = view("state", 3, "rate bias (6,)")
 
     def reset(self, joints0) -> None:
         self.state[:] = 0.0
