@@ -4,7 +4,9 @@ Master side: the operator's hand pushes (``operator.wrench``), the master senses
 cell, φ: eq. 4), the reference tool steps under it plus the force fed back (§II, eqs. 8-11), the
 master commands the device to follow the tool (FF + PID, eqs. 18-19, bus out) and sends the virtual
 tool to the slave. Slave side: the newest command is followed under the fixture rows (QP) and the
-contact wrench goes back. Master again: the feedback is mapped and filtered for the next step.
+contact wrench goes back, with the contact's local damping. Master again: the feedback is mapped and
+filtered for the next step, where the damping is rendered at the tool's own twist
+(:meth:`teleop.control.feedback.FeedbackPath.render`), so no delay sits in that loop.
 Master and slave share nothing but the two messages of :mod:`teleop.link`, so a link that delays,
 drops or crosses a network changes nothing here.
 
@@ -85,7 +87,8 @@ class BilateralLoop:
             self.feedback_W = np.zeros(6)
         else:
             v_r, w_r = tool.twist()
-            st = tool.step(self.dt, f_v + self.feedback_W)         # §II: eqs. 8-11
+            felt = self.feedback_W if self.feedback is None else self.feedback.render(self.feedback_W, tool, f_v, self.dt)
+            st = tool.step(self.dt, f_v + felt)                     # §II: eqs. 8-11
             st_m = master.command(p_r, R_r, np.concatenate((v_r, w_r)), tool.acceleration_W)  # 18-19
         if self.slave is not None:
             self._send_command(i, t, lost)                          # master side ends here

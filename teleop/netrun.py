@@ -105,7 +105,7 @@ class MasterHalf:
             self.feedback_W = np.zeros(6)
         else:
             v_r, w_r = tool.twist()
-            st = tool.step(self.dt, f_v + self.feedback_W)
+            st = tool.step(self.dt, f_v + self.feedback.render(self.feedback_W, tool, f_v, self.dt))
             st_m = master.command(p_r, R_r, np.concatenate((v_r, w_r)), tool.acceleration_W)
         mg = self.master_guard
         energy = None if mg is None else mg.energy_J if lost else mg.energy_after(np.concatenate(tool.twist()))
@@ -249,7 +249,8 @@ def _master_half(scene, link, n: int):
     spec_M = master_fixture_spec(scene)
     operator = make_operator(scene.operator, spec_M, scene.effects, rng)
     reg = build_registration(scene)
-    feedback = FeedbackPath(reg, scene.mapping.feedback_cutoff_hz, scene.dt_s)
+    feedback = FeedbackPath(reg, scene.mapping.feedback_cutoff_hz, scene.dt_s,
+                            scene.mapping.feedback_local_damping)
     guard = make_guard(scene, reg, n)
     metrics = MasterMetrics(make_metrics(spec_M, n, tool.body.mass_kg))
     recorder = MasterRecorder(tool, n)

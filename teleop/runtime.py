@@ -135,7 +135,8 @@ def run_scene(scene: Scene, progress=None, realtime: bool = False, operator=None
     feedback = tremor = slave_metrics = None
     if slave is not None:
         slave.reset(*tool.pose())
-        feedback = FeedbackPath(reg, scene.mapping.feedback_cutoff_hz, scene.dt_s)
+        feedback = FeedbackPath(reg, scene.mapping.feedback_cutoff_hz, scene.dt_s,
+                            scene.mapping.feedback_local_damping)
         rcm = [c for c in constraints_P if isinstance(c, RemoteCenter)]
         slave_metrics = SlaveMetrics(scene.fixture, n, slave.arm.nv, rcm, constraints_P)
         hooks.append(slave_metrics)

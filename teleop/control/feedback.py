@@ -1,10 +1,29 @@
 """The force-feedback path on the master side: the slave's contact wrench, mapped into the master
-frame by the registration, then low-passed.
+frame by the registration, low-passed, and its damping rendered here, without delay.
 
-The cutting force is steep in velocity (about 2000 N*s/m below 1 mm/s); fed raw to a light
-reference tool integrated explicitly with a one-tick delay it makes a limit cycle (tool and arm
-chatter). A first-order low-pass at ``cutoff_hz`` (20 Hz by default) keeps the cut's feel and
-removes it; 0 turns the filter off. A tick with no new message holds the last wrench.
+The cutting force is steep in velocity (about 2000 N*s/m below 1 mm/s at the slave); fed to a light
+reference tool integrated explicitly, one tick late or more, it makes a limit cycle: the stale
+stick keeps pushing after the tool has stopped, so the tool is thrown back. A first-order low-pass
+at ``cutoff_hz`` (20 Hz by default; 0: off) kept the one-tick loop of one process still, but one
+tick more (a 1 ms round trip, a late reply over a network) already tipped the cut into a 9 Hz
+stick-slip cycle, guard or no guard.
+
+So the slave also sends the contact's local damping D (:mod:`teleop.contact.damping`) and the
+twist V_s it was taken at, and the master renders the contact as that local model, in the manner
+of model-mediated teleoperation (Mitra and Niemeyer 2008; Passenberg, Peer and Buss 2010):
+
+    W = W_s + D (V_s - V+),
+
+the delayed wrench corrected by the damping for the difference between the slave's twist then and
+the tool's twist V+ at the end of this step, solved implicitly (backward Euler on the free tool,
+mass matrix M: (M + dt D) V+ = M V + dt (F + W_s + D V_s), F the hand's wrench plus the tool's own
+effects at its present state, as the step applies them: leaving out the tool's own damping made a
+steady turn read as an acceleration, and the curved cut turned 0.20 rad instead of 0.32). The steep part of the contact is
+then felt at the tool's own present velocity, and an implicit damper cannot throw the tool back
+however steep it is; in steady sliding V+ = V_s and W = W_s. W_s, D and V_s go through the same
+low-pass. A reply without contact carries D = 0 (nothing rendered beyond W_s); a D that is not
+positive semidefinite is not rendered (counted in ``refused``). A tick with no new message holds
+the last model.
 """
 
 from __future__ import annotations
@@ -14,23 +33,71 @@ import math
 import numpy as np
 
 from teleop.control.mapping import Registration
+from teleop.dynamics.effects import total_wrench
+from teleop.dynamics.kernels.small import is_positive_definite, solve
 from teleop.link.messages import ContactFeedback
 
 
 class FeedbackPath:
     """``update(msg)`` -> the wrench (6,: N, N*m, master world, at the reference tool's origin)
-    to add to the operator's at the next tool step."""
+    the slave reported; ``render(wrench, tool, f_other, dt)`` -> the wrench the tool steps under.
+    ``local_damping`` False renders the reported wrench alone."""
 
-    def __init__(self, registration: Registration, cutoff_hz: float, dt_s: float):
+    def __init__(self, registration: Registration, cutoff_hz: float, dt_s: float, local_damping: bool = True):
         if not (math.isfinite(cutoff_hz) and cutoff_hz >= 0):
             raise ValueError(f"feedback cutoff: expected a number >= 0 Hz, got {cutoff_hz!r}")
         self.reg = registration
         self.alpha = 1.0 - math.exp(-2.0 * math.pi * cutoff_hz * dt_s) if cutoff_hz > 0 else 1.0
+        self.local_damping = bool(local_damping)
         self.wrench_M = np.zeros(6)
+        self.damping_M = np.zeros((6, 6))  # N*s/m, N*m*s/rad (master units)
+        self.slave_twist_M = np.zeros(6)   # m/s, rad/s (master units)
+        self.refused = 0                   # replies whose damping was not positive semidefinite
         self._target = np.zeros(6)
+        self._D = np.zeros((6, 6))
+        self._V = np.zeros(6)
 
     def update(self, msg: ContactFeedback | None) -> np.ndarray:
         if msg is not None:
             self._target = self.reg.wrench_to_master(msg.wrench_P)
-        self.wrench_M = self.wrench_M + self.alpha * (self._target - self.wrench_M)
+            if self.local_damping:
+                self._take_model(msg)
+        a = self.alpha
+        self.wrench_M = self.wrench_M + a * (self._target - self.wrench_M)
+        if self.local_damping:
+            self.damping_M = self.damping_M + a * (self._D - self.damping_M)
+            self.slave_twist_M = self.slave_twist_M + a * (self._V - self.slave_twist_M)
         return self.wrench_M
+
+    def _take_model(self, msg: ContactFeedback) -> None:
+        if not msg.damping_P.any():
+            self._D, self._V = np.zeros((6, 6)), np.zeros(6)
+            return
+        D = self.reg.damping_to_master(msg.damping_P)
+        scale = max(1.0, float(np.abs(D).max()))
+        if not is_positive_definite(D + (1e-9 * scale) * np.eye(6)):
+            self.refused += 1
+            self._D, self._V = np.zeros((6, 6)), np.zeros(6)
+            return
+        self._D, self._V = D, self.reg.twist_to_master(msg.twist_P)
+
+    def render(self, wrench_M: np.ndarray, tool, f_other_W: np.ndarray, dt_s: float) -> np.ndarray:
+        """The felt ``wrench_M`` (6,) with the contact's damping rendered at the ``tool``'s own
+        twist after this step (see the module docstring); ``f_other_W`` (6,: N, N*m) the hand's
+        wrench (the tool's own effects are added here). Returns ``wrench_M`` itself when there is no
+        damping to render."""
+        D = self.damping_M
+        if not self.local_damping or not D.any():
+            return wrench_M
+        p, R = tool.pose()
+        v, w = tool.twist()
+        V = np.concatenate((v, w))
+        M = np.zeros((6, 6))
+        M[0, 0] = M[1, 1] = M[2, 2] = tool.body.mass_kg
+        M[3:, 3:] = R @ tool.body.J @ R.T
+        f = total_wrench(tool.model.effects, p, R, v, w, tool.t, f_other_W)  # the step's own forces too
+        Vs = self.slave_twist_M
+        ok, V_next = solve(M + dt_s * D, M @ V + dt_s * (f + wrench_M + D @ Vs))
+        if not ok:
+            return wrench_M
+        return wrench_M + D @ (Vs - V_next)

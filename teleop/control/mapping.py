@@ -91,3 +91,23 @@ class Registration:
         out[:3] = self.force_scale * (self.X_PM_R.T @ F_P[:3])
         out[3:] = self.torque_scale * (self.X_PM_R.T @ F_P[3:])
         return out
+
+    def twist_to_master(self, V_P) -> np.ndarray:
+        """Slave tool twist (6,: m/s, rad/s; P axes) -> master twist (M axes): the inverse of
+        ``target``'s twist (translations times ``scale``, rotations unscaled)."""
+        V_P = np.asarray(V_P, dtype=float)
+        Rt = self.X_PM_R.T
+        return np.concatenate((self.scale * (Rt @ V_P[:3]), Rt @ V_P[3:]))
+
+    def damping_to_master(self, D_P) -> np.ndarray:
+        """A contact damping D (6, 6; W_P = -D V_P) -> the damping the master feels, D_M = B D T
+        with W_M = B W_P (``wrench_to_master``) and V_P = T V_M (``target``); its symmetric part
+        (D_M is symmetric when ``torque_scale`` is ``force_scale * scale``, the default)."""
+        R = self.X_PM_R
+        D = np.asarray(D_P, dtype=float)
+        Rb = np.zeros((6, 6))
+        Rb[:3, :3] = Rb[3:, 3:] = R
+        g = np.array([self.force_scale] * 3 + [self.torque_scale] * 3)
+        c = np.array([1.0 / self.scale] * 3 + [1.0] * 3)
+        D_M = (g[:, None] * (Rb.T @ D @ Rb)) * c[None, :]
+        return 0.5 * (D_M + D_M.T)

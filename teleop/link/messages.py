@@ -3,8 +3,9 @@
 Master -> slave, :class:`ToolCommand`: the virtual tool (the device's rendering of the reference
 tool) as a pose and twist in the master's world frame M, the clutch, a sequence number and the
 master's time. Slave -> master, :class:`ContactFeedback`: the contact wrench at the slave's tool
-frame origin in the patient frame P, the slave's status, the sequence number of the command it
-answered, its own sequence number and time.
+frame origin in the patient frame P, the contact's local damping and the twist it was taken at,
+the slave's status, the sequence number of the command it answered, its own sequence number and
+time.
 
 Both carry ``energy_J`` (6,) J: the sender's cumulative energy that has entered the channel at
 its port, per axis of the twist/wrench (the two-port time-domain passivity approach, see
@@ -31,6 +32,9 @@ class MessageError(TeleopError):
 #: slave statuses a ContactFeedback may carry (the slave's own plus the link's safe states)
 SLAVE_STATUSES = ("ok", "saturated", "tracking_error", "fixtures_relaxed", "infeasible_fallback",
                   "invalid_target", "hold", "link_lost", "joint_limit")
+
+
+_ZERO36, _ZERO6 = np.zeros(36), np.zeros(6)
 
 
 def _packed(parts, sizes, names) -> tuple:
@@ -124,7 +128,12 @@ class ContactFeedback:
     """Slave -> master: the contact wrench ``wrench_P`` (6,: N, N*m) at the slave tool frame's
     origin, in the patient frame P, at slave time ``t_s`` (s), with the slave's ``status`` and the
     sequence number ``command_seq`` of the command it followed (-1 for none yet), and ``energy_J``
-    (6,) J the energy that has entered the channel at the slave port so far (None: zeros)."""
+    (6,) J the energy that has entered the channel at the slave port so far (None: zeros).
+
+    ``damping_P`` (6, 6) the contact's local damping D = -dW/dV at the tool's twist ``twist_P``
+    (6,: m/s, rad/s), both in P at the tool frame's origin (:mod:`teleop.contact.damping`; None:
+    zeros, no contact). D must be symmetric; the master renders it only when positive
+    semidefinite."""
 
     seq: int
     t_s: float
@@ -132,11 +141,22 @@ class ContactFeedback:
     status: str
     command_seq: int = -1
     energy_J: np.ndarray | None = None
+    damping_P: np.ndarray | None = None
+    twist_P: np.ndarray | None = None
 
     def __post_init__(self):
         object.__setattr__(self, "seq", _seq(self.seq, "ContactFeedback.seq"))
         object.__setattr__(self, "t_s", _time(self.t_s, "ContactFeedback.t_s"))
-        object.__setattr__(self, "wrench_P", _packed((self.wrench_P,), (6,), ("ContactFeedback.wrench_P",))[0])
+        D = _ZERO36 if self.damping_P is None else self.damping_P
+        V = _ZERO6 if self.twist_P is None else self.twist_P
+        W, D, V = _packed((self.wrench_P, D, V), (6, 36, 6),
+                          ("ContactFeedback.wrench_P", "ContactFeedback.damping_P", "ContactFeedback.twist_P"))
+        D = D.reshape(6, 6)
+        if float(np.abs(D - D.T).max()) > 1e-9 * max(1.0, float(np.abs(D).max())):
+            raise MessageError("ContactFeedback.damping_P: not symmetric")
+        object.__setattr__(self, "wrench_P", W)
+        object.__setattr__(self, "damping_P", D)
+        object.__setattr__(self, "twist_P", V)
         if self.status not in SLAVE_STATUSES:
             raise MessageError(f"ContactFeedback.status: unknown status {self.status!r}")
         c = self.command_seq

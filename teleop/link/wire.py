@@ -13,8 +13,9 @@ One frame, all little-endian::
 
 ToolCommand payload (209 bytes): t_s f64 (s), p_m 3 f64 (m), R 9 f64 row-major, v_m_s 3 f64 (m/s),
 w_rad_s 3 f64 (rad/s), clutch u8, energy_J 6 f64 (J).
-ContactFeedback payload (121 bytes): t_s f64 (s), wrench_P 6 f64 (N, N*m), status u8 (index in
-SLAVE_STATUSES), command_seq i64, energy_J 6 f64 (J).
+ContactFeedback payload (337 bytes): t_s f64 (s), wrench_P 6 f64 (N, N*m), status u8 (index in
+SLAVE_STATUSES), command_seq i64, energy_J 6 f64 (J), damping_P 21 f64 (the upper triangle, row by
+row: N*s/m, N*s, N*m*s/rad), twist_P 6 f64 (m/s, rad/s). Version 3 added the last two.
 
 The CRC is CRC-32/ISO-HDLC (poly 0x04C11DB7 reflected, init and xorout 0xFFFFFFFF): crccheck's
 ``Crc32`` names it and is the reference the tests check against; it is computed by the project's
@@ -36,14 +37,15 @@ from teleop.crc32 import crc32 as _crc32
 from teleop.link.messages import SLAVE_STATUSES, ContactFeedback, MessageError, ToolCommand
 
 MAGIC = b"TLNK"
-WIRE_VERSION = 2
+WIRE_VERSION = 3
 TYPE_COMMAND = 1
 TYPE_FEEDBACK = 2
 
 _HEADER = struct.Struct("<4sBBHQ")
 _CRC = struct.Struct("<I")
 _COMMAND = struct.Struct("<19dB6d")
-_FEEDBACK = struct.Struct("<7dBq6d")
+_FEEDBACK = struct.Struct("<7dBq33d")
+_UPPER = np.triu_indices(6)
 _PAYLOAD = {TYPE_COMMAND: _COMMAND, TYPE_FEEDBACK: _FEEDBACK}
 
 #: frame sizes in bytes (header + payload + crc)
@@ -69,7 +71,7 @@ def encode(msg: ToolCommand | ContactFeedback) -> bytes:
         return _frame(TYPE_COMMAND, msg.seq, payload)
     if isinstance(msg, ContactFeedback):
         payload = _FEEDBACK.pack(msg.t_s, *msg.wrench_P, SLAVE_STATUSES.index(msg.status),
-                                 msg.command_seq, *msg.energy_J)
+                                 msg.command_seq, *msg.energy_J, *msg.damping_P[_UPPER], *msg.twist_P)
         return _frame(TYPE_FEEDBACK, msg.seq, payload)
     raise MessageError(f"wire.encode: not a link message: {type(msg).__name__}")
 
@@ -112,5 +114,8 @@ def decode(data: bytes | bytearray | memoryview) -> ToolCommand | ContactFeedbac
                            energy_J=np.array(v[20:26]))
     if v[7] >= len(SLAVE_STATUSES):
         raise MessageError(f"wire: unknown status index {v[7]}")
+    D = np.empty((6, 6))
+    D[_UPPER] = v[15:36]
+    D.T[_UPPER] = v[15:36]
     return ContactFeedback(seq=seq, t_s=v[0], wrench_P=np.array(v[1:7]), status=SLAVE_STATUSES[v[7]],
-                           command_seq=v[8], energy_J=np.array(v[9:15]))
+                           command_seq=v[8], energy_J=np.array(v[9:15]), damping_P=D, twist_P=np.array(v[36:42]))

@@ -220,6 +220,8 @@ class MappingSpec(Checked):
     force_scale: float = setting(1.0, gt=0.0, doc="force feedback gain")
     torque_scale: float | None = setting(None, gt=0.0, doc="torque feedback gain (default force_scale * scale)")
     feedback_cutoff_hz: float = setting(20.0, ge=0.0, doc="force feedback low-pass cut-off, Hz (0: off)")
+    feedback_local_damping: bool = setting(True, doc="render the contact's damping at the master, implicitly and without "
+                                           "the link's delay (teleop.control.feedback); false: the wrench alone")
 
     def registration(self) -> Registration:
         return Registration(np.array(self.position_m), rpy_matrix(*self.rpy_rad), self.scale, self.force_scale,

@@ -4,7 +4,8 @@
 (the registration), moves the target onto the patient-frame fixture, runs the follower QP under the
 same fixture rows, evaluates the tissue at the blade tip and answers with a
 :class:`~teleop.link.messages.ContactFeedback`: the contact wrench at the slave tool frame's origin,
-in the patient frame. No command (a late or lost message) holds the last target; a command with the
+in the patient frame, with the contact's local damping (:mod:`teleop.contact.damping`) and the
+tool's twist it was taken at, for the master to render. No command (a late or lost message) holds the last target; a command with the
 clutch out holds the arm where it is. A tick the arm ends with a joint at a position limit
 (:meth:`teleop.slave.limits.JointLimits.at_limit`) it reached during the run (a joint the start
 pose put on its stop is not reported while it stays there; once it leaves, it is watched like the
@@ -19,6 +20,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from teleop.contact.damping import contact_damping
 from teleop.control.mapping import Registration
 from teleop.dynamics.rotations import cross
 from teleop.link.messages import ContactFeedback, ToolCommand
@@ -119,5 +121,17 @@ class SlaveSide:
         s.ticks += 1
         at_origin = contact.copy()
         at_origin[3:] += cross(d, contact[:3])  # the tip's wrench moved to the tool frame origin
+        twist = np.concatenate((v, w))
+        damping = None
+        if self.tissue is not None and contact.any():  # the contact's damping, for the master to render
+            damping = contact_damping(lambda V: self._wrench_at_origin(tip, R, d, V), twist)
         self._seq += 1
-        return ContactFeedback(self._seq, t_s, at_origin, s.status, -1 if cmd is None else cmd.seq)
+        return ContactFeedback(self._seq, t_s, at_origin, s.status, -1 if cmd is None else cmd.seq,
+                               damping_P=damping, twist_P=twist)
+
+    def _wrench_at_origin(self, tip, R, d, V) -> np.ndarray:
+        """The tissue's wrench (N, N*m, P) at the tool frame origin for the origin twist V (6,)."""
+        v, w = V[:3], V[3:]
+        W = self.tissue.wrench(tip, R, v + cross(w, d), w).copy()
+        W[3:] += cross(d, W[:3])
+        return W

@@ -28,9 +28,12 @@ def commands(draw):
 
 @st.composite
 def feedbacks(draw):
+    A = np.array(draw(st.lists(finite, min_size=36, max_size=36))).reshape(6, 6)
+    D = None if draw(st.booleans()) else np.triu(A) + np.triu(A, 1).T  # symmetric (the layout sends 21)
     return ContactFeedback(seq=draw(seqs), t_s=draw(finite), wrench_P=draw(st.lists(finite, min_size=6, max_size=6)),
                            status=draw(st.sampled_from(SLAVE_STATUSES)), command_seq=draw(st.integers(-1, 2**63 - 1)),
-                           energy_J=draw(st.lists(energy, min_size=6, max_size=6)))
+                           energy_J=draw(st.lists(energy, min_size=6, max_size=6)), damping_P=D,
+                           twist_P=draw(st.lists(finite, min_size=6, max_size=6)))
 
 
 def _same(a, b):

@@ -79,3 +79,19 @@ def test_bad_settings_are_named():
         validate(MappingSpec, {"bogus": 1}, "", "mapping")
     r = validate(MappingSpec, {"position_m": [0.5, 0, 0.2], "rpy_rad": [0, 0, 0.5], "scale": 3}, "", "mapping").registration()
     assert r.scale == 3.0 and np.isclose(r.torque_scale, 3.0)
+
+
+def test_twist_and_damping_to_master_agree_with_target_and_wrench_to_master():
+    """D_M from damping_to_master against the path a master twist takes: to P by ``target``,
+    through -D_P, back by ``wrench_to_master`` (torque_scale the default, so D_M is symmetric)."""
+    rng = np.random.default_rng(3)
+    A = rng.normal(size=(6, 6))
+    D_P = A @ A.T
+    D_M = REG.damping_to_master(D_P)
+    for _ in range(5):
+        V_M = rng.normal(size=6)
+        _, _, v_P, w_P = REG.target(np.zeros(3), np.eye(3), V_M[:3], V_M[3:])
+        V_P = np.concatenate((v_P, w_P))
+        np.testing.assert_allclose(REG.twist_to_master(V_P), V_M, atol=1e-12)
+        np.testing.assert_allclose(-D_M @ V_M, REG.wrench_to_master(-D_P @ V_P), atol=1e-9)
+    assert np.linalg.eigvalsh(D_M).min() >= -1e-9

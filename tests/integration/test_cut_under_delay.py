@@ -1,0 +1,36 @@
+"""The cut under a tick or more of feedback delay, unguarded: the contact's damping rendered at the
+master (teleop.control.feedback) keeps it as in one process; the wrench alone falls into the
+stick-slip limit cycle that a late reply over a network used to start."""
+
+import pytest
+
+from teleop.runtime import run_scene
+from teleop.scenario.schema import load_scene
+
+SETS = ["duration_s=2.5", 'link.passivity="off"']
+
+
+def _cut(*sets):
+    r = run_scene(load_scene("straight_incision", sets=SETS + list(sets)))
+    return r.summary["status"], r.summary["metrics"]
+
+
+@pytest.fixture(scope="module")
+def one_process():
+    return _cut()[1]
+
+
+@pytest.mark.parametrize("link", [["link.round_trip_ms=1"], ["link.jitter_ms=1"], ["link.round_trip_ms=50"]],
+                         ids=["1ms", "jitter1ms", "50ms"])
+def test_the_cut_under_delay_is_the_cut_in_one_process(one_process, link):
+    status, m = _cut(*link)
+    assert status == "ok"
+    assert m["tip_tracking_rms_m"] <= 2.0 * one_process["tip_tracking_rms_m"]
+    assert m["cut_length_m"] == pytest.approx(one_process["cut_length_m"], rel=0.05)
+    assert m["cut_speed_max_m_per_s"] <= 2.0 * one_process["cut_speed_max_m_per_s"]
+
+
+def test_without_the_local_damping_one_tick_more_is_a_limit_cycle(one_process):
+    _, m = _cut("link.round_trip_ms=1", "mapping.feedback_local_damping=false")
+    assert m["cut_speed_max_m_per_s"] > 5.0 * one_process["cut_speed_max_m_per_s"]
+    assert m["cut_length_m"] > 2.0 * one_process["cut_length_m"]
