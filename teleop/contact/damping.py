@@ -6,9 +6,11 @@ the linearization of the contact model at the tool's present twist,
 
     D = -sym(dW/dV),   W the wrench at the tool frame's origin, V = (v, w) its twist,
 
-by central differences of the model itself (any tissue model with a ``wrench`` method, a user's
-too), with the part that would feed energy (negative eigenvalues) cut off: the master renders a
-damper, never a source. Units: N*s/m on force/velocity, N*m*s/rad on torque/rate, N*s and N*m*s/m
+written out by the shipped tissue models (``damping`` at the tip, moved to the origin by
+:func:`moved_to_origin`), or by central differences of the model itself for any other model with
+a ``wrench`` method (a user's), with the part that would feed energy (negative eigenvalues) cut
+off: the master renders a damper, never a source. The differences are the tests' oracle for the
+written-out laws. Units: N*s/m on force/velocity, N*m*s/rad on torque/rate, N*s and N*m*s/m
 across.
 """
 
@@ -40,3 +42,11 @@ def psd_part(D: np.ndarray) -> np.ndarray:
     if e[0] >= 0.0:
         return D
     return (V * np.maximum(e, 0.0)) @ V.T
+
+
+def moved_to_origin(D_tip: np.ndarray, d: np.ndarray) -> np.ndarray:
+    """The damping D_tip (6, 6) of a wrench acting at the tip, seen at the tool origin, the tip
+    at ``d`` (3,) m from it: X^T D_tip X, X the tip twist of the origin's (v - d x w, w)."""
+    X = np.eye(6)
+    X[:3, 3:] = np.array([[0.0, d[2], -d[1]], [-d[2], 0.0, d[0]], [d[1], -d[0], 0.0]])
+    return X.T @ D_tip @ X

@@ -101,6 +101,30 @@ class TissueBlock(Checked):
         """World wrench (6,) on the tool at the tip: (N, N*m)."""
         return self.compute_contact(p_tip, R_tool, v_tip, w).wrench
 
+    def damping(self, p_tip, R_tool, v_tip, w) -> np.ndarray:
+        """-dW/d(v_tip, w) (6, 6) of :meth:`wrench` at the tip (:mod:`teleop.contact.damping`)."""
+        return self.damping_law(self.compute_depth(p_tip), self.normal, R_tool, v_tip, w)
+
+    def damping_law(self, d: float, n, R_tool, v_tip, w) -> np.ndarray:
+        """-dW/d(v_tip, w) (6, 6) of :meth:`contact_law`, written out: the normal model's damping
+        along n (Hunt-Crossley k d^e 1.5 alpha, Kelvin-Voigt c; none while the force is clamped at
+        zero) plus the cutting model's (:meth:`CuttingModel.compute_damping`)."""
+        D = np.zeros((6, 6))
+        if d <= 0.0:
+            return D
+        n = np.asarray(n, dtype=float)
+        v_tip = np.asarray(v_tip, dtype=float)
+        d_dot = -float(n @ v_tip)
+        if self.model == "hunt_crossley":
+            kd = self.stiffness * d**self.exponent
+            fn, c_n = kd * (1.0 + 1.5 * self.alpha_s_per_m * d_dot), kd * 1.5 * self.alpha_s_per_m
+        else:
+            fn, c_n = self.stiffness * d + self.damping_Ns_per_m * d_dot, self.damping_Ns_per_m
+        D_v, D_w = self.cutting.compute_damping(d, n, np.asarray(R_tool, float), v_tip)
+        D[:3, :3] = D_v + (c_n * np.outer(n, n) if fn > 0.0 else 0.0)
+        D[3:, 3:] = D_w
+        return D
+
 
 class SurfaceTissue:
     """Tissue under a curved surface (:class:`teleop.dynamics.surface.HeightSurface`, patient
@@ -127,3 +151,7 @@ class SurfaceTissue:
 
     def wrench(self, p_tip, R_tool, v_tip, w) -> np.ndarray:
         return self.compute_contact(p_tip, R_tool, v_tip, w).wrench
+
+    def damping(self, p_tip, R_tool, v_tip, w) -> np.ndarray:
+        d, n = self.depth_and_normal(p_tip)
+        return self.block.damping_law(d, n, R_tool, v_tip, w)

@@ -20,7 +20,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from teleop.contact.damping import contact_damping
+from teleop.contact.damping import contact_damping, moved_to_origin
 from teleop.control.mapping import Registration
 from teleop.dynamics.rotations import cross
 from teleop.link.messages import ContactFeedback, ToolCommand
@@ -124,7 +124,10 @@ class SlaveSide:
         twist = np.concatenate((v, w))
         damping = None
         if self.tissue is not None and contact.any():  # the contact's damping, for the master to render
-            damping = contact_damping(lambda V: self._wrench_at_origin(tip, R, d, V), twist)
+            if hasattr(self.tissue, "damping"):  # written out by the model
+                damping = moved_to_origin(self.tissue.damping(tip, R, v + cross(w, d), w), d)
+            else:
+                damping = contact_damping(lambda V: self._wrench_at_origin(tip, R, d, V), twist)
         self._seq += 1
         return ContactFeedback(self._seq, t_s, at_origin, s.status, -1 if cmd is None else cmd.seq,
                                damping_P=damping, twist_P=twist)

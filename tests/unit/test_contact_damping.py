@@ -7,9 +7,10 @@ import numpy as np
 import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
+from scipy.spatial.transform import Rotation
 
 from teleop.contact import CuttingModel, TissueBlock
-from teleop.contact.damping import contact_damping, psd_part
+from teleop.contact.damping import contact_damping, moved_to_origin, psd_part
 
 R_CUT = np.array([[1.0, 0.0, 0.0], [0.0, -1.0, 0.0], [0.0, 0.0, -1.0]])  # blade along +x, edge down
 O = np.array([0.5, 0.0, 0.2])
@@ -79,3 +80,28 @@ def test_psd_part_keeps_the_dissipating_directions_only(a):
     assert np.linalg.eigvalsh(P).min() >= -1e-9 * max(1.0, np.abs(S).max())
     for k in range(6):  # each eigen-direction keeps its positive value, loses its negative one
         assert V[:, k] @ P @ V[:, k] == pytest.approx(max(e[k], 0.0), abs=1e-8 * max(1.0, np.abs(S).max()))
+
+
+@settings(max_examples=150, deadline=None)
+@given(st.data())
+def test_the_written_out_damping_is_the_differences_of_the_law(data):
+    """Any pose, tip velocity, depth, both normal models, a tip off the origin: the shipped models'
+    ``damping`` moved to the origin equals the central differences of their ``wrench``."""
+    fl = st.floats(-1.0, 1.0)
+    model = data.draw(st.sampled_from(["hunt_crossley", "kelvin_voigt"]))
+    t = TissueBlock(origin_m=O, model=model, normal=np.array([0.1, -0.2, 1.0]))
+    R = Rotation.from_rotvec(np.array(data.draw(st.lists(fl, min_size=3, max_size=3))) * 3).as_matrix()
+    d = np.array(data.draw(st.lists(st.floats(-0.03, 0.03), min_size=3, max_size=3)))
+    tip = O - t.normal * data.draw(st.floats(0.0005, 0.02))
+    V = np.array(data.draw(st.lists(st.floats(-0.05, 0.05), min_size=6, max_size=6)))
+
+    def at_origin(V):
+        v, w = V[:3], V[3:]
+        W = t.wrench(tip, R, v + np.cross(w, d), w).copy()
+        W[3:] += np.cross(d, W[:3])
+        return W
+
+    v, w = V[:3], V[3:]
+    D = moved_to_origin(t.damping(tip, R, v + np.cross(w, d), w), d)
+    ref = contact_damping(at_origin, V)
+    np.testing.assert_allclose(D, ref, rtol=1e-4, atol=1e-4 * max(1.0, np.abs(ref).max()))
