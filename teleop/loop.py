@@ -61,7 +61,8 @@ class BilateralLoop:
         self.link = link if link is not None else LockstepLink()
         self.master_guard, self.slave_guard = guard if guard is not None else (None, None)
         self.hand_W = np.zeros(6)      # what the hand pushed with this tick (N, N*m)
-        self.feedback_W = np.zeros(6)  # the slave's force, applied at the next tool step
+        self.feedback_W = np.zeros(6)  # the channel's force for the next tool step (after the guard)
+        self.felt_W = np.zeros(6)      # the slave's wrench the tool stepped under (rendered, N, N*m)
         self.status = "ok"
         self.command_errors = 0        # ticks whose command could not be made (non-finite)
         self.tick_ns = 0               # the last tick's physics, hooks excluded (ns, CPU clock)
@@ -84,11 +85,12 @@ class BilateralLoop:
         p_r, R_r = tool.pose()
         if lost:                                                   # safe state: hold, no remote force
             st, st_m = "ok", hold_master(tool, master, self.feedback, p_r, R_r, self.master_guard)
-            self.feedback_W = np.zeros(6)
+            self.feedback_W = self.felt_W = np.zeros(6)
         else:
             v_r, w_r = tool.twist()
-            felt = self.feedback_W if self.feedback is None else self.feedback.render(self.feedback_W, tool, f_v, self.dt)
-            st = tool.step(self.dt, f_v + felt)                     # §II: eqs. 8-11
+            if self.feedback is not None:                          # the contact's damping, here and now
+                self.felt_W = self.feedback.render(self.feedback_W, tool, f_v, self.dt)
+            st = tool.step(self.dt, f_v + self.felt_W)             # §II: eqs. 8-11
             st_m = master.command(p_r, R_r, np.concatenate((v_r, w_r)), tool.acceleration_W)  # 18-19
         if self.slave is not None:
             self._send_command(i, t, lost)                          # master side ends here

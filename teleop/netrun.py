@@ -74,7 +74,7 @@ class MasterHalf:
         self.slave = self.slave_guard = None
         self.heart = HeartbeatState(heartbeat_s)
         self.peer_lost = False  # the newest reply says the slave hears nothing
-        self.hand_W, self.feedback_W = np.zeros(6), np.zeros(6)
+        self.hand_W, self.feedback_W, self.felt_W = np.zeros(6), np.zeros(6), np.zeros(6)
         self.tick_ns, self.status, self.command_errors = 0, "ok", 0
         self.slave_status: dict[str, int] = {}
         self.reply_lag: dict = {}  # ticks whose newest reply answered the command of k ticks before the last
@@ -102,10 +102,11 @@ class MasterHalf:
         p_r, R_r = tool.pose()
         if lost:                                   # safe state: the tool holds, no remote force
             st, st_m = "ok", hold_master(tool, master, self.feedback, p_r, R_r, self.master_guard)
-            self.feedback_W = np.zeros(6)
+            self.feedback_W = self.felt_W = np.zeros(6)
         else:
             v_r, w_r = tool.twist()
-            st = tool.step(self.dt, f_v + self.feedback.render(self.feedback_W, tool, f_v, self.dt))
+            self.felt_W = self.feedback.render(self.feedback_W, tool, f_v, self.dt)
+            st = tool.step(self.dt, f_v + self.felt_W)
             st_m = master.command(p_r, R_r, np.concatenate((v_r, w_r)), tool.acceleration_W)
         mg = self.master_guard
         energy = None if mg is None else mg.energy_J if lost else mg.energy_after(np.concatenate(tool.twist()))
@@ -251,7 +252,7 @@ def _master_half(scene, link, n: int):
     reg = build_registration(scene)
     feedback = FeedbackPath(reg, scene.mapping.feedback_cutoff_hz, scene.dt_s,
                             scene.mapping.feedback_local_damping)
-    guard = make_guard(scene, reg, n)
+    guard = make_guard(scene, reg, n, networked=True)
     metrics = MasterMetrics(make_metrics(spec_M, n, tool.body.mass_kg))
     recorder = MasterRecorder(tool, n)
     glog = _GuardLog(n, 0) if guard else None
@@ -319,7 +320,7 @@ def _slave_half(scene, link, cap: int):
     constraints_P = build_fixture(scene.fixture).constraints
     slave = make_slave(scene, reg, constraints_P)
     slave.reset(*tool.pose())
-    guard = make_guard(scene, reg, cap)
+    guard = make_guard(scene, reg, cap, networked=True)
     rcm = [c for c in constraints_P if isinstance(c, RemoteCenter)]
     metrics, counter = SlaveMetrics(scene.fixture, cap, slave.arm.nv, rcm), SlaveCounter()
     glog = _GuardLog(cap, 1) if guard else None

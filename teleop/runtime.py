@@ -86,13 +86,15 @@ def make_link(scene: Scene, rng: np.random.Generator, simulated: bool | None = N
     return SimulatedChannel(channel_spec(scene), rng)
 
 
-def make_guard(scene: Scene, registration, n_ticks: int):
-    """(MasterGuard, SlaveGuard) for ``passivity = "tdpa"`` (None otherwise)."""
-    if scene.link.passivity != "tdpa" or scene.slave is None:
+def make_guard(scene: Scene, registration, n_ticks: int, networked: bool = False):
+    """(MasterGuard, SlaveGuard) when the scene's link is guarded (:meth:`LinkSpec.guarded`: its
+    ``passivity``, and for "auto" whether the link delays or is ``networked``); None otherwise."""
+    if not scene.link.guarded(networked) or scene.slave is None:
         return None
     t = scene.tool
     params = tdpa_params(scene.link, scene.dt_s, t.mass_kg, _inertia(t.inertia_kgm2), enabled=True)
-    return MasterGuard(params), SlaveGuard(params, registration)
+    return MasterGuard(params), SlaveGuard(params, registration,
+                                           model_offset=scene.mapping.feedback_local_damping)
 
 
 def _inertia(v) -> np.ndarray:

@@ -59,7 +59,7 @@ class FeltForce(Hook):
         self.F = np.zeros(n)
 
     def after_tick(self, i, t_s, loop) -> None:
-        self.F[i] = float(np.linalg.norm(loop.feedback_W[:3]))
+        self.F[i] = float(np.linalg.norm(loop.felt_W[:3]))
 
 
 def run_point(name: str, delay_ms: float, loss: float, guard: bool, seconds: float | None) -> tuple[dict, dict]:

@@ -12,16 +12,21 @@ So the slave also sends the contact's local damping D (:mod:`teleop.contact.damp
 twist V_s it was taken at, and the master renders the contact as that local model, in the manner
 of model-mediated teleoperation (Mitra and Niemeyer 2008; Passenberg, Peer and Buss 2010):
 
-    W = W_s + D (V_s - V+),
+    W = W_s + D (V_s - V+) = F0 - D V+,   F0 = W_s + D V_s,
 
 the delayed wrench corrected by the damping for the difference between the slave's twist then and
 the tool's twist V+ at the end of this step, solved implicitly (backward Euler on the free tool,
-mass matrix M: (M + dt D) V+ = M V + dt (F + W_s + D V_s), F the hand's wrench plus the tool's own
-effects at its present state, as the step applies them: leaving out the tool's own damping made a
-steady turn read as an acceleration, and the curved cut turned 0.20 rad instead of 0.32). The steep part of the contact is
-then felt at the tool's own present velocity, and an implicit damper cannot throw the tool back
-however steep it is; in steady sliding V+ = V_s and W = W_s. W_s, D and V_s go through the same
-low-pass. A reply without contact carries D = 0 (nothing rendered beyond W_s); a D that is not
+mass matrix M: (M + dt D) V+ = M V + dt (F + F0), F the hand's wrench plus the tool's own effects
+at its present state, as the step applies them: leaving out the tool's own damping made a steady
+turn read as an acceleration, and the curved cut turned 0.20 rad instead of 0.32). The steep part
+of the contact is then felt at the tool's own present velocity, and an implicit damper cannot throw
+the tool back however steep it is; in steady sliding V+ = V_s and W = W_s.
+
+What crosses the link is then the model's offset F0 (a force) and a damper; the damper is passive
+wherever it is rendered, so the passivity guard (:mod:`teleop.link.guard`) observes and damps F0 at
+both ports, and :meth:`FeedbackPath.update` returns F0 for it. F0 and D go through the same
+low-pass (F0 filtered as the slave counted it: filtering W_s, D and V_s apart and multiplying made
+the two ports disagree at the stick, and the guard drifted 0.5 mm at a 1 ms round trip). A reply without contact carries D = 0 (nothing rendered beyond W_s); a D that is not
 positive semidefinite is not rendered (counted in ``refused``). A tick with no new message holds
 the last model.
 """
@@ -38,6 +43,9 @@ from teleop.dynamics.kernels.small import is_positive_definite, solve
 from teleop.link.messages import ContactFeedback
 
 
+_ZERO66 = np.zeros((6, 6))
+
+
 class FeedbackPath:
     """``update(msg)`` -> the wrench (6,: N, N*m, master world, at the reference tool's origin)
     the slave reported; ``render(wrench, tool, f_other, dt)`` -> the wrench the tool steps under.
@@ -49,55 +57,58 @@ class FeedbackPath:
         self.reg = registration
         self.alpha = 1.0 - math.exp(-2.0 * math.pi * cutoff_hz * dt_s) if cutoff_hz > 0 else 1.0
         self.local_damping = bool(local_damping)
-        self.wrench_M = np.zeros(6)
-        self.damping_M = np.zeros((6, 6))  # N*s/m, N*m*s/rad (master units)
-        self.slave_twist_M = np.zeros(6)   # m/s, rad/s (master units)
-        self.refused = 0                   # replies whose damping was not positive semidefinite
+        self.wrench_M = np.zeros(6)         # the reported wrench W_s, filtered (N, N*m)
+        self.offset_M = np.zeros(6)         # the model's offset F0 = W_s + D V_s, filtered (N, N*m)
+        self.damping_M = np.zeros((6, 6))   # D, filtered (N*s/m, N*m*s/rad: master units)
+        self.refused = 0                    # replies whose damping was not positive semidefinite
         self._target = np.zeros(6)
+        self._offset = np.zeros(6)
         self._D = np.zeros((6, 6))
-        self._V = np.zeros(6)
 
     def update(self, msg: ContactFeedback | None) -> np.ndarray:
+        """The newest reply (None: hold the last) filtered in; returns the force the channel
+        brings to the master, F0 = W_s + D V_s (the model's offset; W_s alone without the local
+        damping): what the passivity guard observes and damps before :meth:`render`. F0 is
+        filtered as it is (not from a filtered W_s, D and V_s), so the master's port counts the
+        force the slave's port counted."""
         if msg is not None:
             self._target = self.reg.wrench_to_master(msg.wrench_P)
-            if self.local_damping:
+            self._offset, self._D = self._target, _ZERO66
+            if self.local_damping and msg.damping_P.any():
                 self._take_model(msg)
         a = self.alpha
         self.wrench_M = self.wrench_M + a * (self._target - self.wrench_M)
-        if self.local_damping:
-            self.damping_M = self.damping_M + a * (self._D - self.damping_M)
-            self.slave_twist_M = self.slave_twist_M + a * (self._V - self.slave_twist_M)
-        return self.wrench_M
+        if not self.local_damping:
+            return self.wrench_M
+        self.offset_M = self.offset_M + a * (self._offset - self.offset_M)
+        self.damping_M = self.damping_M + a * (self._D - self.damping_M)
+        return self.offset_M
 
     def _take_model(self, msg: ContactFeedback) -> None:
-        if not msg.damping_P.any():
-            self._D, self._V = np.zeros((6, 6)), np.zeros(6)
-            return
         D = self.reg.damping_to_master(msg.damping_P)
         scale = max(1.0, float(np.abs(D).max()))
         if not is_positive_definite(D + (1e-9 * scale) * np.eye(6)):
             self.refused += 1
-            self._D, self._V = np.zeros((6, 6)), np.zeros(6)
             return
-        self._D, self._V = D, self.reg.twist_to_master(msg.twist_P)
+        self._D = D
+        self._offset = self.reg.wrench_to_master(msg.wrench_P + msg.damping_P @ msg.twist_P)
 
-    def render(self, wrench_M: np.ndarray, tool, f_other_W: np.ndarray, dt_s: float) -> np.ndarray:
-        """The felt ``wrench_M`` (6,) with the contact's damping rendered at the ``tool``'s own
-        twist after this step (see the module docstring); ``f_other_W`` (6,: N, N*m) the hand's
-        wrench (the tool's own effects are added here). Returns ``wrench_M`` itself when there is no
-        damping to render."""
+    def render(self, channel_M: np.ndarray, tool, f_other_W: np.ndarray, dt_s: float) -> np.ndarray:
+        """The wrench (6,: N, N*m, M) the ``tool`` steps under from the slave: the channel's force
+        ``channel_M`` (:meth:`update`'s, after the guard) minus the contact's damping at the tool's
+        twist after this step, D V+, solved implicitly (see the module docstring);
+        ``f_other_W`` (6,) the hand's wrench (the tool's own effects are added here). Returns
+        ``channel_M`` itself when there is no damping to render."""
         D = self.damping_M
         if not self.local_damping or not D.any():
-            return wrench_M
+            return channel_M
         p, R = tool.pose()
         v, w = tool.twist()
-        V = np.concatenate((v, w))
         M = np.zeros((6, 6))
         M[0, 0] = M[1, 1] = M[2, 2] = tool.body.mass_kg
         M[3:, 3:] = R @ tool.body.J @ R.T
         f = total_wrench(tool.model.effects, p, R, v, w, tool.t, f_other_W)  # the step's own forces too
-        Vs = self.slave_twist_M
-        ok, V_next = solve(M + dt_s * D, M @ V + dt_s * (f + wrench_M + D @ Vs))
+        ok, V_next = solve(M + dt_s * D, M @ np.concatenate((v, w)) + dt_s * (f + channel_M))
         if not ok:
-            return wrench_M
-        return wrench_M + D @ (Vs - V_next)
+            return self.wrench_M  # the reported wrench alone
+        return channel_M - D @ V_next

@@ -7,7 +7,10 @@ force fed to the reference tool (eq. 4), so the tool's own fixture rows keep it 
 It stamps the master port's input energy into every outgoing command.
 
 :class:`SlaveGuard` sits on the slave side between the link and the slave: it observes the energy
-the channel puts out at the slave port (the contact wrench times the commanded velocity), corrects
+the channel puts out at the slave port (the contact wrench times the commanded velocity; with the
+contact's damping rendered at the master, the model's offset F0 = W + D V instead, the force the
+master's port counts too: the damper is passive where it is rendered, see
+:mod:`teleop.control.feedback`), corrects
 the commanded velocity when the observer goes negative and adds the accumulated correction (the
 position drift) to the commanded pose before the slave maps it; drift compensation pulls the offset
 back with surplus energy only. The slave's fixture projection and QP rows act after the guard, so a
@@ -63,9 +66,10 @@ class MasterGuard:
 class SlaveGuard:
     """The slave port: ``command(cmd, t_s)`` before the slave follows, ``reply(fb)`` after."""
 
-    def __init__(self, params: TdpaParams, registration, log_capacity: int = 0):
+    def __init__(self, params: TdpaParams, registration, log_capacity: int = 0, model_offset: bool = True):
         self.port = SlavePassivity(params, log_capacity)
         self.reg = registration
+        self.model_offset = bool(model_offset)  # count F0 = W + D V (the master renders D locally)
         self.f_M = np.zeros(6)  # the newest contact wrench, in M (N, N*m)
         self.speed = np.zeros(6)  # |commanded twist| low-passed (drift_speed_tau_s), m/s and rad/s in M
 
@@ -91,8 +95,8 @@ class SlaveGuard:
     def reply(self, fb: ContactFeedback) -> ContactFeedback:
         """``fb`` with the slave port's input energy and the drift spring added to its wrench
         (nothing added while the offset is zero); remembers the contact wrench for the next tick."""
-        self.f_M = self.reg.wrench_to_master(fb.wrench_P)
         wrench_P = fb.wrench_P
+        self.f_M = self.reg.wrench_to_master(wrench_P + fb.damping_P @ fb.twist_P if self.model_offset else wrench_P)
         off = self.port.offset
         if np.any(off):  # the drift reflected to the master: a spring pulling it toward the slave's target
             p = self.port.params
@@ -100,7 +104,8 @@ class SlaveGuard:
             R = self.reg.X_PM_R
             wrench_P = wrench_P + np.concatenate((R @ pull_M[:3] / self.reg.force_scale,
                                                   R @ pull_M[3:] / self.reg.torque_scale))
-        return ContactFeedback(fb.seq, fb.t_s, wrench_P, fb.status, fb.command_seq, self.port.energy_J)
+        return ContactFeedback(fb.seq, fb.t_s, wrench_P, fb.status, fb.command_seq, self.port.energy_J,
+                               fb.damping_P, fb.twist_P)
 
 
 def tdpa_params(link, dt_s: float, mass_kg: float, inertia_kgm2, enabled: bool) -> TdpaParams:

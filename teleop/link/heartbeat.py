@@ -22,6 +22,8 @@ When messages come again each side resumes from where it held.
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
 
 from teleop.link.messages import ContactFeedback
@@ -116,5 +118,5 @@ def follow_or_hold(slave, slave_guard, cmd, t_s: float, lost: bool) -> ContactFe
         reply = slave_guard.reply(reply)
     if lost:
         slave.state.status = "link_lost"
-        reply = ContactFeedback(reply.seq, reply.t_s, reply.wrench_P, "link_lost", reply.command_seq, reply.energy_J)
+        reply = replace(reply, status="link_lost")  # the rest as measured (wrench, damping, energy)
     return reply

@@ -250,7 +250,9 @@ class LinkSpec(Checked):
     burst_exit: float = setting(0.5, gt=0.0, le=1.0, doc="bad->good probability per message (mean burst 1/burst_exit)")
     burst_loss: float = setting(1.0, ge=0.0, le=1.0, doc="loss probability in the bad state")
     bandwidth_kBps: float = setting(0.0, ge=0.0, doc="wire rate each way, kB/s (0: no limit)")
-    passivity: Literal["off", "tdpa"] = setting("off", doc="passivity guard: off or time-domain passivity (TDPA)")
+    passivity: Literal["auto", "off", "tdpa"] = setting(
+        "auto", doc="passivity guard: auto (TDPA on a link with delay, jitter, loss or a bandwidth limit, and over "
+                    "a network; off on the in-process link), off, or tdpa (time-domain passivity)")
     alpha_max: float = setting(0.5, gt=0.0, le=1.0,
                                doc="master damping cap as a fraction of what the tool's explicit step takes (mass/dt)")
     dv_max_m_s: float = setting(0.5, gt=0.0, doc="slave velocity correction cap, m/s (rad/s on rotation axes)")
@@ -259,10 +261,21 @@ class LinkSpec(Checked):
                                   doc="over Zenoh: a side that hears nothing for this long goes to its safe state, ms")
 
     @property
+    def channel_named(self) -> bool:
+        """True when the table names a channel effect (delay, jitter, loss, bursts, bandwidth)."""
+        return (self.round_trip_ms > 0 or self.jitter_ms > 0 or self.loss > 0 or self.burst_enter > 0
+                or self.bandwidth_kBps > 0)
+
+    @property
     def simulated(self) -> bool:
         """True when the link does anything the in-process lockstep link does not."""
-        return (self.round_trip_ms > 0 or self.jitter_ms > 0 or self.loss > 0 or self.burst_enter > 0
-                or self.bandwidth_kBps > 0 or self.passivity != "off")
+        return self.channel_named or self.passivity == "tdpa"
+
+    def guarded(self, networked: bool = False) -> bool:
+        """Whether the passivity guard runs: "tdpa" always, "off" never, "auto" on a channel that
+        delays or loses messages and on a ``networked`` link (two processes over Zenoh), where even
+        a tick of delay makes a stiff contact unstable (stiff_contact at a 1 ms round trip)."""
+        return self.passivity == "tdpa" or (self.passivity == "auto" and (networked or self.channel_named))
 
 
 def rpy_matrix(r: float, p: float, y: float) -> np.ndarray:

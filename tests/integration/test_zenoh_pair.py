@@ -13,7 +13,9 @@ import pytest
 
 pytest.importorskip("zenoh")
 
-from teleop.netrun import free_endpoint  # noqa: E402
+from teleop.netrun import free_endpoint
+from teleop.runtime import run_scene
+from teleop.scenario.schema import load_scene
 
 PY = [sys.executable, "-m", "teleop"]
 ENV = {**os.environ}
@@ -35,18 +37,24 @@ def _wait_line(proc, text, timeout_s=180.0):
 
 @pytest.mark.long
 def test_two_process_cut_over_zenoh_writes_one_summary(tmp_path):
+    """A 2 s cut (1.5 s of it in the tissue) over Zenoh: one summary, the guard on (passivity
+    "auto" on a network), and the tip tracked within 2x the same cut in one process."""
     out = tmp_path / "run.json"
+    sets = ["duration_s=2.0", "link.heartbeat_ms=2000"]
     # a slow shared machine cannot hold 1 kHz in both processes: a wide heartbeat here, the 20 ms
     # one is tested below
-    rc = subprocess.run(PY + ["run", "straight_incision", "--link", "zenoh", "--set", "duration_s=1.0",
-                              "--set", "link.heartbeat_ms=2000", "--json", str(out)],
+    rc = subprocess.run(PY + ["run", "straight_incision", "--link", "zenoh", *[a for x in sets for a in ("--set", x)],
+                              "--json", str(out)],
                         env=ENV, timeout=400, capture_output=True, text=True)
     s = json.loads(out.read_text())
     assert s["link"] == "zenoh" and s["endpoint"].startswith("tcp/127.0.0.1:")
-    assert s["master"]["steps"] == 1000 and s["slave"]["followed_last_command"]
+    assert s["master"]["steps"] == 2000 and s["slave"]["followed_last_command"]
     assert s["nan"] is False and s["master"]["zenoh"]["bad_frames"] == 0
     assert s["metrics"]["cut_depth_error_max_m"] <= 50e-6
-    assert sum(s["master"]["reply_lag_ticks"].values()) == 1000  # every tick's reply accounted for
+    assert sum(s["master"]["reply_lag_ticks"].values()) == 2000  # every tick's reply accounted for
+    assert "passivity_master" in s["master"] and "passivity_slave" in s["slave"]
+    one = run_scene(load_scene("straight_incision", sets=sets)).summary["metrics"]
+    assert s["metrics"]["tip_tracking_rms_m"] <= 2.0 * one["tip_tracking_rms_m"], (s["metrics"], one)
     if len(os.sched_getaffinity(0)) >= 2:  # each side on a core of its own
         assert {s["master"]["clock"]["core"], s["slave"]["clock"]["core"]} == set(sorted(os.sched_getaffinity(0))[:2])
     assert s["status"] == "ok", (s["status"], rc.stderr[-2000:])

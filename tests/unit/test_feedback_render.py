@@ -46,9 +46,9 @@ class _Tool:
 
 
 def _path(D_P, V_P, W_P, reg=None):
+    """(the path, the channel's force F0 it hands the guard and then the render)."""
     fb = FeedbackPath(reg or Registration([0, 0, 0], np.eye(3)), cutoff_hz=0.0, dt_s=DT)
-    fb.update(ContactFeedback(1, 0.0, W_P, "ok", 0, damping_P=D_P, twist_P=V_P))
-    return fb
+    return fb, fb.update(ContactFeedback(1, 0.0, W_P, "ok", 0, damping_P=D_P, twist_P=V_P))
 
 
 def test_one_axis_is_backward_euler():
@@ -59,8 +59,8 @@ def test_one_axis_is_backward_euler():
     Dm = np.zeros((6, 6))
     Dm[0, 0] = D
     tool = _Tool(m, V=[v, 0, 0, 0, 0, 0])
-    fb = _path(Dm, np.array([vs, 0, 0, 0, 0, 0]), np.array([W, 0, 0, 0, 0, 0]))
-    F = fb.render(fb.wrench_M, tool, np.array([f, 0, 0, 0, 0, 0]), DT)
+    fb, F0 = _path(Dm, np.array([vs, 0, 0, 0, 0, 0]), np.array([W, 0, 0, 0, 0, 0]))
+    F = fb.render(F0, tool, np.array([f, 0, 0, 0, 0, 0]), DT)
     v_next = v + DT / m * (f + F[0])
     assert v_next == pytest.approx((m * v + DT * (f + W + D * vs)) / (m + DT * D), rel=1e-12)
     np.testing.assert_array_equal(F[1:], 0.0)
@@ -74,9 +74,9 @@ def test_the_stale_stick_does_not_throw_the_tool_back():
     Dm = np.zeros((6, 6))
     Dm[0, 0] = D
     tool = _Tool(0.1)  # at rest
-    fb = _path(Dm, np.array([vs, 0, 0, 0, 0, 0]), np.array([-D * vs, 0, 0, 0, 0, 0]))
+    fb, F0 = _path(Dm, np.array([vs, 0, 0, 0, 0, 0]), np.array([-D * vs, 0, 0, 0, 0, 0]))
     assert fb.wrench_M[0] == pytest.approx(-2.0)  # what the tool would feel without the model
-    F = fb.render(fb.wrench_M, tool, np.zeros(6), DT)
+    F = fb.render(F0, tool, np.zeros(6), DT)
     assert abs(F[0]) < 1e-12
 
 
@@ -93,8 +93,8 @@ def test_any_tool_any_damping_steps_as_backward_euler(data):
     D = A @ A.T  # positive semidefinite, up to ~1e4
     V, Vs, W, f = (np.array(data.draw(st.lists(fl, min_size=6, max_size=6))) for _ in range(4))
     tool = _Tool(m, J, R, V)
-    fb = _path(D, Vs, W)
-    F = fb.render(fb.wrench_M, tool, f, DT)
+    fb, F0 = _path(D, Vs, W)
+    F = fb.render(F0, tool, f, DT)
     M = tool.mass_matrix()
     V_next = V + DT * np.linalg.solve(M, f + F)
     resid = M @ (V_next - V) - DT * (f + W + D @ (Vs - V_next))
@@ -103,24 +103,24 @@ def test_any_tool_any_damping_steps_as_backward_euler(data):
 
 def test_no_contact_renders_the_wrench_alone():
     tool = _Tool(V=[0.1, 0, 0, 0, 0, 0.3])
-    fb = _path(None, None, np.array([1.0, 2, 3, 0, 0, 0]))
-    w = fb.wrench_M
-    assert fb.render(w, tool, np.ones(6), DT) is w
+    fb, F0 = _path(None, None, np.array([1.0, 2, 3, 0, 0, 0]))
+    np.testing.assert_array_equal(F0, fb.wrench_M)  # no model: the channel brings the wrench
+    assert fb.render(F0, tool, np.ones(6), DT) is F0
 
 
 def test_a_damping_that_feeds_energy_is_refused_and_counted():
     Dm = -np.eye(6)
-    fb = _path(Dm, np.ones(6), np.array([1.0, 0, 0, 0, 0, 0]))
+    fb, F0 = _path(Dm, np.ones(6), np.array([1.0, 0, 0, 0, 0, 0]))
     assert fb.refused == 1 and not fb.damping_M.any()
-    w = fb.wrench_M
-    assert fb.render(w, _Tool(V=np.ones(6)), np.zeros(6), DT) is w
+    np.testing.assert_array_equal(F0, fb.wrench_M)
+    assert fb.render(F0, _Tool(V=np.ones(6)), np.zeros(6), DT) is F0
 
 
 def test_local_damping_off_is_the_wrench_alone():
     Dm = np.eye(6)
     fb = FeedbackPath(Registration([0, 0, 0], np.eye(3)), cutoff_hz=0.0, dt_s=DT, local_damping=False)
-    fb.update(ContactFeedback(1, 0.0, np.ones(6), "ok", 0, damping_P=Dm, twist_P=np.ones(6)))
-    w = fb.wrench_M
+    w = fb.update(ContactFeedback(1, 0.0, np.ones(6), "ok", 0, damping_P=Dm, twist_P=np.ones(6)))
+    np.testing.assert_array_equal(w, np.ones(6))
     assert fb.render(w, _Tool(V=np.ones(6)), np.zeros(6), DT) is w
 
 
@@ -141,6 +141,6 @@ def test_a_steady_turn_against_the_tools_own_damping_is_not_read_as_an_accelerat
     Dm[5, 5] = D
     V = np.array([0, 0, 0, 0, 0, w])
     tool = _Tool(0.25, V=V, effects=(LinearDamper(2.0), AngularDamper(c)))
-    fb = _path(Dm, V, -D * V)
-    F = fb.render(fb.wrench_M, tool, np.array([0, 0, 0, 0, 0, (c + D) * w]), DT)
+    fb, F0 = _path(Dm, V, -D * V)
+    F = fb.render(F0, tool, np.array([0, 0, 0, 0, 0, (c + D) * w]), DT)
     np.testing.assert_allclose(F, -D * V, atol=1e-15)

@@ -4,6 +4,7 @@ energies and offsets, and the damping cap from the tool's mass."""
 import numpy as np
 import pytest
 
+from teleop.control.feedback import FeedbackPath
 from teleop.control.mapping import Registration
 from teleop.errors import SceneError
 from teleop.link import ContactFeedback, LockstepLink, SimulatedChannel, ToolCommand
@@ -30,6 +31,28 @@ def test_link_table_from_the_command_line_builds_the_channel():
     spec = link.spec
     assert spec.round_trip_ms == 40.0 and spec.loss == (0.1, 0.1) and spec.burst_enter == (0.01, 0.01)
     assert spec.bandwidth_Bps == (1e5, 1e5) and spec.delay_s(0) == pytest.approx(0.02)
+
+
+@pytest.mark.parametrize("sets, networked, guarded", [
+    ([], False, False),                                             # the in-process link: nothing to guard
+    ([], True, True),                                               # over Zenoh: "auto" guards
+    (["link.round_trip_ms=1"], False, True),                        # a delay named: guarded
+    (["link.jitter_ms=0.5"], False, True), (["link.loss=0.01"], False, True),
+    (["link.bandwidth_kBps=500"], False, True), (["link.burst_enter=0.01"], False, True),
+    (["link.round_trip_ms=100", 'link.passivity="off"'], True, False),  # said off: off, even on a network
+    (['link.passivity="tdpa"'], False, True),                       # said tdpa: on, even in one process
+])
+def test_auto_guards_a_link_that_delays_or_crosses_a_network(sets, networked, guarded):
+    scene = load_scene("straight_incision", sets=sets)
+    assert scene.link.guarded(networked) is guarded
+    assert (make_guard(scene, scene.mapping.registration(), 10, networked=networked) is not None) is guarded
+
+
+def test_the_default_is_auto_and_a_delayed_run_is_guarded():
+    assert load_scene("straight_incision").link.passivity == "auto"
+    from teleop.runtime import run_scene
+    s = run_scene(load_scene("straight_incision", sets=["duration_s=0.2", "link.round_trip_ms=20"])).summary
+    assert "passivity" in s and s["status"] == "ok"
 
 
 @pytest.mark.parametrize("setting, key", [("link.loss=1.0", "link.loss"), ("link.round_trip_ms=-1", "link.round_trip_ms"),
@@ -86,6 +109,23 @@ def test_slave_guard_corrects_velocity_and_offsets_the_pose():
     assert g.command(None, 2 * DT) is None  # nothing to follow: the slave holds
 
 
+@pytest.mark.parametrize("model_offset", [True, False])
+def test_slave_guard_counts_the_force_the_master_renders_from(model_offset):
+    """With the contact's damping rendered at the master, the channel brings F0 = W + D V (the
+    damper is passive where it is rendered): the slave port counts F0, as the master port does;
+    without it, the wrench W alone. By hand: W = -4 N, D = 1000 N*s/m, V = 3 mm/s: F0 = -1 N."""
+    reg = Registration(np.zeros(3), np.eye(3), 1.0, 1.0)
+    g = SlaveGuard(TdpaParams(dt_s=DT, dv_max=10.0), reg, model_offset=model_offset)
+    D = np.zeros((6, 6))
+    D[0, 0] = 1000.0
+    fb = g.reply(ContactFeedback(1, 0.0, [-4.0, 0, 0, 0, 0, 0], "ok", 0, damping_P=D,
+                                 twist_P=[0.003, 0, 0, 0, 0, 0]))
+    assert g.f_M[0] == pytest.approx(-1.0 if model_offset else -4.0)
+    np.testing.assert_array_equal(fb.wrench_P, [-4.0, 0, 0, 0, 0, 0])  # the reply still says what was measured
+    fp = FeedbackPath(reg, cutoff_hz=0.0, dt_s=DT, local_damping=model_offset)
+    assert fp.update(fb)[0] == pytest.approx(g.f_M[0])  # the master's port sees the same force
+
+
 def test_slave_guard_reflects_the_drift_to_the_master():
     """The reply carries the contact wrench plus the drift spring, mapped back to P so that the
     master, after ``wrench_to_master``, feels exactly K * offset more once the commanded speed is
@@ -130,7 +170,8 @@ def test_zero_delay_channel_is_the_lockstep_link():
     from teleop.runtime import run_scene
 
     base = load_scene("straight_incision", sets=["duration_s=0.6"])
-    via = base.with_overrides(["link.bandwidth_kBps=1e12"])  # builds the channel; 1e-13 s per message
+    # builds the channel (1e-13 s per message); the guard off, as "auto" would put it on a named channel
+    via = base.with_overrides(["link.bandwidth_kBps=1e12", 'link.passivity="off"'])
     a, b = run_scene(base), run_scene(via)
     assert "link" in b.summary and "link" not in a.summary
     assert a.summary["metrics"] == b.summary["metrics"]
