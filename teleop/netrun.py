@@ -306,7 +306,8 @@ def run_master(scene, connect: str | None, listen: str | None = None, session: s
                        "p99": float(np.percentile(ticks, 99)) if len(ticks) else 0.0},
            "heartbeat": heart, "zenoh": link_stats, "slave_statuses_heard": half.slave_status,
            "reply_lag_ticks": {str(k): v for k, v in sorted(half.reply_lag.items(), key=str)},
-           "command_errors": half.command_errors, "metrics": metrics.result()}
+           "command_errors": half.command_errors, "feedback_damping_refused": half.feedback.refused,
+           "metrics": metrics.result()}
     if glog:
         out["passivity_master"] = glog.summary()
     return out

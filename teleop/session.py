@@ -404,6 +404,7 @@ class Session:
         if counts is not None:
             summary["slave_statuses"] = dict(counts)
             summary["command_errors"] = self.loop.command_errors
+            summary["feedback_damping_refused"] = getattr(self.loop.feedback, "refused", 0)  # not PSD: not rendered
             summary.update(self.loop.slave.stats())
         if self.realtime:
             summary["late_ticks"] = late

@@ -2,6 +2,7 @@
 master (teleop.control.feedback) keeps it as in one process; the wrench alone falls into the
 stick-slip limit cycle that a late reply over a network used to start."""
 
+import numpy as np
 import pytest
 
 from teleop.runtime import run_scene
@@ -34,3 +35,14 @@ def test_without_the_local_damping_one_tick_more_is_a_limit_cycle(one_process):
     _, m = _cut("link.round_trip_ms=1", "mapping.feedback_local_damping=false")
     assert m["cut_speed_max_m_per_s"] > 5.0 * one_process["cut_speed_max_m_per_s"]
     assert m["cut_length_m"] > 2.0 * one_process["cut_length_m"]
+
+
+def test_a_slave_that_sends_a_damping_feeding_energy_is_not_rendered(monkeypatch):
+    """A contact model (or a slave) whose damping is not positive semidefinite: the master renders
+    the wrench alone for those replies, counts them, and the run goes on without NaN."""
+    from teleop.contact.tissue import TissueBlock
+
+    monkeypatch.setattr(TissueBlock, "damping", lambda self, *a: -1000.0 * np.eye(6))
+    r = run_scene(load_scene("straight_incision", sets=SETS))
+    s = r.summary
+    assert s["feedback_damping_refused"] > 1000 and not s["nan"] and s["status"] == "ok"
