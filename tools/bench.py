@@ -166,6 +166,8 @@ def main(argv=None) -> int:
     add_sweep_args(ap)  # the fuzzed scenes run through Dask
     ap.add_argument("--engine-only", action="store_true", help="only the integrators and the yardstick")
     ap.add_argument("--scene-seconds", type=float, default=2.0, help="simulated seconds per scene for tick_us")
+    ap.add_argument("--link-frames", type=int, default=3000,
+                    help="frames for the link round trip, Zenoh against raw UDP, two processes at 1 kHz (0: skip)")
     args = ap.parse_args(argv)
     check_sweep_args(ap, args)
     if args.fuzz < 0:
@@ -212,6 +214,14 @@ def main(argv=None) -> int:
         result["scene_tick_us"] = scene_ticks(args.scene_seconds)
         for name, t in result["scene_tick_us"].items():
             print(f"tick_us {name:60s} median {t['median']:8.1f}  p99 {t['p99']:8.1f}")
+    if args.link_frames > 0 and not args.engine_only:
+        import link_bench
+
+        result["link_round_trip"] = lk = link_bench.measure(args.link_frames)
+        for name, f in lk.items():
+            print(f"link round trip {name:6s} p50 {f.get('p50_ms', float('nan')):6.3f} ms  "
+                  f"p99 {f.get('p99_ms', float('nan')):6.3f} ms  max {f.get('max_ms', float('nan')):6.3f} ms  "
+                  f"lost {f['lost']} of {f['frames']} (loopback, two processes, 1 kHz)")
     if args.fuzz:
         fz = fuzz_scenes(args.fuzz, args.workers, args.scheduler)
         result["fuzz"] = fz

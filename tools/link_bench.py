@@ -158,6 +158,22 @@ def row(name: str, rtt: np.ndarray, warmup: int) -> str:
             f"{ok.max():>8.3f}")
 
 
+def figures(rtt: np.ndarray, warmup: int) -> dict:
+    """p50/p90/p99/max round trip (ms) and frames lost, the first ``warmup`` left out."""
+    r = rtt[warmup:]
+    ok = r[~np.isnan(r)] * 1e3
+    out = {"frames": int(len(r)), "lost": int(len(r) - len(ok))}
+    if len(ok):
+        p50, p90, p99 = np.percentile(ok, [50, 90, 99])
+        out.update(p50_ms=float(p50), p90_ms=float(p90), p99_ms=float(p99), max_ms=float(ok.max()))
+    return out
+
+
+def measure(n: int = 3000, rate_hz: float = 1000.0, warmup: int = 200) -> dict:
+    """Both transports in one run, raw UDP first: {"udp": figures, "zenoh": figures}."""
+    return {"udp": figures(run_udp(n, rate_hz), warmup), "zenoh": figures(run_zenoh(n, rate_hz), warmup)}
+
+
 def main(argv=None) -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--n", type=int, default=5000, help="frames per transport")

@@ -8,6 +8,7 @@ import signal
 import subprocess
 import sys
 import time
+from pathlib import Path
 
 import pytest
 
@@ -118,3 +119,17 @@ def test_a_paused_slave_is_a_lost_link_and_the_master_resumes_without_a_jump(tmp
     assert hb["lost_ticks"] >= 250  # the pause, seen as a lost link
     assert hb["step_after_resume_max_m"] <= 1e-3  # the hand pulls at 30 mm/s: 30 um a tick; no jump
     assert m["status"] == "link_lost"  # said, not hidden behind "ok"
+
+
+@pytest.mark.long
+def test_the_link_bench_times_zenoh_against_raw_udp_in_one_run():
+    """tools/bench.py's link figures (tools/link_bench.py): both transports, two processes, 1 kHz,
+    every echoed frame decoded; the figures are times, not bounds (a loaded machine stretches them)."""
+    sys.path.insert(0, str(Path(__file__).resolve().parents[2] / "tools"))
+    import link_bench
+
+    out = link_bench.measure(400, warmup=100)
+    assert set(out) == {"udp", "zenoh"}
+    for f in out.values():
+        assert f["frames"] == 300 and f["lost"] <= 15  # Zenoh's DROP may shed a frame on a starved core
+        assert 0.0 < f["p50_ms"] <= f["p90_ms"] <= f["p99_ms"] <= f["max_ms"]
