@@ -46,3 +46,17 @@ def test_a_slave_that_sends_a_damping_feeding_energy_is_not_rendered(monkeypatch
     r = run_scene(load_scene("straight_incision", sets=SETS))
     s = r.summary
     assert s["feedback_damping_refused"] > 1000 and not s["nan"] and s["status"] == "ok"
+
+
+def test_a_tissue_model_without_a_written_out_damping_is_differentiated(monkeypatch):
+    """A user's contact model with only ``wrench`` (no ``damping``): the slave takes the damping
+    by central differences, and the cut under 1 ms runs as with the written-out law."""
+    from teleop.contact.tissue import TissueBlock
+
+    sets = ["link.round_trip_ms=1"]
+    written = _cut(*sets)[1]
+    monkeypatch.delattr(TissueBlock, "damping")
+    status, m = _cut(*sets)
+    assert status == "ok"
+    assert m["tip_tracking_rms_m"] == pytest.approx(written["tip_tracking_rms_m"], rel=1e-3)
+    assert m["cut_length_m"] == pytest.approx(written["cut_length_m"], rel=1e-3)
