@@ -85,13 +85,15 @@ class FeedbackPath:
         return self.offset_M
 
     def _take_model(self, msg: ContactFeedback) -> None:
-        D = self.reg.damping_to_master(msg.damping_P)
-        scale = max(1.0, float(np.abs(D).max()))
-        if not is_positive_definite(D + (1e-9 * scale) * np.eye(6)):
-            self.refused += 1
+        with np.errstate(over="ignore", invalid="ignore"):  # a hostile size is refused just below
+            D = self.reg.damping_to_master(msg.damping_P)
+            offset = self.reg.wrench_to_master(msg.wrench_P + msg.damping_P @ msg.twist_P)
+            scale = max(1.0, float(np.abs(D).max()))
+            finite = math.isfinite(scale) and math.isfinite(float(offset @ offset))
+        if not (finite and is_positive_definite(D + (1e-9 * scale) * np.eye(6))):
+            self.refused += 1  # not a damper, or so large its products overflow: the wrench alone
             return
-        self._D = D
-        self._offset = self.reg.wrench_to_master(msg.wrench_P + msg.damping_P @ msg.twist_P)
+        self._D, self._offset = D, offset
 
     def render(self, channel_M: np.ndarray, tool, f_other_W: np.ndarray, dt_s: float) -> np.ndarray:
         """The wrench (6,: N, N*m, M) the ``tool`` steps under from the slave: the channel's force

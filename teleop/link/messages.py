@@ -48,9 +48,12 @@ def _packed(parts, sizes, names) -> tuple:
         for x, n, name in zip(parts, sizes, names):
             if np.size(x) != n:
                 raise MessageError(f"{name}: expected {n} numbers, got {np.size(x)}")
-    if not math.isfinite(float(flat @ flat)):
+    with np.errstate(over="ignore"):  # huge finite numbers overflow the fast check: looked at below
+        norm2 = float(flat @ flat)
+    if not math.isfinite(norm2):
         bad = [name for x, name in zip(parts, names) if not np.all(np.isfinite(np.asarray(x, dtype=float)))]
-        raise MessageError(f"{', '.join(bad)}: not finite")
+        if bad:
+            raise MessageError(f"{', '.join(bad)}: not finite")
     flat.flags.writeable = False
     out, i = [], 0
     for n in sizes:

@@ -144,3 +144,13 @@ def test_a_steady_turn_against_the_tools_own_damping_is_not_read_as_an_accelerat
     fb, F0 = _path(Dm, V, -D * V)
     F = fb.render(F0, tool, np.array([0, 0, 0, 0, 0, (c + D) * w]), DT)
     np.testing.assert_allclose(F, -D * V, atol=1e-15)
+
+
+@pytest.mark.parametrize("big", [1e300, 1e200])
+def test_a_damping_too_large_to_multiply_is_refused_and_nothing_goes_non_finite(big):
+    """A hostile reply: finite numbers whose products overflow (D V_s = inf). Refused and counted,
+    the wrench alone rendered, every number finite."""
+    fb, F0 = _path(big * np.eye(6), np.full(6, 1e200), np.array([1.0, 0, 0, 0, 0, 0]))
+    assert fb.refused == 1 and np.all(np.isfinite(F0)) and np.all(np.isfinite(fb.damping_M))
+    F = fb.render(F0, _Tool(V=np.ones(6)), np.zeros(6), DT)
+    assert np.all(np.isfinite(F))
