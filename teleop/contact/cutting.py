@@ -18,6 +18,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from teleop.contact.kernels import unit_in_plane
 from teleop.typed import Checked, setting
 
 
@@ -56,31 +57,4 @@ class CuttingModel(Checked):
                 np.array([k_tw * n0, k_tw * n1, k_tw * n2]), v_c)
 
 
-    def compute_damping(self, depth, n, R, v_tip) -> tuple[np.ndarray, np.ndarray]:
-        """(D_v (3, 3) N*s/m, D_w (3, 3) N*m*s/rad): -d(F_cut + F_lat)/d v_tip and -d tau/d w of
-        :meth:`compute_forces`, written out: along c the slope of the cut law,
-        depth (b sign(v_c) tanh(u) + (f + b |v_c|) sech^2(u) / v_smooth), u = v_c / v_smooth (the
-        stick: f depth / v_smooth at v_c = 0); along s ``lateral * depth``; about n ``twist * depth``.
-        Zero outside the tissue."""
-        if depth <= 0.0:
-            return np.zeros((3, 3)), np.zeros((3, 3))
-        n = np.asarray(n, dtype=float)
-        c = np.array(_unit_in_plane(tuple(R[:, 0].tolist()), tuple(n.tolist())))
-        s = np.array(_unit_in_plane(tuple(R[:, 1].tolist()), tuple(n.tolist())))
-        v_c = float(c @ v_tip)
-        u = v_c / self.v_smooth_mps
-        slope = depth * (self.b_Ns_per_m2 * math.copysign(1.0, v_c) * math.tanh(u)
-                         + (self.f_N_per_m + self.b_Ns_per_m2 * abs(v_c)) / math.cosh(min(abs(u), 350.0)) ** 2
-                         / self.v_smooth_mps)
-        D_v = slope * np.outer(c, c) + (self.lateral_Ns_per_m2 * depth) * np.outer(s, s)
-        return D_v, (self.twist_Nms_per_m * depth) * np.outer(n, n)
-
-
-def _unit_in_plane(a, n) -> tuple:
-    """The unit projection of a onto the plane normal to the unit n; zero if a is along n."""
-    an = a[0] * n[0] + a[1] * n[1] + a[2] * n[2]
-    x, y, z = a[0] - an * n[0], a[1] - an * n[1], a[2] - an * n[2]
-    norm = math.sqrt(x * x + y * y + z * z)
-    if norm <= 1e-9:
-        return 0.0, 0.0, 0.0
-    return x / norm, y / norm, z / norm
+_unit_in_plane = unit_in_plane  # compiled: one definition for the forces and the damping

@@ -20,6 +20,7 @@ from typing import Literal
 import numpy as np
 
 from teleop.contact.cutting import CuttingModel
+from teleop.contact.kernels import contact_damping_at_tip
 from teleop.typed import Checked, setting, validate
 
 
@@ -108,10 +109,9 @@ class TissueBlock(Checked):
     def damping_law(self, d: float, n, R_tool, v_tip, w) -> np.ndarray:
         """-dW/d(v_tip, w) (6, 6) of :meth:`contact_law`, written out: the normal model's damping
         along n (Hunt-Crossley k d^e 1.5 alpha, Kelvin-Voigt c; none while the force is clamped at
-        zero) plus the cutting model's (:meth:`CuttingModel.compute_damping`)."""
-        D = np.zeros((6, 6))
+        zero) plus the cutting model's (:func:`teleop.contact.kernels.contact_damping_at_tip`)."""
         if d <= 0.0:
-            return D
+            return np.zeros((6, 6))
         n = np.asarray(n, dtype=float)
         v_tip = np.asarray(v_tip, dtype=float)
         d_dot = -float(n @ v_tip)
@@ -120,10 +120,10 @@ class TissueBlock(Checked):
             fn, c_n = kd * (1.0 + 1.5 * self.alpha_s_per_m * d_dot), kd * 1.5 * self.alpha_s_per_m
         else:
             fn, c_n = self.stiffness * d + self.damping_Ns_per_m * d_dot, self.damping_Ns_per_m
-        D_v, D_w = self.cutting.compute_damping(d, n, np.asarray(R_tool, float), v_tip)
-        D[:3, :3] = D_v + (c_n * np.outer(n, n) if fn > 0.0 else 0.0)
-        D[3:, 3:] = D_w
-        return D
+        cm = self.cutting
+        return contact_damping_at_tip(d, n, np.asarray(R_tool, dtype=float), v_tip, cm.f_N_per_m, cm.b_Ns_per_m2,
+                                      cm.lateral_Ns_per_m2, cm.twist_Nms_per_m, cm.v_smooth_mps,
+                                      c_n if fn > 0.0 else 0.0)
 
 
 class SurfaceTissue:

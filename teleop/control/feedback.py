@@ -37,13 +37,15 @@ import math
 
 import numpy as np
 
+from teleop.control.kernels import render_local_damping
 from teleop.control.mapping import Registration
 from teleop.dynamics.effects import total_wrench
-from teleop.dynamics.kernels.small import is_positive_definite, solve
+from teleop.dynamics.kernels.small import is_positive_definite
 from teleop.link.messages import ContactFeedback
 
 
 _ZERO66 = np.zeros((6, 6))
+_EYE6 = np.eye(6)
 
 
 class FeedbackPath:
@@ -90,7 +92,7 @@ class FeedbackPath:
             offset = self.reg.wrench_to_master(msg.wrench_P + msg.damping_P @ msg.twist_P)
             scale = max(1.0, float(np.abs(D).max()))
             finite = math.isfinite(scale) and math.isfinite(float(offset @ offset))
-        if not (finite and is_positive_definite(D + (1e-9 * scale) * np.eye(6))):
+        if not (finite and is_positive_definite(D + (1e-9 * scale) * _EYE6)):
             self.refused += 1  # not a damper, or so large its products overflow: the wrench alone
             return
         self._D, self._offset = D, offset
@@ -106,11 +108,7 @@ class FeedbackPath:
             return channel_M
         p, R = tool.pose()
         v, w = tool.twist()
-        M = np.zeros((6, 6))
-        M[0, 0] = M[1, 1] = M[2, 2] = tool.body.mass_kg
-        M[3:, 3:] = R @ tool.body.J @ R.T
         f = total_wrench(tool.model.effects, p, R, v, w, tool.t, f_other_W)  # the step's own forces too
-        ok, V_next = solve(M + dt_s * D, M @ np.concatenate((v, w)) + dt_s * (f + channel_M))
-        if not ok:
-            return self.wrench_M  # the reported wrench alone
-        return channel_M - D @ V_next
+        body = tool.body
+        ok, W = render_local_damping(body.mass_kg, body.J, R, np.concatenate((v, w)), f, channel_M, D, dt_s)
+        return W if ok else self.wrench_M  # singular: the reported wrench alone

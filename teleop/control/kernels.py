@@ -14,7 +14,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-from teleop.dynamics.kernels.small import matmul
+from teleop.dynamics.kernels.small import matmul, solve
 from teleop.dynamics.kernels.so3 import log3
 
 
@@ -42,3 +42,34 @@ def pid_step(p_r, R_r, nu_r, accel_r, p_v, R_v, kp, ki, kd, integral_limit, max_
         nu[i] = v_sat
         accel_out[i] = a_sat + (v_sat - v) / dt
     return nu, accel_out, e, integral_out
+
+
+@njit(cache=True)
+def render_local_damping(mass, J_B, R, V, f, channel, D, dt):
+    """The contact's damping rendered implicitly on the free tool (:mod:`teleop.control.feedback`):
+    V+ from (M + dt D) V+ = M V + dt (f + channel), M = blockdiag(mass I, R J_B R^T) (kg, kg*m^2),
+    V (6,) the tool's twist (m/s, rad/s, world), f (6,) the hand's and the tool's own wrench,
+    ``channel`` (6,) the channel's force F0 (N, N*m), D (6, 6). Returns (ok, channel - D V+);
+    ok False when the system is singular (the wrench is then not meaningful)."""
+    JW = matmul(matmul(R, J_B), R.T)
+    A = np.empty((6, 6))
+    rhs = np.empty(6)
+    for i in range(6):
+        for j in range(6):
+            A[i, j] = dt * D[i, j]
+    for i in range(3):
+        A[i, i] += mass
+        rhs[i] = mass * V[i] + dt * (f[i] + channel[i])
+        s = 0.0
+        for j in range(3):
+            A[3 + i, 3 + j] += JW[i, j]
+            s += JW[i, j] * V[3 + j]
+        rhs[3 + i] = s + dt * (f[3 + i] + channel[3 + i])
+    ok, V_next = solve(A, rhs)
+    W = np.empty(6)
+    for i in range(6):
+        s = channel[i]
+        for j in range(6):
+            s -= D[i, j] * V_next[j]
+        W[i] = s
+    return ok, W

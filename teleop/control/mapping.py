@@ -60,6 +60,11 @@ class Registration:
             object.__setattr__(self, "torque_scale", float(self.force_scale * self.scale))
         elif not np.isfinite(self.torque_scale) or self.torque_scale <= 0:
             raise ConfigError(f"mapping.torque_scale: expected a finite positive number, got {self.torque_scale!r}")
+        Rb = np.zeros((6, 6))
+        Rb[:3, :3] = Rb[3:, 3:] = self.X_PM_R
+        g = np.array([self.force_scale] * 3 + [self.torque_scale] * 3)
+        c = np.array([1.0 / self.scale] * 3 + [1.0] * 3)
+        object.__setattr__(self, "_damping_map", (Rb, g[:, None] * c[None, :]))  # damping_to_master's factors
 
     # -- poses and twists -------------------------------------------------------------------
     def point_to_patient(self, x_M) -> np.ndarray:
@@ -103,11 +108,6 @@ class Registration:
         """A contact damping D (6, 6; W_P = -D V_P) -> the damping the master feels, D_M = B D T
         with W_M = B W_P (``wrench_to_master``) and V_P = T V_M (``target``); its symmetric part
         (D_M is symmetric when ``torque_scale`` is ``force_scale * scale``, the default)."""
-        R = self.X_PM_R
-        D = np.asarray(D_P, dtype=float)
-        Rb = np.zeros((6, 6))
-        Rb[:3, :3] = Rb[3:, 3:] = R
-        g = np.array([self.force_scale] * 3 + [self.torque_scale] * 3)
-        c = np.array([1.0 / self.scale] * 3 + [1.0] * 3)
-        D_M = (g[:, None] * (Rb.T @ D @ Rb)) * c[None, :]
+        Rb, gc = self._damping_map
+        D_M = (Rb.T @ np.asarray(D_P, dtype=float) @ Rb) * gc
         return 0.5 * (D_M + D_M.T)
