@@ -89,7 +89,7 @@ class BilateralLoop:
         else:
             v_r, w_r = tool.twist()
             if self.feedback is not None:                          # the contact's damping, here and now
-                self.felt_W = self.feedback.render(self.feedback_W, tool, f_v, self.dt)
+                self.felt_W = self.feedback.render(self.feedback_W, tool, f_v, self.dt, (p_r, R_r, v_r, w_r))
             st = tool.step(self.dt, f_v + self.felt_W)             # §II: eqs. 8-11
             st_m = master.command(p_r, R_r, np.concatenate((v_r, w_r)), tool.acceleration_W)  # 18-19
         if self.slave is not None:

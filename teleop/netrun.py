@@ -105,7 +105,7 @@ class MasterHalf:
             self.feedback_W = self.felt_W = np.zeros(6)
         else:
             v_r, w_r = tool.twist()
-            self.felt_W = self.feedback.render(self.feedback_W, tool, f_v, self.dt)
+            self.felt_W = self.feedback.render(self.feedback_W, tool, f_v, self.dt, (p_r, R_r, v_r, w_r))
             st = tool.step(self.dt, f_v + self.felt_W)
             st_m = master.command(p_r, R_r, np.concatenate((v_r, w_r)), tool.acceleration_W)
         mg = self.master_guard

@@ -43,8 +43,8 @@ class CuttingModel(Checked):
             return z, z.copy(), z.copy(), 0.0
         n0, n1, n2 = n.tolist()
         (r00, r01, _), (r10, r11, _), (r20, r21, _) = R.tolist()
-        c = _unit_in_plane((r00, r10, r20), (n0, n1, n2))
-        s = _unit_in_plane((r01, r11, r21), (n0, n1, n2))
+        c = unit_in_plane((r00, r10, r20), (n0, n1, n2))
+        s = unit_in_plane((r01, r11, r21), (n0, n1, n2))
         vx, vy, vz = v_tip.tolist()
         v_c = vx * c[0] + vy * c[1] + vz * c[2]
         v_s = vx * s[0] + vy * s[1] + vz * s[2]
@@ -55,6 +55,3 @@ class CuttingModel(Checked):
         return (np.array([k_cut * c[0], k_cut * c[1], k_cut * c[2]]),
                 np.array([k_lat * s[0], k_lat * s[1], k_lat * s[2]]),
                 np.array([k_tw * n0, k_tw * n1, k_tw * n2]), v_c)
-
-
-_unit_in_plane = unit_in_plane  # compiled: one definition for the forces and the damping

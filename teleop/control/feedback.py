@@ -26,9 +26,10 @@ What crosses the link is then the model's offset F0 (a force) and a damper; the 
 wherever it is rendered, so the passivity guard (:mod:`teleop.link.guard`) observes and damps F0 at
 both ports, and :meth:`FeedbackPath.update` returns F0 for it. F0 and D go through the same
 low-pass (F0 filtered as the slave counted it: filtering W_s, D and V_s apart and multiplying made
-the two ports disagree at the stick, and the guard drifted 0.5 mm at a 1 ms round trip). A reply without contact carries D = 0 (nothing rendered beyond W_s); a D that is not
-positive semidefinite is not rendered (counted in ``refused``). A tick with no new message holds
-the last model.
+the two ports disagree at the stick, and the guard drifted 0.5 mm at a 1 ms round trip). A reply
+without contact carries D = 0 (nothing rendered beyond W_s, and the filtered D, once it has
+decayed, is zero again); a D that is not positive semidefinite is not rendered (counted in
+``refused``). A tick with no new message holds the last model.
 """
 
 from __future__ import annotations
@@ -46,6 +47,7 @@ from teleop.link.messages import ContactFeedback
 
 _ZERO66 = np.zeros((6, 6))
 _EYE6 = np.eye(6)
+_D_FLOOR = 1e-9  # N*s/m: a filtered damping below this after the contact ended is zero
 
 
 class FeedbackPath:
@@ -65,7 +67,7 @@ class FeedbackPath:
         self.refused = 0                    # replies whose damping was not positive semidefinite
         self._target = np.zeros(6)
         self._offset = np.zeros(6)
-        self._D = np.zeros((6, 6))
+        self._D = _ZERO66
 
     def update(self, msg: ContactFeedback | None) -> np.ndarray:
         """The newest reply (None: hold the last) filtered in; returns the force the channel
@@ -83,13 +85,16 @@ class FeedbackPath:
         if not self.local_damping:
             return self.wrench_M
         self.offset_M = self.offset_M + a * (self._offset - self.offset_M)
-        self.damping_M = self.damping_M + a * (self._D - self.damping_M)
+        if self._D is _ZERO66 and float(np.abs(self.damping_M).max()) <= _D_FLOOR:
+            self.damping_M = _ZERO66  # decayed after the contact ended: nothing left to render
+        else:
+            self.damping_M = self.damping_M + a * (self._D - self.damping_M)
         return self.offset_M
 
     def _take_model(self, msg: ContactFeedback) -> None:
         with np.errstate(over="ignore", invalid="ignore"):  # a hostile size is refused just below
             D = self.reg.damping_to_master(msg.damping_P)
-            offset = self.reg.wrench_to_master(msg.wrench_P + msg.damping_P @ msg.twist_P)
+            offset = self.reg.wrench_to_master(msg.model_offset_P)
             scale = max(1.0, float(np.abs(D).max()))
             finite = math.isfinite(scale) and math.isfinite(float(offset @ offset))
         if not (finite and is_positive_definite(D + (1e-9 * scale) * _EYE6)):
@@ -97,17 +102,21 @@ class FeedbackPath:
             return
         self._D, self._offset = D, offset
 
-    def render(self, channel_M: np.ndarray, tool, f_other_W: np.ndarray, dt_s: float) -> np.ndarray:
+    def render(self, channel_M: np.ndarray, tool, f_other_W: np.ndarray, dt_s: float, state=None) -> np.ndarray:
         """The wrench (6,: N, N*m, M) the ``tool`` steps under from the slave: the channel's force
         ``channel_M`` (:meth:`update`'s, after the guard) minus the contact's damping at the tool's
         twist after this step, D V+, solved implicitly (see the module docstring);
-        ``f_other_W`` (6,) the hand's wrench (the tool's own effects are added here). Returns
+        ``f_other_W`` (6,) the hand's wrench (the tool's own effects are added here); ``state``
+        the tool's (p, R, v, w) when the caller has read them this tick (None: read here). Returns
         ``channel_M`` itself when there is no damping to render."""
         D = self.damping_M
         if not self.local_damping or not D.any():
             return channel_M
-        p, R = tool.pose()
-        v, w = tool.twist()
+        if state is None:
+            p, R = tool.pose()
+            v, w = tool.twist()
+        else:
+            p, R, v, w = state
         f = total_wrench(tool.model.effects, p, R, v, w, tool.t, f_other_W)  # the step's own forces too
         body = tool.body
         ok, W = render_local_damping(body.mass_kg, body.J, R, np.concatenate((v, w)), f, channel_M, D, dt_s)

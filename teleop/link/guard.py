@@ -96,7 +96,7 @@ class SlaveGuard:
         """``fb`` with the slave port's input energy and the drift spring added to its wrench
         (nothing added while the offset is zero); remembers the contact wrench for the next tick."""
         wrench_P = fb.wrench_P
-        self.f_M = self.reg.wrench_to_master(wrench_P + fb.damping_P @ fb.twist_P if self.model_offset else wrench_P)
+        self.f_M = self.reg.wrench_to_master(fb.model_offset_P if self.model_offset else wrench_P)
         off = self.port.offset
         if np.any(off):  # the drift reflected to the master: a spring pulling it toward the slave's target
             p = self.port.params

@@ -167,3 +167,9 @@ class ContactFeedback:
             raise MessageError(f"ContactFeedback.command_seq: expected an integer >= -1, got {c!r}")
         object.__setattr__(self, "command_seq", int(c))
         object.__setattr__(self, "energy_J", _energy(self.energy_J, "ContactFeedback.energy_J"))
+
+    @property
+    def model_offset_P(self) -> np.ndarray:
+        """F0 = W + D V (6,: N, N*m, P): the contact's local model's offset, the force that stays
+        when its damping is rendered where it is felt (:mod:`teleop.control.feedback`)."""
+        return self.wrench_P + self.damping_P @ self.twist_P

@@ -154,3 +154,25 @@ def test_a_damping_too_large_to_multiply_is_refused_and_nothing_goes_non_finite(
     assert fb.refused == 1 and np.all(np.isfinite(F0)) and np.all(np.isfinite(fb.damping_M))
     F = fb.render(F0, _Tool(V=np.ones(6)), np.zeros(6), DT)
     assert np.all(np.isfinite(F))
+
+
+def test_after_the_contact_the_filtered_damping_returns_to_zero():
+    """Replies without contact after one with: the filtered D decays and then is exactly zero,
+    so the render stops (the reported wrench alone), not a vanishing damper solved every tick."""
+    Dm = 2000.0 * np.eye(6)
+    fb = FeedbackPath(Registration([0, 0, 0], np.eye(3)), cutoff_hz=20.0, dt_s=DT)
+    fb.update(ContactFeedback(1, 0.0, np.zeros(6), "ok", 0, damping_P=Dm, twist_P=np.zeros(6)))
+    assert fb.damping_M.any()
+    for k in range(2, 600):
+        F0 = fb.update(ContactFeedback(k, k * DT, np.zeros(6), "ok", k - 1))
+    assert not fb.damping_M.any()
+    assert fb.render(F0, _Tool(V=np.ones(6)), np.zeros(6), DT) is F0
+
+
+def test_the_model_offset_is_one_formula_for_both_ports():
+    """F0 = W + D V, as the slave guard and the feedback path both read it from the message."""
+    D = np.diag([1000.0, 2.0, 3.0, 0.1, 0.2, 0.3])
+    V = np.array([0.003, 0.1, -0.2, 1.0, 0.0, -1.0])
+    W = np.array([-4.0, 1.0, 2.0, 0.0, 0.5, 0.0])
+    msg = ContactFeedback(1, 0.0, W, "ok", 0, damping_P=D, twist_P=V)
+    np.testing.assert_allclose(msg.model_offset_P, [-1.0, 1.2, 1.4, 0.1, 0.5, -0.3], atol=1e-12)

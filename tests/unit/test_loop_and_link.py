@@ -124,7 +124,7 @@ class _Feedback:
     def update(self, msg):
         return np.zeros(6) if msg is None else np.asarray(msg.wrench_P)
 
-    def render(self, wrench, tool, f_other, dt):  # no contact damping to render
+    def render(self, wrench, tool, f_other, dt, state=None):  # no contact damping to render
         return wrench
 
 
