@@ -8,8 +8,8 @@ rendered by an admittance controller (``control``) on a cobot reached over CAN (
 
 from importlib.metadata import PackageNotFoundError, version
 
-from teleop import numba_cache
-from teleop.errors import TeleopError
+from teleop.util import numba_cache
+from teleop.util.errors import TeleopError
 
 numba_cache.configure()  # before any kernel module imports numba: a writable cache for any user
 

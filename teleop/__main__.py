@@ -2,7 +2,7 @@
 
 import sys
 
-from teleop.cli import main
+from teleop.app.cli import main
 
 if __name__ == "__main__":
     sys.exit(main())

@@ -7,7 +7,7 @@ user's own. Everything here is also importable from its own module; this module 
 """
 
 from teleop.contact import TissueBlock
-from teleop.control.feedback import FeedbackPath
+from teleop.tick.feedback import FeedbackPath
 from teleop.control.mapping import Registration
 from teleop.dynamics.body import RigidBody
 from teleop.dynamics.constraints import Constraint
@@ -16,16 +16,16 @@ from teleop.dynamics.fixtures import Fixture
 from teleop.dynamics.registry import FrameMap, register_fixture
 from teleop.dynamics.tool import ReferenceTool
 from teleop.link.base import LockstepLink
-from teleop.link.messages import ContactFeedback, ToolCommand
-from teleop.loop import BilateralLoop, Hook
+from teleop.tick.messages import ContactFeedback, ToolCommand
+from teleop.tick.loop import BilateralLoop, Hook
 from teleop.master.base import Master
 from teleop.master.ideal import IdealMaster
-from teleop.runtime import run_scene
+from teleop.app.runtime import run_scene
 from teleop.scenario.operators import Operator
 from teleop.scenario.schema import load_scene, parse_scene
-from teleop.session import RunResult, Session
+from teleop.app.session import RunResult, Session
 from teleop.slave import SlaveArm, SlaveConfig
-from teleop.slave.side import SlaveSide
+from teleop.tick.slave_side import SlaveSide
 
 __all__ = [
     "AngularDamper", "BilateralLoop", "Constraint", "ContactFeedback", "FeedbackPath", "Fixture", "FrameMap",

@@ -14,7 +14,7 @@ and ``pareto.png`` (errors against CPU load, log-log), and marks the default (``
 what a scene that names no integrator runs) and what the shipped scenes run (``parametric`` at
 1 ms). The effect sweep shows what each simulated effect costs.
 
-The points run in parallel through Dask (``teleop.sweep``: a local cluster of ``--workers``
+The points run in parallel through Dask (``teleop.app.sweep``: a local cluster of ``--workers``
 processes, or the scheduler at ``--scheduler``), each a pure function of its parameters (the
 scenes' own seeds), so the table does not depend on the number of workers; only the measured CPU
 columns (µs per tick, load, and the front, which weighs the load) vary from run to run.
@@ -34,10 +34,10 @@ import numpy as np
 from teleop.dynamics.constraints import stack_jacobian, stack_residual
 from teleop.dynamics.integrators import INTEGRATORS
 from teleop.scenario.build import build_tool
-from teleop.scenario.metrics import EnergyDrift
+from teleop.app.metrics import EnergyDrift
 from teleop.scenario.operators import make_operator
 from teleop.scenario.schema import load_scene
-from teleop.sweep import add_sweep_args, check_sweep_args, run_sweep
+from teleop.app.sweep import add_sweep_args, check_sweep_args, run_sweep
 
 PERIODS_MS = (0.1, 0.25, 0.5, 1.0, 2.0)
 UNDAMPED_DIR = Path(__file__).resolve().parents[1] / "tests" / "data" / "undamped"
@@ -215,7 +215,7 @@ def incision_point(integrator: str, period_ms: float, solver: str, eps, seconds:
     """One straight_incision run: the master's integrator and period, the slave's solver and tolerance.
     ``every_tick``: the slave's QP solver runs every tick (``kkt_shortcut`` off), so that solvers
     are compared on what they do; by default it runs only on ticks where a joint bound binds."""
-    from teleop.runtime import run_scene
+    from teleop.app.runtime import run_scene
 
     base = load_scene(INCISION)
     slave = replace(base.slave, solver=solver, kkt_shortcut=not every_tick)

@@ -17,7 +17,7 @@ from pathlib import Path
 
 import numpy as np
 
-from teleop.sweep import add_sweep_args, check_sweep_args, run_sweep
+from teleop.app.sweep import add_sweep_args, check_sweep_args, run_sweep
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
@@ -118,7 +118,7 @@ def scene_ticks(seconds: float) -> dict:
     scenes with their heavy effects switched off: what simulating only what a scene calls for buys."""
     from dataclasses import replace
 
-    from teleop.runtime import run_scene
+    from teleop.app.runtime import run_scene
     from teleop.scenario.schema import list_scenes, load_scene
 
     out = {}
@@ -136,7 +136,7 @@ def fuzz_point(seed: int) -> dict:
     """One random valid scene, drawn from its own seed, run to its end: the seed, status and nan."""
     import warnings
 
-    from teleop.runtime import run_scene
+    from teleop.app.runtime import run_scene
     from teleop.scenario.random_scene import random_scene
     from teleop.scenario.schema import parse_scene
 
@@ -147,7 +147,7 @@ def fuzz_point(seed: int) -> dict:
 
 
 def fuzz_scenes(n: int, workers: int = 2, scheduler: str | None = None) -> dict:
-    """Run n random valid scenes (seeds 0..n-1) in parallel through Dask (teleop.sweep); count
+    """Run n random valid scenes (seeds 0..n-1) in parallel through Dask (teleop.app.sweep); count
     statuses. Every one must finish with nan false. The tally does not depend on the workers."""
     import collections
 

@@ -39,12 +39,12 @@ from pathlib import Path
 
 import numpy as np
 
-from teleop.loop import Hook
-from teleop.plots import plot_passivity
-from teleop.runtime import run_scene
-from teleop.scenario.metrics import band_rms
+from teleop.tick.loop import Hook
+from teleop.app.plots import plot_passivity
+from teleop.app.runtime import run_scene
+from teleop.app.metrics import band_rms
 from teleop.scenario.schema import load_scene
-from teleop.sweep import add_sweep_args, check_sweep_args, run_sweep
+from teleop.app.sweep import add_sweep_args, check_sweep_args, run_sweep
 
 DELAYS_MS = (0, 10, 50, 100, 200, 500, 1000)
 LOSSES = (0.0, 0.05)

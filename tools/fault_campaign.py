@@ -25,7 +25,7 @@ run's objects, without a hook in ``teleop.slave``: the arm's ``limits`` are repl
 
 Per run: detected (the status that names the fault: the master's latched fault; the slave's
 ``joint_limit`` or ``infeasible_fallback``, see ``SLAVE_DETECTS``; a side's heartbeat losing the
-link, :mod:`teleop.link.heartbeat`), the time from injection to detection, the time to the safe
+link, :mod:`teleop.tick.heartbeat`), the time from injection to detection, the time to the safe
 state, and whether anything unsafe happened from the injection until the safe state (or the end
 of the run): the slave's blade tip deeper than the fixture's depth by more than ``DEPTH_TOL_M``, or
 a tissue contact force above ``FORCE_LIMIT_N``. Times count from the last tick before the fault
@@ -50,8 +50,8 @@ from dataclasses import replace
 
 import numpy as np
 
-from teleop.crc32 import crc32
-from teleop.runtime import run_scene
+from teleop.util.crc32 import crc32
+from teleop.app.runtime import run_scene
 from teleop.scenario.schema import list_scenes, load_scene
 
 FAULTS = ("sensor_nan", "sensor_stuck", "encoder_jump", "lost_frames", "corrupted_frames", "silent_device",

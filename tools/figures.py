@@ -14,7 +14,7 @@ import argparse
 import tempfile
 from pathlib import Path
 
-from teleop.plots import plot_log
+from teleop.app.plots import plot_log
 
 
 def main(argv=None) -> int:
@@ -29,7 +29,7 @@ def main(argv=None) -> int:
     if src.suffix == ".npz":
         log = src
     else:
-        from teleop.runtime import run_scene
+        from teleop.app.runtime import run_scene
         from teleop.scenario.schema import load_scene
 
         result = run_scene(load_scene(args.source).with_overrides(master=args.master, duration_s=args.duration))

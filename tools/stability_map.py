@@ -16,7 +16,7 @@ index), so the results do not depend on the number of workers.
                                   [--quick] [--from-json docs/stability/map.json]
 
 Writes map.json (every point), table.md and zwidth.png under --out. Points run through Dask
-(teleop.sweep: a local cluster of N single-threaded processes by default, or the scheduler at
+(teleop.app.sweep: a local cluster of N single-threaded processes by default, or the scheduler at
 ADDRESS).
 """
 
@@ -37,7 +37,7 @@ from teleop.dynamics.body import RigidBody
 from teleop.dynamics.effects import AngularDamper, LinearDamper, Spring
 from teleop.dynamics.tool import ReferenceTool
 from teleop.master import CobotConfig, CobotMaster
-from teleop.sweep import add_sweep_args, check_sweep_args, run_sweep
+from teleop.app.sweep import add_sweep_args, check_sweep_args, run_sweep
 
 PULSE_S, DURATION_S, TAIL_S = 0.02, 0.5, 0.2
 KICK_M_PER_S, KICK_RAD_PER_S = 0.05, 0.5
@@ -165,7 +165,7 @@ def sweep_points(quick: bool = False, seed: int = 0) -> list[dict]:
 
 
 def run_points(points: list[dict], workers: int = 2, scheduler: str | None = None) -> list[dict]:
-    """Every point through Dask (teleop.sweep) with a tqdm progress bar; results in the points' order."""
+    """Every point through Dask (teleop.app.sweep) with a tqdm progress bar; results in the points' order."""
     return run_sweep(run_point, points, workers, scheduler, desc="stability map")
 
 

@@ -12,7 +12,7 @@ from pathlib import Path
 
 import can
 
-from teleop.errors import CanError
+from teleop.util.errors import CanError
 
 
 class Capture:

@@ -12,7 +12,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass, fields
 
-from teleop.errors import ConfigError, check_table
+from teleop.util.errors import ConfigError, check_table
 
 
 @dataclass(frozen=True)

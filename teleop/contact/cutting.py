@@ -19,7 +19,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from teleop.contact.kernels import unit_in_plane
-from teleop.typed import Checked, setting
+from teleop.util.typed import Checked, setting
 
 
 @dataclass(frozen=True)

@@ -1,7 +1,7 @@
 """The local damping of a contact: how steeply its wrench falls as the tool moves faster.
 
 The slave sends it with every contact wrench so that the master can render that part of the
-contact where it is felt, without the link's delay (see :mod:`teleop.control.feedback`). It is
+contact where it is felt, without the link's delay (see :mod:`teleop.tick.feedback`). It is
 the linearization of the contact model at the tool's present twist,
 
     D = -sym(dW/dV),   W the wrench at the tool frame's origin, V = (v, w) its twist,

@@ -21,7 +21,7 @@ import numpy as np
 
 from teleop.contact.cutting import CuttingModel
 from teleop.contact.kernels import contact_damping_at_tip
-from teleop.typed import Checked, setting, validate
+from teleop.util.typed import Checked, setting, validate
 
 
 def _nonzero(v) -> str | None:

@@ -16,8 +16,8 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from teleop.control.kernels import pid_step
-from teleop.errors import ConfigError
-from teleop.views import view
+from teleop.util.errors import ConfigError
+from teleop.util.views import view
 
 
 def _vec6(value, key: str, where: str, positive: bool = False) -> np.ndarray:

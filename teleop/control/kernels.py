@@ -46,7 +46,7 @@ def pid_step(p_r, R_r, nu_r, accel_r, p_v, R_v, kp, ki, kd, integral_limit, max_
 
 @njit(cache=True)
 def render_local_damping(mass, J_B, R, V, f, channel, D, dt):
-    """The contact's damping rendered implicitly on the free tool (:mod:`teleop.control.feedback`):
+    """The contact's damping rendered implicitly on the free tool (:mod:`teleop.tick.feedback`):
     V+ from (M + dt D) V+ = M V + dt (f + channel), M = blockdiag(mass I, R J_B R^T) (kg, kg*m^2),
     V (6,) the tool's twist (m/s, rad/s, world), f (6,) the hand's and the tool's own wrench,
     ``channel`` (6,) the channel's force F0 (N, N*m), D (6, 6). Returns (ok, channel - D V+);

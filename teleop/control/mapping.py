@@ -23,7 +23,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from teleop.dynamics.registry import FrameMap
-from teleop.errors import ConfigError
+from teleop.util.errors import ConfigError
 
 
 def _rotation(R, name: str) -> np.ndarray:

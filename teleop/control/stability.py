@@ -37,7 +37,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 from scipy.signal import cont2discrete
 
-from teleop.errors import ConfigError
+from teleop.util.errors import ConfigError
 
 COMPENSATIONS = ("commanded", "servo_model")
 

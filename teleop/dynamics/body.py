@@ -18,7 +18,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from teleop.dynamics.rotations import EulerChart, cross, rate_map
-from teleop.errors import ConfigError
+from teleop.util.errors import ConfigError
 
 
 @dataclass(frozen=True, eq=False)

@@ -29,7 +29,7 @@ import numpy as np
 
 from teleop.dynamics.kernels import rows as K
 from teleop.dynamics.rotations import cross
-from teleop.errors import ConfigError
+from teleop.util.errors import ConfigError
 
 
 def _unit(v, name: str) -> np.ndarray:

@@ -12,7 +12,7 @@ from dataclasses import dataclass, field
 import numpy as np
 import pinocchio as pin
 
-from teleop.errors import ConfigError
+from teleop.util.errors import ConfigError
 
 
 def _nonneg(x: float, name: str) -> float:

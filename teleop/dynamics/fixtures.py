@@ -13,7 +13,7 @@ import numpy as np
 from teleop.dynamics import constraints as C
 from teleop.dynamics import parametrizations as P
 from teleop.dynamics.rotations import EulerChart, axis_rotation
-from teleop.errors import ConfigError
+from teleop.util.errors import ConfigError
 
 
 @dataclass(frozen=True, eq=False)

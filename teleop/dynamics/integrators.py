@@ -32,7 +32,7 @@ from teleop.dynamics.kernels.steps import flat_parametric_step, flat_split_step
 from teleop.dynamics.multipliers import RANK_RTOL
 from teleop.dynamics.model import ConstrainedBody
 from teleop.dynamics.rotations import EulerChart, chart_conditioning, euler_from_rotation, rechart
-from teleop.errors import ConfigError
+from teleop.util.errors import ConfigError
 
 #: Newton projection: stop when the holonomic residual norm is below this (m or rad).
 PROJECTION_TOL = 1e-13

@@ -21,7 +21,7 @@ import numpy as np
 from scipy.linalg.lapack import dpotrf, dpotrs
 
 from teleop.dynamics.kernels.motion import delassus_solve
-from teleop.errors import DynamicsError
+from teleop.util.errors import DynamicsError
 
 #: Relative eigenvalue floor below which a direction of K counts as dependent.
 RANK_RTOL = 1e-10

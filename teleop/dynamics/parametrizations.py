@@ -15,7 +15,7 @@ import numpy as np
 
 from teleop.dynamics.constraints import plane_tangents
 from teleop.dynamics.rotations import EulerChart, axis_rotation, cross
-from teleop.errors import ConfigError
+from teleop.util.errors import ConfigError
 
 
 class Parametrization(ABC):

@@ -25,7 +25,7 @@ from importlib.metadata import entry_points
 
 import numpy as np
 
-from teleop.errors import ConfigError
+from teleop.util.errors import ConfigError
 
 ENTRY_POINT_GROUP = "teleop.fixtures"
 

@@ -20,7 +20,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from teleop.dynamics.kernels.so3 import euler_angles
-from teleop.errors import ConfigError
+from teleop.util.errors import ConfigError
 
 _AXES = {"X": 0, "Y": 1, "Z": 2}
 _E = np.eye(3)

@@ -21,7 +21,7 @@ import numpy as np
 from scipy.interpolate import RectBivariateSpline
 
 from teleop.dynamics.kernels import surface as SK
-from teleop.errors import ConfigError
+from teleop.util.errors import ConfigError
 
 class HeightSurface:
     """A spline height field ``heights[i][j] = f(x[i], y[j])`` (m) placed by (origin, Q, scale).

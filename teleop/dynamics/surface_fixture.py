@@ -40,8 +40,8 @@ from teleop.dynamics.rotations import (EulerChart, axis_rotation, cross, euler_f
                                        rate_map, rotation)
 from teleop.dynamics.kernels import surface as SK
 from teleop.dynamics.surface import HeightSurface
-from teleop.errors import ConfigError
-from teleop.typed import setting
+from teleop.util.errors import ConfigError
+from teleop.util.typed import setting
 
 _RX_PI = axis_rotation(0, math.pi)
 

@@ -24,7 +24,7 @@ from teleop.dynamics.integrators import (
 from teleop.dynamics.kernels.steps import end_checks
 from teleop.dynamics.model import ConstrainedBody
 from teleop.dynamics.rotations import EulerChart, chart_conditioning, rechart
-from teleop.errors import ConfigError, TeleopError
+from teleop.util.errors import ConfigError, TeleopError
 
 #: Re-chart when the Euler chart's conditioning (|sin| or |cos| of the middle angle) drops below this.
 RECHART_BELOW = 0.25

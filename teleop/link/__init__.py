@@ -5,8 +5,8 @@
 
 from teleop.link.base import Link, LockstepLink, Mailbox
 from teleop.link.channel import ChannelSpec, SimulatedChannel
-from teleop.link.passivity import MasterPassivity, PortLog, SlavePassivity, TdpaParams, compute_port_energy
-from teleop.link.messages import SLAVE_STATUSES, ContactFeedback, MessageError, ToolCommand
+from teleop.control.passivity import MasterPassivity, PortLog, SlavePassivity, TdpaParams, compute_port_energy
+from teleop.tick.messages import SLAVE_STATUSES, ContactFeedback, MessageError, ToolCommand
 
 __all__ = ["Link", "LockstepLink", "Mailbox", "ChannelSpec", "SimulatedChannel",
            "TdpaParams", "MasterPassivity", "SlavePassivity", "PortLog", "compute_port_energy", "ToolCommand", "ContactFeedback", "MessageError", "SLAVE_STATUSES"]

@@ -1,7 +1,7 @@
 """The link between the master and slave sides: what a transport must do.
 
-A link carries :class:`~teleop.link.messages.ToolCommand` master -> slave and
-:class:`~teleop.link.messages.ContactFeedback` slave -> master. ``receive_*`` returns the newest
+A link carries :class:`~teleop.tick.messages.ToolCommand` master -> slave and
+:class:`~teleop.tick.messages.ContactFeedback` slave -> master. ``receive_*`` returns the newest
 message that has arrived by time ``t_s`` and is newer (by sequence number) than the last one it
 returned, or None: a late, lost or reordered message is never applied out of order, and the
 receiving side holds what it had. Sending never blocks and never raises on a lost peer.
@@ -11,7 +11,7 @@ from __future__ import annotations
 
 from abc import ABC, abstractmethod
 
-from teleop.link.messages import ContactFeedback, ToolCommand
+from teleop.tick.messages import ContactFeedback, ToolCommand
 
 
 class Link(ABC):
@@ -38,7 +38,7 @@ class Link(ABC):
         return {}
 
     def last_heard_s(self, side: str) -> float | None:
-        """For the heartbeat (:mod:`teleop.link.heartbeat`): the time (s, the receive calls'
+        """For the heartbeat (:mod:`teleop.tick.heartbeat`): the time (s, the receive calls'
         clock) the last message reached ``side`` ("master": a feedback, "slave": a command), even
         one not newer; None before the first, or on a link that cannot lose one (the lockstep
         link, whose heartbeat never trips)."""

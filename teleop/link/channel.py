@@ -24,7 +24,7 @@ t: exactly :class:`LockstepLink`.
 
 **A cut** (:meth:`SimulatedChannel.cut`, the fault campaign's link loss): from an instant on,
 every message of the chosen way(s) is lost, those already in flight included (counted ``cut``).
-The heartbeat (:mod:`teleop.link.heartbeat`) reads :meth:`SimulatedChannel.last_heard_s`, the
+The heartbeat (:mod:`teleop.tick.heartbeat`) reads :meth:`SimulatedChannel.last_heard_s`, the
 arrival time of the last message each side received.
 
 All draws come from the Generator given (three per message per direction, always, so a run is
@@ -40,9 +40,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from teleop.errors import ConfigError
+from teleop.util.errors import ConfigError
 from teleop.link.base import Link, Mailbox
-from teleop.link.messages import ContactFeedback, ToolCommand
+from teleop.tick.messages import ContactFeedback, ToolCommand
 from teleop.link.wire import encoded_size
 
 #: arrival times within this of the receive time count as arrived (s): ticks are float sums

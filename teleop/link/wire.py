@@ -19,11 +19,11 @@ row: N*s/m, N*s, N*m*s/rad), twist_P 6 f64 (m/s, rad/s). Version 3 added the las
 
 The CRC is CRC-32/ISO-HDLC (poly 0x04C11DB7 reflected, init and xorout 0xFFFFFFFF): crccheck's
 ``Crc32`` names it and is the reference the tests check against; it is computed by the project's
-one compiled CRC, :func:`teleop.crc32.crc32` (the CAN frames' too), because crccheck is pure
+one compiled CRC, :func:`teleop.util.crc32.crc32` (the CAN frames' too), because crccheck is pure
 Python, bit by bit (~0.45 ms per 200-byte frame here, half a 1 kHz tick).
 
 :func:`decode` checks magic, version, type, length, CRC and finite values, in that order, and
-raises :class:`~teleop.link.messages.MessageError` naming the reason.
+raises :class:`~teleop.tick.messages.MessageError` naming the reason.
 """
 
 from __future__ import annotations
@@ -33,8 +33,8 @@ import struct
 
 import numpy as np
 
-from teleop.crc32 import crc32 as _crc32
-from teleop.link.messages import SLAVE_STATUSES, ContactFeedback, MessageError, ToolCommand
+from teleop.util.crc32 import crc32 as _crc32
+from teleop.tick.messages import SLAVE_STATUSES, ContactFeedback, MessageError, ToolCommand
 
 MAGIC = b"TLNK"
 WIRE_VERSION = 3

@@ -51,10 +51,10 @@ import json
 import time
 from collections.abc import Callable
 
-from teleop.errors import ConfigError, TeleopError
+from teleop.util.errors import ConfigError, TeleopError
 from teleop.link import wire
 from teleop.link.base import Link, Mailbox
-from teleop.link.messages import ContactFeedback, MessageError, ToolCommand
+from teleop.tick.messages import ContactFeedback, MessageError, ToolCommand
 
 DEFAULT_ENDPOINT = "tcp/127.0.0.1:7447"
 RING = 64  # frames kept between two polls (the newest; 64 ms at 1 kHz)

@@ -1,4 +1,4 @@
-"""The master interface the bilateral tick (:mod:`teleop.loop`) talks to, and its life cycle.
+"""The master interface the bilateral tick (:mod:`teleop.tick.loop`) talks to, and its life cycle.
 
 A master stands between the operator's hand and the reference tool: it senses the hand's wrench
 (for the cobot, over the bus and through the load cell and eq. 4) and commands the device to

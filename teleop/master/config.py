@@ -1,6 +1,6 @@
 """CobotConfig: every setting of the simulated cobot master, validated on creation (SI units).
 
-The rules sit beside each field (teleop.typed.setting); ``teleop.typed.validate`` checks a scene's
+The rules sit beside each field (teleop.util.typed.setting); ``teleop.util.typed.validate`` checks a scene's
 ``[cobot]`` table against them, and ``CobotConfig(...)`` built from Python checks the same rules.
 """
 
@@ -9,8 +9,8 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 from teleop.can.faults import Faults
-from teleop.errors import FieldError
-from teleop.typed import Checked, setting, validate
+from teleop.util.errors import FieldError
+from teleop.util.typed import Checked, setting, validate
 
 Vec = tuple[float, ...]
 

@@ -12,7 +12,7 @@ from teleop.dynamics.effects import AngularDamper, Gravity, LinearDamper, Spring
 from teleop.dynamics.fixtures import Fixture
 from teleop.dynamics.registry import FrameMap
 from teleop.dynamics.tool import ReferenceTool
-from teleop.errors import ConfigError, DynamicsError, SceneError
+from teleop.util.errors import ConfigError, DynamicsError, SceneError
 from teleop.scenario.schema import Scene
 
 

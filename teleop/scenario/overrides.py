@@ -11,7 +11,7 @@ from __future__ import annotations
 import re
 import tomllib
 
-from teleop.errors import SceneError
+from teleop.util.errors import SceneError
 
 _PART = re.compile(r"([A-Za-z_][A-Za-z0-9_]*)((?:\[\d+\])*)")
 

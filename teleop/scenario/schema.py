@@ -3,7 +3,7 @@
 A scene declares its duration and control period, the effects it calls for (only those are built),
 the tool and its fixture, the operator, the master (and the cobot's settings), the slave, the
 mapping, the tissue, the viewer and the link, and the seed. Every table and key is checked on
-every load whatever runs (``teleop.typed.validate``); errors name the file, the key and the
+every load whatever runs (``teleop.util.typed.validate``); errors name the file, the key and the
 reason. See ``scenarios/*.toml`` and ``teleop schema`` for the format as a JSON Schema.
 """
 
@@ -20,9 +20,9 @@ from typing import Literal
 
 from teleop.contact.tissue import TissueBlock
 from teleop.dynamics.integrators import INTEGRATORS
-from teleop.errors import ConfigError, SceneError
-from teleop.inputs import read_text
-from teleop.resources import robot_dir, scenario_dir
+from teleop.util.errors import ConfigError, SceneError
+from teleop.util.inputs import read_text
+from teleop.util.resources import robot_dir, scenario_dir
 from teleop.master.config import CobotConfig
 from teleop.scenario.overrides import apply_settings
 from teleop.scenario.tables import (
@@ -32,7 +32,7 @@ from teleop.scenario.tables import (
 from teleop.slave.arm import SlaveConfig
 from teleop.dynamics import surface_fixture  # noqa: F401 - registers the built-in 'surface_scalpel' type
 from teleop.dynamics.registry import FIXTURE_TYPES
-from teleop.typed import Checked, as_table, json_schema, setting, validate
+from teleop.util.typed import Checked, as_table, json_schema, setting, validate
 
 __all__ = [
     "EFFECTS", "FIXTURES", "FRAMES", "MASTERS", "Scene", "ToolSpec", "FixtureSpec", "Phase", "HandSpec",

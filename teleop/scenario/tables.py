@@ -2,7 +2,7 @@
 
 The scene tree (``teleop.scenario.schema.Scene``) holds these and the runtime configs that are
 nodes of it too (``CobotConfig`` with ``FaultSettings``, ``SlaveConfig``, ``TissueBlock`` with
-``CuttingModel``). One validator (``teleop.typed``) checks them all.
+``CuttingModel``). One validator (``teleop.util.typed``) checks them all.
 """
 
 from __future__ import annotations
@@ -17,8 +17,8 @@ from teleop.control.mapping import Registration
 from teleop.dynamics import fixtures
 from teleop.dynamics.fixtures import Fixture
 from teleop.dynamics.registry import FrameMap
-from teleop.errors import FieldError
-from teleop.typed import Checked, as_table, setting
+from teleop.util.errors import FieldError
+from teleop.util.typed import Checked, as_table, setting
 
 FIXTURES = ("free", "rolling_disk", "sphere", "scalpel")
 FRAMES = ("world", "tool", "task")
@@ -221,7 +221,7 @@ class MappingSpec(Checked):
     torque_scale: float | None = setting(None, gt=0.0, doc="torque feedback gain (default force_scale * scale)")
     feedback_cutoff_hz: float = setting(20.0, ge=0.0, doc="force feedback low-pass cut-off, Hz (0: off)")
     feedback_local_damping: bool = setting(True, doc="render the contact's damping at the master, implicitly and without "
-                                           "the link's delay (teleop.control.feedback); false: the wrench alone")
+                                           "the link's delay (teleop.tick.feedback); false: the wrench alone")
 
     def registration(self) -> Registration:
         return Registration(np.array(self.position_m), rpy_matrix(*self.rpy_rad), self.scale, self.force_scale,
@@ -241,7 +241,7 @@ class ViewerSpec(Checked):
 class LinkSpec(Checked):
     """The master-slave link: a simulated channel in lockstep simulated time
     (:class:`teleop.link.channel.SimulatedChannel`) and the passivity guard
-    (:mod:`teleop.link.passivity`). All defaults: the in-process lockstep link, at no cost."""
+    (:mod:`teleop.control.passivity`). All defaults: the in-process lockstep link, at no cost."""
 
     round_trip_ms: float = setting(0.0, ge=0.0, le=10_000.0, doc="constant round-trip delay, ms (half each way)")
     jitter_ms: float = setting(0.0, ge=0.0, le=10_000.0, doc="mean of the exponential extra one-way delay, ms")

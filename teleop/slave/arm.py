@@ -21,12 +21,12 @@ import example_robot_data as erd
 import numpy as np
 import pinocchio as pin
 
-from teleop.errors import ConfigError
-from teleop.inputs import plain, read_text
-from teleop.resources import robot_file
+from teleop.util.errors import ConfigError
+from teleop.util.inputs import plain, read_text
+from teleop.util.resources import robot_file
 from teleop.slave.limits import JointLimits
 from teleop.slave.solvers import PACKAGES, installed_solvers
-from teleop.typed import Checked, setting, validate
+from teleop.util.typed import Checked, setting, validate
 
 SCALPEL_URDF = robot_file("scalpel/scalpel.urdf")
 
@@ -154,7 +154,7 @@ def _rpy_se3(xyz, rpy) -> pin.SE3:
 
 
 def _urdf_model(path, key: str) -> pin.Model:
-    """Pinocchio's model of a URDF file, read as a regular file of bounded size (teleop.inputs);
+    """Pinocchio's model of a URDF file, read as a regular file of bounded size (teleop.util.inputs);
     a file that is not a URDF is a ConfigError naming ``key``."""
     try:
         xml = read_text(path, what="URDF")

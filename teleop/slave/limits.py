@@ -21,7 +21,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from teleop.errors import ConfigError
+from teleop.util.errors import ConfigError
 from teleop.slave.kernels import velocity_bounds
 
 

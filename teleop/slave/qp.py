@@ -12,7 +12,7 @@ import numpy as np
 import pinocchio as pin
 
 from teleop.dynamics.constraints import stack_residual
-from teleop.errors import ConfigError
+from teleop.util.errors import ConfigError
 from teleop.slave.arm import build_model
 from teleop.slave.follower import FollowerQP, compute_target_twist
 

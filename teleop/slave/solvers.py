@@ -30,7 +30,7 @@ import qpsolvers
 import scipy.sparse as sp
 from osqp import ext_builtin as osqp_ext
 
-from teleop.errors import SolverError
+from teleop.util.errors import SolverError
 
 BIG = 1e20  # stands in for infinity in solvers that want finite bounds
 

@@ -8,7 +8,7 @@
 
 from __future__ import annotations
 
-from teleop.errors import ConfigError
+from teleop.util.errors import ConfigError
 from teleop.viz.frames import FIXTURE_TYPES, TOOL_SHAPES, VizFrame, VizScene
 from teleop.viz.null_view import NullView
 

@@ -11,7 +11,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from teleop.errors import ConfigError
+from teleop.util.errors import ConfigError
 
 #: fixture types the viewer draws itself (the scene schema's FIXTURES); a user's own type is drawn
 #: by its ``draw(frame)`` method or generically (see :func:`teleop.viz.shapes.custom_fixture_parts`)

@@ -8,7 +8,7 @@ import pinocchio as pin
 from meshcat import geometry as g
 from pinocchio.visualize import meshcat_visualizer as pmv
 
-from teleop.errors import ConfigError
+from teleop.util.errors import ConfigError
 
 from teleop.viz.shapes import (
     VIEW_HEIGHT_M,

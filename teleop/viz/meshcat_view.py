@@ -27,7 +27,7 @@ from meshcat import transformations as tf
 from meshcat.animation import Animation
 from meshcat.visualizer import ViewerWindow
 
-from teleop.errors import ConfigError, TeleopError
+from teleop.util.errors import ConfigError, TeleopError
 from teleop.viz.frames import VizFrame, VizScene
 from teleop.viz.layout import Drawing
 from teleop.viz.shapes import COLORS, VIEW_HEIGHT_M, VIEW_WIDTH_M, polyline

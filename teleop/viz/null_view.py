@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from teleop.errors import ConfigError
+from teleop.util.errors import ConfigError
 from teleop.viz.frames import VizFrame, VizScene
 
 

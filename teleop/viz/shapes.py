@@ -17,7 +17,7 @@ from meshcat import geometry as g
 from PIL import Image, ImageDraw, ImageFont
 
 from teleop.dynamics.registry import FrameMap
-from teleop.errors import ConfigError
+from teleop.util.errors import ConfigError
 
 #: colours, chosen to be told apart in a screenshot (see tests/integration/test_browser_render.py)
 COLORS = {

@@ -7,7 +7,7 @@ from teleop.dynamics import fixtures
 from teleop.dynamics.body import RigidBody
 from teleop.dynamics.effects import Spring
 from teleop.dynamics.tool import ReferenceTool
-from teleop.errors import ConfigError
+from teleop.util.errors import ConfigError
 from tests.cobot_tick import make_cobot, tick
 
 H = 2e-3  # the largest period of the study

@@ -1,5 +1,5 @@
 """Run by a user who cannot write to the package's folder nor to $HOME: the kernels still import
-(numba's cache goes to a writable folder, teleop.numba_cache), never a failure at import."""
+(numba's cache goes to a writable folder, teleop.util.numba_cache), never a failure at import."""
 
 import os
 import shutil
@@ -10,7 +10,7 @@ from pathlib import Path
 import pytest
 
 import teleop
-from teleop import numba_cache
+from teleop.util import numba_cache
 
 PKG = Path(teleop.__file__).resolve().parent
 

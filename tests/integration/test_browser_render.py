@@ -61,7 +61,7 @@ def test_both_sides_render_in_chromium(tmp_path):
 @pytest.mark.long  # about 45 s here: a cobot run, a replay and a render (CI's long stage runs it)
 def test_a_cobot_run_replayed_from_its_folder_shows_everything(tmp_path):
     """`teleop run straight_incision --master cobot --out DIR`, then `teleop replay DIR`."""
-    from teleop.cli import main
+    from teleop.app.cli import main
 
     shot = _screenshot_module()
     shot.find_chromium()

@@ -7,7 +7,7 @@ import subprocess
 import sys
 
 import can
-from teleop.cli import main
+from teleop.app.cli import main
 from teleop.master.cobot.database import DEFAULT_DBC, FrameDatabase
 
 HOST_IDS = {m.frame_id for m in FrameDatabase().db.messages if m.senders == ["HOST"]}

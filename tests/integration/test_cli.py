@@ -6,7 +6,7 @@ import sys
 
 import pytest
 
-from teleop.cli import main
+from teleop.app.cli import main
 from teleop.scenario.schema import list_scenes
 
 KEYS = {"scenario", "status", "steps", "dt_s", "duration_s", "nan", "tick_us", "metrics"}
@@ -25,7 +25,7 @@ def test_run_writes_the_json_summary(tmp_path, name):
 
 
 def test_console_entry_point_and_list():
-    r = subprocess.run([sys.executable, "-m", "teleop.cli", "list"], capture_output=True, text=True, check=True)
+    r = subprocess.run([sys.executable, "-m", "teleop.app.cli", "list"], capture_output=True, text=True, check=True)
     for name in list_scenes():
         assert name in r.stdout
 

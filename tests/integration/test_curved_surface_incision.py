@@ -5,7 +5,7 @@ and the same scene rendered by the CAN cobot."""
 import numpy as np
 import pytest
 
-from teleop.runtime import run_scene
+from teleop.app.runtime import run_scene
 from teleop.scenario.schema import load_scene
 
 pytestmark = pytest.mark.long  # the whole 7 s scene each (the cobot's CAN simulation too)

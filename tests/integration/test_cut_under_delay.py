@@ -1,11 +1,11 @@
 """The cut under a tick or more of feedback delay, unguarded: the contact's damping rendered at the
-master (teleop.control.feedback) keeps it as in one process; the wrench alone falls into the
+master (teleop.tick.feedback) keeps it as in one process; the wrench alone falls into the
 stick-slip limit cycle that a late reply over a network used to start."""
 
 import numpy as np
 import pytest
 
-from teleop.runtime import run_scene
+from teleop.app.runtime import run_scene
 from teleop.scenario.schema import load_scene
 
 SETS = ["duration_s=2.5", 'link.passivity="off"']

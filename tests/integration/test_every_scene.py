@@ -3,7 +3,7 @@
 import numpy as np
 import pytest
 
-from teleop.runtime import run_scene
+from teleop.app.runtime import run_scene
 from teleop.scenario.schema import list_scenes, load_scene
 
 SCENES = list_scenes()
@@ -25,7 +25,7 @@ def test_same_seed_same_trajectory(name):
 
 
 def test_default_run_is_the_surgical_cut():
-    from teleop.cli import DEFAULT_SCENE
+    from teleop.app.cli import DEFAULT_SCENE
 
     assert DEFAULT_SCENE == "straight_incision" and DEFAULT_SCENE in SCENES
 

@@ -6,7 +6,7 @@ from dataclasses import replace
 
 import pytest
 
-from teleop.runtime import run_scene
+from teleop.app.runtime import run_scene
 from teleop.scenario.schema import list_scenes, load_scene
 
 pytestmark = pytest.mark.long  # the whole scenes, 5-20 s simulated each

@@ -9,7 +9,7 @@ the master the drift is smaller (0.9 mm at most at 200 ms, 6.7 mm at 1 s), so th
 import numpy as np
 import pytest
 
-from teleop.runtime import run_scene
+from teleop.app.runtime import run_scene
 from teleop.scenario.schema import load_scene
 
 

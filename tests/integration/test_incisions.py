@@ -4,7 +4,7 @@ slave QP -> tissue -> force back to the operator. Bounds are issue #4's."""
 import numpy as np
 import pytest
 
-from teleop.runtime import run_scene
+from teleop.app.runtime import run_scene
 from teleop.scenario.schema import load_scene
 
 

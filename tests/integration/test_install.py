@@ -16,7 +16,7 @@ from pathlib import Path
 
 import pytest
 
-from teleop import resources
+from teleop.util import resources
 
 ROOT = Path(__file__).resolve().parents[2]  # the repository under test, not teleop's data
 SKIP = shutil.ignore_patterns(".git", ".venv", "build", "*.egg-info", "__pycache__", ".hypothesis",
@@ -63,7 +63,7 @@ def test_wheel_lists_and_runs_every_shipped_scene(tmp_path):
         return r.stdout
 
     where = subprocess.run(
-        [sys.executable, "-c", "import teleop, teleop.resources as r; print(teleop.__file__); "
+        [sys.executable, "-c", "import teleop, teleop.util.resources as r; print(teleop.__file__); "
          "print(r.scenario_dir()); print(r.robot_file('cobot/cobot.urdf'))"],
         cwd=work, env=env, capture_output=True, text=True, check=True).stdout.split()
     assert all(Path(p).is_relative_to(target) for p in where), where

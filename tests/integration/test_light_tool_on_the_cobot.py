@@ -12,9 +12,9 @@ from teleop.dynamics.tool import ReferenceTool
 from teleop.master import CobotConfig
 from tests.cobot_tick import make_cobot, tick
 
-from teleop.runtime import run_scene
+from teleop.app.runtime import run_scene
 from teleop.scenario.schema import load_scene, parse_scene
-from teleop.typed import as_table
+from teleop.util.typed import as_table
 
 LIGHT = ["tool.mass_kg=0.05", "tool.inertia_kgm2=[0.0005, 0.0005, 0.0005]"]
 

@@ -1,4 +1,4 @@
-"""The in-process run's heartbeat (teleop.link.heartbeat, the two-process run's own logic) on a
+"""The in-process run's heartbeat (teleop.tick.heartbeat, the two-process run's own logic) on a
 simulated channel cut mid-cut: each way, and both. The side that hears nothing detects it on the
 first tick past ``heartbeat_ms`` of silence and goes to its safe state (master: tool at zero
 velocity, remote force dropped; slave: joints held, replies link_lost); the master also when the
@@ -7,8 +7,8 @@ slave's replies say link_lost; the run says link_lost."""
 import numpy as np
 import pytest
 
-from teleop.loop import Hook
-from teleop.runtime import run_scene
+from teleop.tick.loop import Hook
+from teleop.app.runtime import run_scene
 from teleop.scenario.schema import load_scene
 
 DT = 1e-3

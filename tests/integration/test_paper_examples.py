@@ -3,7 +3,7 @@
 import numpy as np
 import pytest
 
-from teleop.runtime import run_scene
+from teleop.app.runtime import run_scene
 from teleop.scenario.schema import load_scene
 
 

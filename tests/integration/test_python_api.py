@@ -11,10 +11,10 @@ import numpy as np
 import pytest
 
 from teleop.dynamics.registry import FIXTURE_TYPES, register_fixture
-from teleop.errors import SceneError
-from teleop.runtime import run_scene
+from teleop.util.errors import SceneError
+from teleop.app.runtime import run_scene
 from teleop.scenario.schema import load_scene, parse_scene
-from teleop.typed import as_table
+from teleop.util.typed import as_table
 
 README = Path(__file__).resolve().parents[2] / "README.md"
 
@@ -154,7 +154,7 @@ def test_an_installed_fixture_type_runs_from_the_command_line_and_is_drawn(tmp_p
     the tool's frame triad and trace on the master side)."""
     import os
 
-    from teleop.viz_bridge import viz_scene_for
+    from teleop.app.view_bridge import viz_scene_for
 
     scene = parse_scene(groove_scene(), "groove.toml")
     vs = viz_scene_for(scene)
@@ -175,7 +175,7 @@ def test_an_installed_fixture_type_runs_from_the_command_line_and_is_drawn(tmp_p
 def _write(tmp_path, scene) -> Path:
     import tomli_w
 
-    from teleop.viz_bridge import _plain
+    from teleop.app.view_bridge import _plain
 
     path = tmp_path / "groove.toml"
     path.write_text(tomli_w.dumps(_plain(as_table(scene))))

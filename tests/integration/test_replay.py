@@ -3,10 +3,10 @@ since deleted) with everything the live view drew."""
 
 import numpy as np
 
-from teleop.cli import main
-from teleop.resources import scenario_dir
+from teleop.app.cli import main
+from teleop.util.resources import scenario_dir
 from teleop.scenario.schema import load_scene
-from teleop.viz_bridge import FRAMES_FILE, load_run_scene, save_scene_copy
+from teleop.app.view_bridge import FRAMES_FILE, load_run_scene, save_scene_copy
 
 
 def test_the_scene_copy_loads_back_equal(tmp_path):

@@ -2,7 +2,7 @@
 
 import numpy as np
 
-from teleop.runtime import run_scene
+from teleop.app.runtime import run_scene
 from teleop.scenario.operators import Operator
 from teleop.scenario.schema import load_scene
 

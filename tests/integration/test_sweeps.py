@@ -1,4 +1,4 @@
-"""teleop.sweep and the studies on it: results in the points' order, each point seeded from itself,
+"""teleop.app.sweep and the studies on it: results in the points' order, each point seeded from itself,
 the same answers with 1 and 2 workers (and as in-process), and --scheduler reaching an external
 Dask cluster."""
 
@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 from dask.distributed import LocalCluster, get_worker
 
-from teleop.sweep import QUIET_SCHEDULER, point_seed, run_sweep
+from teleop.app.sweep import QUIET_SCHEDULER, point_seed, run_sweep
 
 TOOLS = Path(__file__).resolve().parents[2] / "tools"
 MEASURED = ("tick_median_us", "tick_p99_us", "cpu_load_pct")  # CPU timings: differ run to run

@@ -14,8 +14,8 @@ import pytest
 
 pytest.importorskip("zenoh")
 
-from teleop.netrun import free_endpoint
-from teleop.runtime import run_scene
+from teleop.app.netrun import free_endpoint
+from teleop.app.runtime import run_scene
 from teleop.scenario.schema import load_scene
 
 PY = [sys.executable, "-m", "teleop"]

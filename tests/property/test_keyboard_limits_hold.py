@@ -1,5 +1,5 @@
 """Property: whatever keys are held, for however long, the keyboard's tool stays inside its
-workspace and under its speed limits (teleop.scenario.limits on teleop.scenario.keyboard).
+workspace and under its speed limits (teleop.app.limits on teleop.app.keyboard).
 
 The tool's speeds are measured from the logged poses by finite differences (not from the tool's own
 twist, which the limits read), on an undamped free tool (nothing but the limits slows it) and on the
@@ -12,10 +12,10 @@ from scipy.spatial.transform import Rotation
 
 from teleop.master.ideal import IdealMaster
 from teleop.scenario.build import build_tool, master_fixture_spec
-from teleop.scenario.keyboard import FAST, SPEED_LIMIT_FACTOR, KeyboardOperator, KeyScale, hand_gains
-from teleop.scenario.limits import BRAKE_MIN_S, PAST_LIMIT_SHARE, Limits, LimitedOperator, Workspace
+from teleop.app.keyboard import FAST, SPEED_LIMIT_FACTOR, KeyboardOperator, KeyScale, hand_gains
+from teleop.app.limits import BRAKE_MIN_S, PAST_LIMIT_SHARE, Limits, LimitedOperator, Workspace
 from teleop.scenario.schema import load_scene
-from teleop.session import Session
+from teleop.app.session import Session
 
 FREE_TOOL = """
 name = "free_tool"

@@ -4,7 +4,7 @@ import numpy as np
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from teleop.runtime import run_scene
+from teleop.app.runtime import run_scene
 from teleop.scenario.random_scene import random_scene
 from teleop.scenario.schema import parse_scene
 

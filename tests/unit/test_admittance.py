@@ -5,7 +5,7 @@ import pinocchio as pin
 import pytest
 
 from teleop.control import AdmittanceController, AdmittanceGains, Clutch, Phi
-from teleop.errors import ConfigError
+from teleop.util.errors import ConfigError
 
 RNG = np.random.default_rng(7)
 

@@ -8,8 +8,8 @@ from pathlib import Path
 
 import pytest
 
-from teleop.cli import main
-from teleop.errors import SceneError
+from teleop.app.cli import main
+from teleop.util.errors import SceneError
 from teleop.scenario.schema import load_scene
 
 FILES = sorted((Path(__file__).parents[1] / "data" / "bad_scenes").glob("*.toml"))

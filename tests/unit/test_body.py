@@ -12,7 +12,7 @@ from teleop.dynamics.body import (
     kinetic_energy,
 )
 from teleop.dynamics.rotations import EulerChart, rate_map, rechart, rotation
-from teleop.errors import ConfigError
+from teleop.util.errors import ConfigError
 
 SEQS = ["ZXZ", "ZYX", "XYZ", "YXY"]
 

@@ -5,7 +5,7 @@ import pytest
 from crccheck.crc import Crc32
 
 from teleop.master.cobot.database import Decoded, FrameDatabase, Rejected, compute_crc32
-from teleop.errors import CanError
+from teleop.util.errors import CanError
 
 
 @pytest.fixture(scope="module")
@@ -59,7 +59,7 @@ def test_unknown_id_wrong_length_and_out_of_range_are_rejected(db):
 
 
 def test_crc_is_crccheck_crc32_over_the_frame_id_and_payload(db):
-    """The wire CRC (teleop.crc32 in the hot path) equals crccheck's CRC-32/ISO-HDLC of id (2 bytes LE) +
+    """The wire CRC (teleop.util.crc32 in the hot path) equals crccheck's CRC-32/ISO-HDLC of id (2 bytes LE) +
     payload, on random payloads of every length the protocol uses."""
     rng = np.random.default_rng(0)
     for n in (1, 2, 3, 4, 16, 60):

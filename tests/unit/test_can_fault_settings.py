@@ -3,7 +3,7 @@
 import pytest
 
 from teleop.can.faults import Faults
-from teleop.errors import ConfigError
+from teleop.util.errors import ConfigError
 
 
 def test_defaults_and_from_dict():

@@ -3,7 +3,7 @@
 import pytest
 
 from teleop.can.faults import Faults
-from teleop.errors import ConfigError, check_table
+from teleop.util.errors import ConfigError, check_table
 from teleop.slave import SlaveConfig
 
 

@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 
 from teleop.can.faults import Faults
-from teleop.errors import ConfigError
+from teleop.util.errors import ConfigError
 from teleop.master import CobotConfig, CobotMaster
 
 

@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 
 from teleop.contact import CuttingModel, TissueBlock
-from teleop.errors import ConfigError
+from teleop.util.errors import ConfigError
 
 R_CUT = np.array([[1.0, 0.0, 0.0], [0.0, -1.0, 0.0], [0.0, 0.0, -1.0]])
 O = np.array([0.5, 0.0, 0.2])

@@ -5,7 +5,7 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 
-from teleop.scenario.metrics import EnergyDrift
+from teleop.app.metrics import EnergyDrift
 
 
 class FakeTool:

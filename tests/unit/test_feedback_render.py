@@ -1,4 +1,4 @@
-"""The master's rendering of the contact (teleop.control.feedback): the delayed wrench plus the
+"""The master's rendering of the contact (teleop.tick.feedback): the delayed wrench plus the
 contact's damping at the tool's own twist, solved implicitly. Checked against the backward Euler
 step written out, the stale stick that must not throw the tool back, and bad models refused."""
 
@@ -10,10 +10,10 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from scipy.spatial.transform import Rotation
 
-from teleop.control.feedback import FeedbackPath
+from teleop.tick.feedback import FeedbackPath
 from teleop.control.mapping import Registration
 from teleop.dynamics.effects import AngularDamper, LinearDamper
-from teleop.link.messages import ContactFeedback
+from teleop.tick.messages import ContactFeedback
 
 DT = 1e-3
 
@@ -125,7 +125,7 @@ def test_local_damping_off_is_the_wrench_alone():
 
 
 def test_a_message_with_an_unsymmetric_damping_is_refused():
-    from teleop.link.messages import MessageError
+    from teleop.tick.messages import MessageError
     D = np.zeros((6, 6))
     D[0, 1] = 1.0
     with pytest.raises(MessageError, match="damping_P: not symmetric"):

@@ -4,7 +4,7 @@ residual, a nonholonomic one by its rate; the holonomic rows' rate is reported a
 import numpy as np
 
 from teleop.dynamics.constraints import KnifeEdge, PointDepth
-from teleop.scenario.metrics import FixtureRowMetrics
+from teleop.app.metrics import FixtureRowMetrics
 
 
 def _metrics():

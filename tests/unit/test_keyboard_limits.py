@@ -1,4 +1,4 @@
-"""The workspace and speed limits on an operator's wrench (teleop.scenario.limits)."""
+"""The workspace and speed limits on an operator's wrench (teleop.app.limits)."""
 
 from dataclasses import replace
 
@@ -8,7 +8,7 @@ import pytest
 
 from teleop.control.admittance import Phi
 from teleop.master.cobot.model import CobotModel
-from teleop.scenario.limits import Limits, LimitedOperator, Workspace, device_workspace, limits_for
+from teleop.app.limits import Limits, LimitedOperator, Workspace, device_workspace, limits_for
 from teleop.scenario.operators import Operator
 from teleop.scenario.schema import load_scene
 

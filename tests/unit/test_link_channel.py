@@ -5,7 +5,7 @@ import math
 import numpy as np
 import pytest
 
-from teleop.errors import ConfigError
+from teleop.util.errors import ConfigError
 from teleop.link import ChannelSpec, ContactFeedback, LockstepLink, SimulatedChannel, ToolCommand
 
 DT = 1e-3

@@ -4,13 +4,13 @@ energies and offsets, and the damping cap from the tool's mass."""
 import numpy as np
 import pytest
 
-from teleop.control.feedback import FeedbackPath
+from teleop.tick.feedback import FeedbackPath
 from teleop.control.mapping import Registration
-from teleop.errors import SceneError
+from teleop.util.errors import SceneError
 from teleop.link import ContactFeedback, LockstepLink, SimulatedChannel, ToolCommand
-from teleop.link.guard import MasterGuard, SlaveGuard, tdpa_params
-from teleop.link.passivity import TdpaParams
-from teleop.runtime import make_guard, make_link
+from teleop.tick.guard import MasterGuard, SlaveGuard, tdpa_params
+from teleop.control.passivity import TdpaParams
+from teleop.app.runtime import make_guard, make_link
 from teleop.scenario.schema import load_scene
 
 DT = 1e-3
@@ -50,7 +50,7 @@ def test_auto_guards_a_link_that_delays_or_crosses_a_network(sets, networked, gu
 
 def test_the_default_is_auto_and_a_delayed_run_is_guarded():
     assert load_scene("straight_incision").link.passivity == "auto"
-    from teleop.runtime import run_scene
+    from teleop.app.runtime import run_scene
     s = run_scene(load_scene("straight_incision", sets=["duration_s=0.2", "link.round_trip_ms=20"])).summary
     assert "passivity" in s and s["status"] == "ok"
 
@@ -167,7 +167,7 @@ def test_slave_guard_speed_follows_the_commanded_twist():
 
 def test_zero_delay_channel_is_the_lockstep_link():
     """The same run through the channel model at zero delay and through the lockstep link."""
-    from teleop.runtime import run_scene
+    from teleop.app.runtime import run_scene
 
     base = load_scene("straight_incision", sets=["duration_s=0.6"])
     # builds the channel (1e-13 s per message); the guard off, as "auto" would put it on a named channel

@@ -10,7 +10,7 @@ from hypothesis import strategies as st
 from scipy.spatial.transform import Rotation
 
 from teleop.link import wire
-from teleop.link.messages import SLAVE_STATUSES, ContactFeedback, MessageError, ToolCommand
+from teleop.tick.messages import SLAVE_STATUSES, ContactFeedback, MessageError, ToolCommand
 
 finite = st.floats(-1e6, 1e6, allow_nan=False, allow_infinity=False)
 energy = st.floats(0.0, 1e6, allow_nan=False, allow_infinity=False)

@@ -9,7 +9,7 @@ import pytest
 
 pytest.importorskip("zenoh")
 
-from teleop.errors import ConfigError  # noqa: E402
+from teleop.util.errors import ConfigError  # noqa: E402
 from teleop.link import ContactFeedback, ToolCommand  # noqa: E402
 from teleop.link.zenoh_link import LinkError, ZenohLink  # noqa: E402
 

@@ -5,8 +5,8 @@ import numpy as np
 import pytest
 
 from teleop.link import ContactFeedback, LockstepLink, MessageError, ToolCommand
-from teleop.loop import BilateralLoop, Hook
-from teleop.session import SLAVE_FAULTS, run_status
+from teleop.tick.loop import BilateralLoop, Hook
+from teleop.app.session import SLAVE_FAULTS, run_status
 
 
 def _cmd(seq, p=(0.0, 0.0, 0.0), R=None):

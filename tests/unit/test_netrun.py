@@ -4,11 +4,11 @@ and the slave's safe states and their resumption, and the merged summary's statu
 import numpy as np
 import pytest
 
-from teleop.control.feedback import FeedbackPath
+from teleop.tick.feedback import FeedbackPath
 from teleop.link import ContactFeedback
 from teleop.master.ideal import IdealMaster
-from teleop.netrun import HeartbeatState, MasterHalf, SlaveHalf, merge_summaries
-from teleop.runtime import make_slave
+from teleop.app.netrun import HeartbeatState, MasterHalf, SlaveHalf, merge_summaries
+from teleop.app.runtime import make_slave
 from teleop.scenario.build import build_fixture, build_registration, build_tool, master_fixture_spec
 from teleop.scenario.operators import make_operator
 from teleop.scenario.schema import load_scene
@@ -131,7 +131,7 @@ def test_merged_status_is_ok_only_when_both_sides_are():
 
 
 def test_cli_bad_input_is_one_line_and_exit_2(capsys):
-    from teleop.cli import main
+    from teleop.app.cli import main
 
     assert main(["slave", "paper_rolling_disk", "--listen", "tcp/127.0.0.1:1"]) == 2
     err = capsys.readouterr().err.strip().splitlines()
@@ -142,7 +142,7 @@ def test_cli_bad_input_is_one_line_and_exit_2(capsys):
 
 
 def test_zenoh_config_file_is_checked(tmp_path, capsys):
-    from teleop.cli import main
+    from teleop.app.cli import main
 
     bad = tmp_path / "tls.json"
     bad.write_text('["not", "an object"]')

@@ -10,9 +10,9 @@ import time
 import numpy as np
 import pytest
 
-from teleop import netrun
+from teleop.app import netrun
 from teleop.link import ToolCommand
-from teleop.session import _pace
+from teleop.app.session import _pace
 
 
 def test_pace_returns_at_the_deadline_sleeping_or_spinning():

@@ -9,7 +9,7 @@ import matplotlib.pyplot
 import numpy as np
 import pytest
 
-from teleop import plots
+from teleop.app import plots
 
 
 

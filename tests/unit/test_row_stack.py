@@ -7,7 +7,7 @@ import pytest
 
 from teleop.dynamics import constraints as C
 from teleop.dynamics.rows import RowStack
-from teleop.errors import ConfigError
+from teleop.util.errors import ConfigError
 
 
 class TiltedPoint(C.Constraint):

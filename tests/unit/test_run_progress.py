@@ -1,10 +1,10 @@
-"""What a run says while it runs (teleop.progress): the compile notice, the tqdm bar."""
+"""What a run says while it runs (teleop.app.progress): the compile notice, the tqdm bar."""
 
 import io
 import logging
 
-from teleop import progress
-from teleop.cli import main
+from teleop.app import progress
+from teleop.app.cli import main
 
 
 class _Tty(io.StringIO):

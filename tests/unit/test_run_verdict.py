@@ -1,12 +1,12 @@
-"""The run's status (teleop.session.verdict): one test holds each status of the README's table."""
+"""The run's status (teleop.app.session.verdict): one test holds each status of the README's table."""
 
 import logging
 
 import numpy as np
 import pytest
 
-from teleop import session
-from teleop.session import (FIXTURE_TOLERANCES, RELAXED_SHARE_MAX, SLAVE_FIXTURE_TOLERANCES, SLAVE_TARGET_MAX_M,
+from teleop.app import session
+from teleop.app.session import (FIXTURE_TOLERANCES, RELAXED_SHARE_MAX, SLAVE_FIXTURE_TOLERANCES, SLAVE_TARGET_MAX_M,
                             Columns, tick_count, verdict)
 
 GOOD = {"depth_error_max_m": 0.0, "cut_depth_error_max_m": 1e-9, "tip_tracking_max_m": 1e-5}
@@ -73,7 +73,7 @@ def test_a_run_past_the_limit_is_refused_naming_it():
 
 
 def test_realtime_warns_when_it_falls_behind_and_reports_its_factor(caplog):
-    from teleop.runtime import run_scene
+    from teleop.app.runtime import run_scene
     from teleop.scenario.schema import load_scene
 
     class Slow:
@@ -94,7 +94,7 @@ def test_a_scalpel_without_knife_edge_may_slip_sideways():
     scalpel fixture with knife_edge = false slid sideways at 0.25 m/s and was called violated)."""
     import numpy as np
 
-    from teleop.runtime import run_scene
+    from teleop.app.runtime import run_scene
     from teleop.scenario.random_scene import random_scene
     from teleop.scenario.schema import parse_scene
 

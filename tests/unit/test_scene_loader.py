@@ -2,7 +2,7 @@
 
 import pytest
 
-from teleop.errors import SceneError
+from teleop.util.errors import SceneError
 from teleop.scenario.schema import list_scenes, load_scene
 
 BASE = """

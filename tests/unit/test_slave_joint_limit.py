@@ -11,7 +11,7 @@ from hypothesis import strategies as st
 from teleop.control.mapping import Registration
 from teleop.dynamics import fixtures
 from teleop.slave import JointLimits, SlaveArm, SlaveConfig
-from teleop.slave.side import SlaveSide
+from teleop.tick.slave_side import SlaveSide
 
 DT = 1e-3
 LIM = JointLimits(q_min=[-1.0, -2.0, 0.0], q_max=[1.0, 0.5, 3.0], v_max=[2.0, 1.0, 3.0], a_max=[10.0, 10.0, 10.0],

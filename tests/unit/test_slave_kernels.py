@@ -203,7 +203,7 @@ def test_target_projection_lands_on_the_fixture(scene):
     """The compiled projection onto the patient-frame fixture, checked by the constraint classes'
     own residual and Jacobian: the pose is on the fixture (|h| <= 1e-10), the twist is admissible
     (|G nu| <= 1e-10), and for targets off by up to 5 mm / 0.05 rad the move is small."""
-    from teleop.runtime import make_slave
+    from teleop.app.runtime import make_slave
     from teleop.scenario.build import build_fixture, build_registration
     from teleop.scenario.schema import load_scene
     from teleop.dynamics.constraints import stack_jacobian, stack_residual

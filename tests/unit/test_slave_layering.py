@@ -6,7 +6,7 @@ from pathlib import Path
 
 import teleop.slave
 
-FORBIDDEN = ("teleop.scenario", "teleop.runtime", "teleop.cli")
+FORBIDDEN = ("teleop.scenario", "teleop.app.runtime", "teleop.app.cli")
 
 
 def _imports(path: Path):

@@ -10,7 +10,7 @@ import pytest
 
 from teleop.control.stability import (LoopParams, _Loop, closed_loop_matrix, critical_mass, is_stable,
                                       spectral_radius)
-from teleop.errors import ConfigError
+from teleop.util.errors import ConfigError
 
 
 def test_continuous_limit_has_the_pid_and_the_tool_poles():

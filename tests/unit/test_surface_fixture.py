@@ -20,7 +20,7 @@ from teleop.dynamics.rotations import rate_map, rotation
 from teleop.dynamics.surface import HeightSurface
 from teleop.dynamics.surface_fixture import SurfaceScalpelSpec
 from teleop.dynamics.tool import ReferenceTool
-from teleop.errors import ConfigError
+from teleop.util.errors import ConfigError
 
 H, RB = 0.015, 0.08  # the dome: f = H (1 - r^2 / RB^2), m
 X = np.round(np.arange(-0.06, 0.0601, 0.01), 3)

@@ -10,7 +10,7 @@ import pytest
 from PIL import Image
 
 from teleop.dynamics.registry import FrameMap
-from teleop.errors import ConfigError
+from teleop.util.errors import ConfigError
 from teleop.master.cobot.model import DEFAULT_URDF
 from teleop.viz import VizFrame, VizScene
 from teleop.viz import layout as L

@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from teleop.errors import ConfigError
+from teleop.util.errors import ConfigError
 from teleop.viz import NullView, VizFrame, VizScene, make_view
 from teleop.viz import layout as L
 from teleop.viz import shapes as S

@@ -13,7 +13,7 @@ import numpy as np
 import pytest
 import umsgpack
 
-from teleop.errors import ConfigError, TeleopError
+from teleop.util.errors import ConfigError, TeleopError
 from teleop.viz import VizFrame, VizScene, make_view
 
 

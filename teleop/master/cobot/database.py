@@ -23,8 +23,8 @@ from typing import NamedTuple
 import cantools
 import numpy as np
 
-from teleop.crc32 import crc32_continue
-from teleop.errors import CanError
+from teleop.util.crc32 import crc32_continue
+from teleop.util.errors import CanError
 from teleop.master.cobot import frame_kernels as FK
 from teleop.master.cobot.codec import MessageCodec, layout_tables
 
@@ -35,7 +35,7 @@ CRC_BYTES = FK.CRC_BYTES
 
 
 def compute_crc32(frame_id: int, data: bytes) -> int:
-    """CRC-32/ISO-HDLC (crccheck's ``Crc32``; computed by :func:`teleop.crc32.crc32_continue`) of
+    """CRC-32/ISO-HDLC (crccheck's ``Crc32``; computed by :func:`teleop.util.crc32.crc32_continue`) of
     the frame id (2 bytes, little-endian) then ``data``. tests/unit/test_can_database.py checks it
     against crccheck on random frames."""
     head = crc32_continue(0, frame_id.to_bytes(2, "little"), 2)

@@ -25,10 +25,10 @@ import can
 import numpy as np
 
 from teleop.can.confinement import BUS_OFF, ErrorCounters
-from teleop.errors import CanError
+from teleop.util.errors import CanError
 from teleop.master.cobot import frame_kernels as FK
 from teleop.master.cobot.database import FrameDatabase
-from teleop.views import view
+from teleop.util.views import view
 
 #: SocketCAN error classes in an error frame's id (linux/can/error.h) and the protocol-error
 #: type bit "on transmission" in data[2]

@@ -22,7 +22,7 @@ numpy structured array of shape (1,), so that a kernel call passes one argument 
 * ``ids`` int64 (n_msgs,): the frame ids sorted, ``order`` int64: their message rows.
 
 Tested against cantools (tests/property/test_can_codec.py, random frames and payloads); the CRC is
-:func:`teleop.crc32.crc32_continue`. Set ``NUMBA_DISABLE_JIT=1`` to run them as Python.
+:func:`teleop.util.crc32.crc32_continue`. Set ``NUMBA_DISABLE_JIT=1`` to run them as Python.
 """
 
 from __future__ import annotations
@@ -32,7 +32,7 @@ import math
 import numpy as np
 from numba import njit
 
-from teleop.crc32 import crc32_continue
+from teleop.util.crc32 import crc32_continue
 
 #: msgs columns
 M_ID, M_EXT, M_FD, M_LEN, M_IDCRC, M_NSIG, M_BIG, M_COMPILED = range(8)

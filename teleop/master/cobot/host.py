@@ -29,7 +29,7 @@ from teleop.can import BusTiming, Capture, compute_cycle_load_pct
 from teleop.control.admittance import AdmittanceController, AdmittanceGains, Phi
 from teleop.control.clutch import Clutch
 from teleop.control.stability import LoopParams, critical_mass
-from teleop.errors import ConfigError
+from teleop.util.errors import ConfigError
 from teleop.master.base import Master
 from teleop.master.cobot.database import FrameDatabase
 from teleop.master.cobot.driver import CobotDriver

@@ -17,9 +17,9 @@ import numpy as np
 import pinocchio as pin
 from scipy.spatial.transform import Rotation
 
-from teleop.errors import ConfigError
+from teleop.util.errors import ConfigError
 from teleop.master.cobot.kernels import distal_wrench_H, gantry_zxz_pose_jacobian
-from teleop.resources import robot_file
+from teleop.util.resources import robot_file
 
 DEFAULT_URDF = robot_file("cobot/cobot.urdf")
 GRAVITY_W = np.array([0.0, 0.0, -9.81])

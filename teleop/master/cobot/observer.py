@@ -28,7 +28,7 @@ import math
 import numpy as np
 
 from teleop.master.cobot.kernels import HISTORY, correct_kernel, predict_kernel
-from teleop.views import view
+from teleop.util.views import view
 
 
 class JointObserver:

@@ -17,12 +17,12 @@ import uuid
 import can
 import numpy as np
 
-from teleop.errors import ConfigError, FieldError
+from teleop.util.errors import ConfigError, FieldError
 from teleop.master.config import FaultSettings
 from teleop.master.cobot.model import CobotModel
 from teleop.master.cobot.plant import CobotPlant, DeviceParams
 from teleop.master.cobot.simulator import CobotSimulator
-from teleop.typed import build
+from teleop.util.typed import build
 
 
 class CobotBus(can.BusABC):
@@ -32,7 +32,7 @@ class CobotBus(can.BusABC):
 
     def __init__(self, channel=None, seed: int = 0, step_s: float = 1e-4, joints0=None, faults=None,
                  **kwargs):
-        if isinstance(faults, dict):  # the one validator (teleop.typed), as for a scene's [cobot.faults]
+        if isinstance(faults, dict):  # the one validator (teleop.util.typed), as for a scene's [cobot.faults]
             try:
                 faults = build(FaultSettings, faults, "faults")
             except FieldError as e:

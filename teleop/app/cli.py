@@ -12,7 +12,7 @@
 
 Bad input (a scene, an argument, a file) is one line on stderr naming the file, key or argument
 and the reason, exit code 2, nothing run and nothing written. ``--out`` is written whole or not at
-all (teleop.outputs); a Ctrl-C'd run leaves its summary with status "interrupted" (exit 130).
+all (teleop.app.outputs); a Ctrl-C'd run leaves its summary with status "interrupted" (exit 130).
 """
 
 from __future__ import annotations
@@ -27,9 +27,9 @@ import threading
 from pathlib import Path
 
 from teleop import __version__
-from teleop.errors import ConfigError, SceneError, TeleopError
-from teleop.inputs import plain
-from teleop.netcli import add_run_flags, add_subcommands, cmd_run_zenoh
+from teleop.util.errors import ConfigError, SceneError, TeleopError
+from teleop.util.inputs import plain
+from teleop.app.netcli import add_run_flags, add_subcommands, cmd_run_zenoh
 
 DEFAULT_SCENE = "straight_incision"
 #: exit codes: the run's status "ok"; any other status; bad input (nothing run, nothing written);
@@ -68,7 +68,7 @@ def _scene_for(args):
     """The scene of a ``run``, its overrides applied and checked: (scene, capture path from the
     scene file or None)."""
     from teleop.scenario.schema import hardware_interface, load_scene
-    from teleop.session import tick_count
+    from teleop.app.session import tick_count
 
     base = load_scene(args.scene or DEFAULT_SCENE)
     given = dict(duration_s=args.duration, seed=args.seed, master=args.master, integrator=args.integrator,
@@ -107,7 +107,7 @@ def _scene_for(args):
 def _with_capture(scene, folder, cap: str):
     """The scene with its file's capture path placed inside the run's (temporary) folder."""
     from teleop.scenario.schema import parse_scene
-    from teleop.typed import as_table
+    from teleop.util.typed import as_table
 
     target = folder.path(cap)
     target.parent.mkdir(parents=True, exist_ok=True)
@@ -117,8 +117,8 @@ def _with_capture(scene, folder, cap: str):
 def _write_run(result, view, rv, scene, folder) -> list[str]:
     """The run's files into the temporary folder, the summary last; returns their names. Beside the
     recording: the scene the run ran and the frames its view drew (what `teleop replay` needs)."""
-    from teleop.plots import plot_log
-    from teleop.viz_bridge import save_scene_copy
+    from teleop.app.plots import plot_log
+    from teleop.app.view_bridge import save_scene_copy
 
     if view is not None:
         view.save_html(folder.path("recording.html"))
@@ -133,14 +133,14 @@ def _write_run(result, view, rv, scene, folder) -> list[str]:
 def cmd_run(args) -> int:
     if args.link == "zenoh":
         return cmd_run_zenoh(args)
-    from teleop.outputs import RunFolder, check_json_target, write_json
-    from teleop.progress import RunBar, notice_compile
-    from teleop.runtime import run_scene
+    from teleop.app.outputs import RunFolder, check_json_target, write_json
+    from teleop.app.progress import RunBar, notice_compile
+    from teleop.app.runtime import run_scene
 
     scene, capture = _scene_for(args)
     if args.operator == "keyboard":
-        from teleop.scenario.keyboard import require_terminal
-        from teleop.session import MAX_TICKS
+        from teleop.app.keyboard import require_terminal
+        from teleop.app.session import MAX_TICKS
 
         require_terminal()
         if args.duration is None:  # open-ended: until x, Ctrl-C or MAX_TICKS
@@ -154,16 +154,16 @@ def cmd_run(args) -> int:
         notice_compile()
         if args.viewer or args.out:
             from teleop.viz import make_view
-            from teleop.viz_bridge import viz_scene_for
+            from teleop.app.view_bridge import viz_scene_for
 
             view = make_view("meshcat", viz_scene_for(scene, view=args.view), record=bool(args.out), host=args.host)
             if args.viewer:
                 print(f"viewer: {view.url}  (bound to {args.host})", file=sys.stderr)
-        from teleop.viz_bridge import RunView
+        from teleop.app.view_bridge import RunView
 
         rv = RunView(view) if view is not None else None
         if args.operator == "keyboard":  # real time, limited, until the person stops it
-            from teleop.scenario.keyboard import run_at_keyboard
+            from teleop.app.keyboard import run_at_keyboard
 
             result = run_at_keyboard(scene, view=rv, quiet=args.quiet)
         else:
@@ -206,7 +206,7 @@ def cmd_run(args) -> int:
 
 def _run_log(arg: str):
     """(log path, arrays, summary) of ``replay``/``plot``'s LOG argument, every array checked."""
-    from teleop.inputs import load_run_log
+    from teleop.util.inputs import load_run_log
 
     log_path = Path(arg)
     if log_path.is_dir():
@@ -220,7 +220,7 @@ def _run_log(arg: str):
 def cmd_replay(args) -> int:
     """Show a recorded run again: live in Meshcat (--viewer), or as replay.html in the run folder
     (the run's own recording.html is never touched). The log is checked whole first."""
-    from teleop.viz.replay import replay_command
+    from teleop.app.replay import replay_command
 
     log_path, _, _ = _run_log(args.log)
     return replay_command(log_path.parent, viewer=args.viewer, out=args.out, force=args.force, view=args.view,
@@ -237,11 +237,11 @@ def cmd_list(args) -> int:
 
 
 def cmd_plot(args) -> int:
-    from teleop.plots import plot_log
+    from teleop.app.plots import plot_log
 
     log_path, _, _ = _run_log(args.log)
     if args.out:
-        from teleop.outputs import check_folder
+        from teleop.app.outputs import check_folder
 
         check_folder(Path(args.out), "--out", args.out)
     for p in plot_log(log_path, args.out or log_path.parent):
@@ -255,7 +255,7 @@ def cmd_schema(args) -> int:
 
     text = json.dumps(scene_schema(), indent=2) + "\n"
     if args.out:
-        from teleop.outputs import check_json_target
+        from teleop.app.outputs import check_json_target
 
         target = check_json_target(args.out, "--out")
         target.write_text(text, encoding="utf-8")

@@ -1,6 +1,6 @@
 """The link's heartbeat and each side's safe state, one source for both runs: the in-process run
-(:class:`teleop.loop.BilateralLoop` over a simulated channel, in simulated time) and the
-two-process run over Zenoh (:mod:`teleop.netrun`, on the wall clock).
+(:class:`teleop.tick.loop.BilateralLoop` over a simulated channel, in simulated time) and the
+two-process run over Zenoh (:mod:`teleop.app.netrun`, on the wall clock).
 
 Every tick each side sends a message, so silence means a lost link. A side that has heard nothing
 for more than ``timeout_s`` (``[link] heartbeat_ms``, 20 ms by default) is **lost**; the master is
@@ -26,7 +26,7 @@ from dataclasses import replace
 
 import numpy as np
 
-from teleop.link.messages import ContactFeedback
+from teleop.tick.messages import ContactFeedback
 
 #: silence within this of the timeout does not count (s): simulated ticks are float sums
 SILENCE_EPS_S = 1e-9

@@ -10,7 +10,7 @@ It stamps the master port's input energy into every outgoing command.
 the channel puts out at the slave port (the contact wrench times the commanded velocity; with the
 contact's damping rendered at the master, the model's offset F0 = W + D V instead, the force the
 master's port counts too: the damper is passive where it is rendered, see
-:mod:`teleop.control.feedback`), corrects
+:mod:`teleop.tick.feedback`), corrects
 the commanded velocity when the observer goes negative and adds the accumulated correction (the
 position drift) to the commanded pose before the slave maps it; drift compensation pulls the offset
 back with surplus energy only. The slave's fixture projection and QP rows act after the guard, so a
@@ -22,7 +22,7 @@ slave port's books keep the contact wrench alone: the spring does no work on the
 
 Both ports work in M units: the slave maps its contact wrench with the registration's
 ``wrench_to_master`` (force_scale, torque_scale), so power at both ports is counted alike. See
-:mod:`teleop.link.passivity` for the observers and controllers and their sources.
+:mod:`teleop.control.passivity` for the observers and controllers and their sources.
 """
 
 from __future__ import annotations
@@ -30,8 +30,8 @@ from __future__ import annotations
 import numpy as np
 
 from teleop.dynamics.kernels.so3 import exp3
-from teleop.link.messages import ContactFeedback, ToolCommand
-from teleop.link.passivity import MasterPassivity, SlavePassivity, TdpaParams
+from teleop.tick.messages import ContactFeedback, ToolCommand
+from teleop.control.passivity import MasterPassivity, SlavePassivity, TdpaParams
 
 _ZERO6 = np.zeros(6)
 

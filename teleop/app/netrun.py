@@ -4,7 +4,7 @@
     teleop master SCENE --connect tcp/127.0.0.1:7447 [--json OUT]
     teleop run SCENE --link zenoh [--json OUT]      # both on a free loopback port, one summary
 
-Each process runs its half of :class:`teleop.loop.BilateralLoop`'s tick (the same calls in the
+Each process runs its half of :class:`teleop.tick.loop.BilateralLoop`'s tick (the same calls in the
 same order) and the two halves meet only in :class:`~teleop.link.zenoh_link.ZenohLink`. The
 passivity guard of the scene's [link] table runs at both ends, as in the simulated run.
 
@@ -18,7 +18,7 @@ until it has followed the master's last command (or, if the master is gone, for 
 period is felt at the same step as in one process (``reply_lag_ticks`` 0). Each side is pinned to
 a core of its own and waits by spinning (:func:`claim_core`; ``--no-pin``: sleep instead).
 
-Heartbeat and safe states: :mod:`teleop.link.heartbeat`, the same as the in-process run's (a side
+Heartbeat and safe states: :mod:`teleop.tick.heartbeat`, the same as the in-process run's (a side
 that has heard nothing for ``link.heartbeat_ms``, 20 ms by default, goes to its safe state at once;
 the master also while the slave's replies say ``link_lost``), on the wall clock here. Each side
 counts lost-link events, lost ticks and the detection latency (time from the last message heard to
@@ -39,16 +39,16 @@ from pathlib import Path
 
 import numpy as np
 
-from teleop.control.feedback import FeedbackPath
+from teleop.tick.feedback import FeedbackPath
 from teleop.dynamics.constraints import RemoteCenter
-from teleop.errors import TeleopError
-from teleop.link.heartbeat import HeartbeatState, follow_or_hold, hold_master
-from teleop.link.messages import ContactFeedback, MessageError, ToolCommand
-from teleop.runtime import make_guard, make_master, make_slave
+from teleop.util.errors import TeleopError
+from teleop.tick.heartbeat import HeartbeatState, follow_or_hold, hold_master
+from teleop.tick.messages import ContactFeedback, MessageError, ToolCommand
+from teleop.app.runtime import make_guard, make_master, make_slave
 from teleop.scenario.build import build_fixture, build_registration, build_tool, master_fixture_spec
-from teleop.scenario.metrics import MasterMetrics, SlaveMetrics, make_metrics
+from teleop.app.metrics import MasterMetrics, SlaveMetrics, make_metrics
 from teleop.scenario.operators import make_operator
-from teleop.session import (_YIELD, PACE_SPIN_S, GuardRecorder, MasterRecorder, SlaveCounter, _fine_timer_slack, _pace,
+from teleop.app.session import (_YIELD, PACE_SPIN_S, GuardRecorder, MasterRecorder, SlaveCounter, _fine_timer_slack, _pace,
                             run_status)
 
 GRACE_S = 2.0          # the slave's run beyond the scene's duration when the master is gone (s)

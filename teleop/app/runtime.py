@@ -1,8 +1,8 @@
 """Build a run from a scene and run it: the scene's tool, master, slave, link and operator handed
-to a :class:`~teleop.session.Session`, with the scene's metrics as hooks.
+to a :class:`~teleop.app.session.Session`, with the scene's metrics as hooks.
 
 Only what the scene names is built: no slave, tissue, tremor probe or device effect it does not
-call for. The tick itself is :mod:`teleop.loop`.
+call for. The tick itself is :mod:`teleop.tick.loop`.
 """
 
 from __future__ import annotations
@@ -13,20 +13,20 @@ import numpy as np
 
 from teleop.contact import SurfaceTissue, TissueBlock
 from teleop.contact.cutting import CuttingModel
-from teleop.control.feedback import FeedbackPath
+from teleop.tick.feedback import FeedbackPath
 from teleop.dynamics.constraints import RemoteCenter
-from teleop.errors import ConfigError, SceneError
+from teleop.util.errors import ConfigError, SceneError
 from teleop.link import ChannelSpec, LockstepLink, SimulatedChannel
-from teleop.link.guard import MasterGuard, SlaveGuard, tdpa_params
-from teleop.loop import Hook
+from teleop.tick.guard import MasterGuard, SlaveGuard, tdpa_params
+from teleop.tick.loop import Hook
 from teleop.master import CobotMaster, IdealMaster
 from teleop.scenario.build import build_fixture, build_registration, build_tool, master_fixture_spec
-from teleop.scenario.metrics import EnergyDrift, MasterMetrics, SlaveMetrics, TremorProbe, make_metrics, tissue_surface
+from teleop.app.metrics import EnergyDrift, MasterMetrics, SlaveMetrics, TremorProbe, make_metrics, tissue_surface
 from teleop.scenario.operators import make_operator
 from teleop.scenario.schema import FixtureSpec, Scene
-from teleop.session import RunResult, Session, tick_count, verdict
+from teleop.app.session import RunResult, Session, tick_count, verdict
 from teleop.slave import SlaveArm
-from teleop.slave.side import SlaveSide
+from teleop.tick.slave_side import SlaveSide
 
 __all__ = ["run_scene", "make_master", "make_link", "make_guard", "RunResult"]
 
@@ -116,12 +116,12 @@ def run_scene(scene: Scene, progress=None, realtime: bool = False, operator=None
               status_line=None, simulated_link: bool | None = None) -> RunResult:
     """Run a scene. ``operator`` replaces the scene's (e.g. a keyboard; one with ``stats()`` adds
     them to the summary as "operator"); ``view`` gets every tick and throttles itself;
-    ``progress(i, n)`` is called every 1000 ticks; ``hooks`` more :class:`~teleop.loop.Hook` s,
-    after the scene's own; ``status_line`` a :class:`~teleop.statusline.StatusLine` (it watches the
+    ``progress(i, n)`` is called every 1000 ticks; ``hooks`` more :class:`~teleop.tick.loop.Hook` s,
+    after the scene's own; ``status_line`` a :class:`~teleop.app.statusline.StatusLine` (it watches the
     session); ``simulated_link`` forces the link (:func:`make_link`: True, the simulated channel of
     the scene's [link] table even when it asks for nothing, as the fault campaign's link loss
     needs). The scene's ``heartbeat_ms`` watches a link that can lose messages
-    (:mod:`teleop.link.heartbeat`)."""
+    (:mod:`teleop.tick.heartbeat`)."""
     n = tick_count(scene.duration_s, scene.dt_s)  # refuses a run past MAX_TICKS before building anything
     rng = np.random.default_rng(scene.seed)
     tool = build_tool(scene)

@@ -23,7 +23,7 @@ of the contact is then felt at the tool's own present velocity, and an implicit 
 the tool back however steep it is; in steady sliding V+ = V_s and W = W_s.
 
 What crosses the link is then the model's offset F0 (a force) and a damper; the damper is passive
-wherever it is rendered, so the passivity guard (:mod:`teleop.link.guard`) observes and damps F0 at
+wherever it is rendered, so the passivity guard (:mod:`teleop.tick.guard`) observes and damps F0 at
 both ports, and :meth:`FeedbackPath.update` returns F0 for it. F0 and D go through the same
 low-pass (F0 filtered as the slave counted it: filtering W_s, D and V_s apart and multiplying made
 the two ports disagree at the stick, and the guard drifted 0.5 mm at a 1 ms round trip). A reply
@@ -42,7 +42,7 @@ from teleop.control.kernels import render_local_damping
 from teleop.control.mapping import Registration
 from teleop.dynamics.effects import total_wrench
 from teleop.dynamics.kernels.small import is_positive_definite
-from teleop.link.messages import ContactFeedback
+from teleop.tick.messages import ContactFeedback
 
 
 _ZERO66 = np.zeros((6, 6))

@@ -44,4 +44,4 @@ def crc32(data) -> int:
 
 
 if crc32(b"123456789") != Crc32.calc(b"123456789"):  # the check value, 0xCBF43926
-    raise ImportError("teleop.crc32: the compiled CRC-32 differs from crccheck's CRC-32/ISO-HDLC")
+    raise ImportError("teleop.util.crc32: the compiled CRC-32 differs from crccheck's CRC-32/ISO-HDLC")

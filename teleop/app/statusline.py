@@ -6,7 +6,7 @@ times a second; silent in a pipe.
 Fields: simulated time (s), real-time factor (simulated s per wall s since the first tick), late
 ticks (``--realtime``), the reference tool's position (mm) and ZYX Euler angles (deg), the hand's
 force (N) and torque (N*m), the slave's status (``-`` without a slave), then what is on: the
-clutch out, a limit acting (``wall``, ``speed``, ``spin``: :mod:`teleop.scenario.limits`), a master
+clutch out, a limit acting (``wall``, ``speed``, ``spin``: :mod:`teleop.app.limits`), a master
 fault. Log messages (the ``--realtime`` warnings) print above it while it shows
 (:func:`logging_above`).
 """
@@ -21,7 +21,7 @@ from contextlib import contextmanager
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from teleop.loop import Hook
+from teleop.tick.loop import Hook
 
 #: wall-clock seconds between two redraws
 PERIOD_S = 0.2

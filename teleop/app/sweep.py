@@ -1,6 +1,6 @@
 """One sweep runner for the studies: a pure point function mapped over a list of points on Dask.
 
-    from teleop.sweep import add_sweep_args, run_sweep
+    from teleop.app.sweep import add_sweep_args, run_sweep
     results = run_sweep(run_point, points, workers=2, scheduler=None, desc="my study")
 
 By default the points run on a local Dask cluster of ``workers`` single-threaded processes (no

@@ -3,7 +3,7 @@ checked before any array of it is inflated.
 
 * :func:`read_bytes` opens without blocking (a FIFO never hangs), refuses anything that is not a
   regular file (a directory, a FIFO, ``/dev/zero``, a socket) and anything larger than its limit,
-  and turns every OS error into one :class:`~teleop.errors.ConfigError` naming the file.
+  and turns every OS error into one :class:`~teleop.util.errors.ConfigError` naming the file.
 * :func:`read_text` decodes UTF-8 (a decode error names the byte offset).
 * :func:`load_run_log` reads a ``log.npz`` written by ``teleop run --out``: it checks the zip's
   members (names, count, inflated size against :data:`MAX_LOG_INFLATED_BYTES`) before reading
@@ -23,7 +23,7 @@ from pathlib import Path
 
 import numpy as np
 
-from teleop.errors import ConfigError, plain
+from teleop.util.errors import ConfigError, plain
 
 #: the largest scene file, URDF or other text input read, bytes
 MAX_TEXT_BYTES = 10_000_000

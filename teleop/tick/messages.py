@@ -9,7 +9,7 @@ time.
 
 Both carry ``energy_J`` (6,) J: the sender's cumulative energy that has entered the channel at
 its port, per axis of the twist/wrench (the two-port time-domain passivity approach, see
-:mod:`teleop.link.passivity`). It is zero when no passivity guard runs.
+:mod:`teleop.control.passivity`). It is zero when no passivity guard runs.
 
 Both are frozen, slotted and checked when made: a message that exists is well formed (shapes,
 finite numbers, a known status). A side that cannot make a well-formed message sends none.
@@ -22,7 +22,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from teleop.errors import TeleopError
+from teleop.util.errors import TeleopError
 
 
 class MessageError(TeleopError):
@@ -171,5 +171,5 @@ class ContactFeedback:
     @property
     def model_offset_P(self) -> np.ndarray:
         """F0 = W + D V (6,: N, N*m, P): the contact's local model's offset, the force that stays
-        when its damping is rendered where it is felt (:mod:`teleop.control.feedback`)."""
+        when its damping is rendered where it is felt (:mod:`teleop.tick.feedback`)."""
         return self.wrench_P + self.damping_P @ self.twist_P

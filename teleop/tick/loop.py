@@ -6,12 +6,12 @@ master commands the device to follow the tool (FF + PID, eqs. 18-19, bus out) an
 tool to the slave. Slave side: the newest command is followed under the fixture rows (QP) and the
 contact wrench goes back, with the contact's local damping. Master again: the feedback is mapped and
 filtered for the next step, where the damping is rendered at the tool's own twist
-(:meth:`teleop.control.feedback.FeedbackPath.render`), so no delay sits in that loop.
+(:meth:`teleop.tick.feedback.FeedbackPath.render`), so no delay sits in that loop.
 Master and slave share nothing but the two messages of :mod:`teleop.link`, so a link that delays,
 drops or crosses a network changes nothing here.
 
 With ``heartbeat_s`` each side watches the link as the two-process run does
-(:mod:`teleop.link.heartbeat`, one source): a side that hears nothing for longer goes to its safe
+(:mod:`teleop.tick.heartbeat`, one source): a side that hears nothing for longer goes to its safe
 state (the master: tool held at zero velocity, remote force dropped; the slave: joints held,
 replies ``link_lost``) and resumes when messages come again. The lockstep link never trips it.
 
@@ -27,10 +27,10 @@ from time import perf_counter_ns
 
 import numpy as np
 
-from teleop.errors import ConfigError
+from teleop.util.errors import ConfigError
 from teleop.link.base import Link, LockstepLink
-from teleop.link.heartbeat import HeartbeatState, follow_or_hold, hold_master
-from teleop.link.messages import MessageError, ToolCommand
+from teleop.tick.heartbeat import HeartbeatState, follow_or_hold, hold_master
+from teleop.tick.messages import MessageError, ToolCommand
 
 
 class Hook:
@@ -47,7 +47,7 @@ class BilateralLoop:
     """``tool`` a ReferenceTool, ``master`` a master (ideal or cobot), ``operator`` with
     ``wrench(t, p, R, v, w)`` and ``clutch_engaged``; with a ``slave`` (a SlaveSide), a ``link``
     (lockstep by default) and a ``feedback`` path (FeedbackPath) to the master; ``guard`` a
-    (MasterGuard, SlaveGuard) pair (:mod:`teleop.link.guard`) puts the passivity guard at the two
+    (MasterGuard, SlaveGuard) pair (:mod:`teleop.tick.guard`) puts the passivity guard at the two
     ends of the link; ``heartbeat_s`` (s, or None: off) the heartbeat's timeout on both sides
     (``master_heart``, ``slave_heart``)."""
 

@@ -29,7 +29,7 @@ class SceneError(ConfigError):
 
 class FieldError(ConfigError):
     """A setting is invalid: ``key`` (dotted, relative to the table being built) and ``reason``.
-    The validator (teleop.typed) prefixes the table's key and turns it into a SceneError."""
+    The validator (teleop.util.typed) prefixes the table's key and turns it into a SceneError."""
 
     def __init__(self, key: str, reason: str):
         self.key, self.reason = key, reason

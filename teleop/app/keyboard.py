@@ -23,7 +23,7 @@ after a first pause of up to half a second). Input is read without blocking from
 descriptor (the terminal in cbreak mode by default; a pipe in tests).
 
 :func:`run_at_keyboard` runs a scene with it, in real time, under the workspace and speed limits
-of :mod:`teleop.scenario.limits`, with a live status line (:mod:`teleop.statusline`), until the
+of :mod:`teleop.app.limits`, with a live status line (:mod:`teleop.app.statusline`), until the
 person stops it.
 """
 
@@ -38,11 +38,11 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from teleop.errors import ConfigError
+from teleop.util.errors import ConfigError
 from teleop.scenario.build import build_tool, master_fixture_spec
-from teleop.scenario.limits import Limits, LimitedOperator, device_workspace, limits_for
+from teleop.app.limits import Limits, LimitedOperator, device_workspace, limits_for
 from teleop.scenario.operators import Operator, task_frame
-from teleop.session import MAX_TICKS
+from teleop.app.session import MAX_TICKS
 
 log = logging.getLogger(__name__)
 
@@ -247,7 +247,7 @@ def describe(scale: KeyScale, limits: Limits, dt_s: float, duration_s: float) ->
     """Two lines for the person at the keyboard: the keys' speeds, the limits, how it ends."""
     size = " x ".join(f"{2e3 * h:.0f}" for h in limits.workspace.half)
     longest = MAX_TICKS * dt_s
-    end = (f"runs until you press x (at most {longest:g} s: teleop.session.MAX_TICKS ticks)"
+    end = (f"runs until you press x (at most {longest:g} s: teleop.app.session.MAX_TICKS ticks)"
            if duration_s >= longest else f"runs {duration_s:g} s or until you press x")
     return (f"keyboard: a key moves the tool {1e3 * scale.speed_m_s:.0f} mm/s or turns it "
             f"{scale.angular_speed_rad_s:g} rad/s (pushing up to {scale.force_N:.3g} N, {scale.torque_Nm:.3g} N*m); "
@@ -259,8 +259,8 @@ def run_at_keyboard(scene, view=None, quiet: bool = False, fd: int | None = None
     """Run ``scene`` with the person at the keyboard (stdin, or ``fd``), in real time, until they
     press x or ESC (or Ctrl-C, or the scene's duration). Prints the keys and the limits, shows the
     status line on a terminal. Returns the RunResult (its summary has "operator": the limits met)."""
-    from teleop.runtime import run_scene
-    from teleop.statusline import StatusLine, logging_above
+    from teleop.app.runtime import run_scene
+    from teleop.app.statusline import StatusLine, logging_above
 
     stream = stream or sys.stderr
     op, scale = keyboard_operator(scene, fd)
@@ -275,6 +275,6 @@ def run_at_keyboard(scene, view=None, quiet: bool = False, fd: int | None = None
         line.close()
     s = result.summary
     if s["master_status"] == "ok" and s["steps"] >= MAX_TICKS:
-        log.warning("keyboard: the session reached its longest run, %d ticks (%g s, teleop.session.MAX_TICKS), "
+        log.warning("keyboard: the session reached its longest run, %d ticks (%g s, teleop.app.session.MAX_TICKS), "
                     "and stopped", MAX_TICKS, MAX_TICKS * scene.dt_s)
     return result

@@ -1,4 +1,4 @@
-"""The command-line side of :mod:`teleop.netrun` (kept apart so that ``teleop --help`` loads
+"""The command-line side of :mod:`teleop.app.netrun` (kept apart so that ``teleop --help`` loads
 nothing heavy): the ``master`` and ``slave`` subcommands and ``run --link zenoh``."""
 
 from __future__ import annotations
@@ -34,7 +34,7 @@ def add_run_flags(run) -> None:
 
 
 def cmd_side(args) -> int:
-    from teleop.netrun import run_master, run_slave
+    from teleop.app.netrun import run_master, run_slave
     from teleop.scenario.schema import load_scene
 
     scene = load_scene(args.scene, sets=args.set)
@@ -59,7 +59,7 @@ def cmd_side(args) -> int:
 
 def _zenoh_config(path: str) -> dict:
     """The --zenoh-config file: a JSON object of Zenoh configuration keys to json5 values."""
-    from teleop.errors import ConfigError
+    from teleop.util.errors import ConfigError
 
     try:
         data = json.loads(Path(path).read_text(encoding="utf-8"))
@@ -72,7 +72,7 @@ def _zenoh_config(path: str) -> dict:
 
 def cmd_run_zenoh(args) -> int:
     """``teleop run SCENE --link zenoh``: both sides on loopback, one summary."""
-    from teleop.netrun import run_pair
+    from teleop.app.netrun import run_pair
     from teleop.scenario.schema import load_scene
 
     scene_arg = args.scene or "straight_incision"

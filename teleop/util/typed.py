@@ -3,7 +3,7 @@
 A settings class is a frozen dataclass whose fields carry a type hint and, through
 :func:`setting`, their rules in ``dataclasses.field`` metadata (bounds, length, choices, a check,
 the reason to give). :func:`validate` builds such a class from a plain table (a TOML table, a dict)
-and every error is one :class:`~teleop.errors.SceneError` naming the file, the dotted key and the
+and every error is one :class:`~teleop.util.errors.SceneError` naming the file, the dotted key and the
 reason; an unknown key gets "did you mean". It works on any frozen dataclass handed to it at run
 time, with or without metadata (then the type hints alone are checked), so a user's parameter
 class is validated by the same rules. Classes that mix in :class:`Checked` also validate their
@@ -29,7 +29,7 @@ import unicodedata
 
 import numpy as np
 
-from teleop.errors import ConfigError, FieldError, SceneError, plain
+from teleop.util.errors import ConfigError, FieldError, SceneError, plain
 
 MISSING = dataclasses.MISSING
 

@@ -1,9 +1,9 @@
 """The slave side of the bilateral tick: a command in, a contact wrench out.
 
-``follow(cmd)`` maps the master's :class:`~teleop.link.messages.ToolCommand` into the patient frame
+``follow(cmd)`` maps the master's :class:`~teleop.tick.messages.ToolCommand` into the patient frame
 (the registration), moves the target onto the patient-frame fixture, runs the follower QP under the
 same fixture rows, evaluates the tissue at the blade tip and answers with a
-:class:`~teleop.link.messages.ContactFeedback`: the contact wrench at the slave tool frame's origin,
+:class:`~teleop.tick.messages.ContactFeedback`: the contact wrench at the slave tool frame's origin,
 in the patient frame, with the contact's local damping (:mod:`teleop.contact.damping`) and the
 tool's twist it was taken at, for the master to render. No command (a late or lost message) holds the last target; a command with the
 clutch out holds the arm where it is. A tick the arm ends with a joint at a position limit
@@ -23,7 +23,7 @@ import numpy as np
 from teleop.contact.damping import contact_damping, moved_to_origin
 from teleop.control.mapping import Registration
 from teleop.dynamics.rotations import cross
-from teleop.link.messages import ContactFeedback, ToolCommand
+from teleop.tick.messages import ContactFeedback, ToolCommand
 from teleop.slave.projection import project_onto_fixture
 from teleop.slave.qp import SlaveArm
 

@@ -30,8 +30,8 @@ from pathlib import Path
 
 import numpy as np
 
-from teleop.errors import ConfigError
-from teleop.loop import BilateralLoop, Hook
+from teleop.util.errors import ConfigError
+from teleop.tick.loop import BilateralLoop, Hook
 
 log = logging.getLogger(__name__)
 
@@ -48,7 +48,7 @@ def tick_count(duration_s: float, dt_s: float, where: str = "duration_s") -> int
     n = round(duration_s / dt_s)
     if n > MAX_TICKS:
         raise ConfigError(f"{where}: {duration_s:g} s at dt {dt_s:g} s is {n:.3g} ticks; a run is at most "
-                          f"{MAX_TICKS} ticks (teleop.session.MAX_TICKS)")
+                          f"{MAX_TICKS} ticks (teleop.app.session.MAX_TICKS)")
     return int(n)
 
 
@@ -106,7 +106,7 @@ def verdict(master_status: str, steps: int, slave_counts: dict | None = None, me
     "slave_fixture_violated" (SLAVE_FIXTURE_TOLERANCES), "slave_off_target" (the slave's tool
     farther than SLAVE_TARGET_MAX_M from its target), else "ok". ``exempt``: metric names the
     scene's fixture does not hold (a trocar's fixture lets the blade tilt). ``master_link_lost``:
-    the ticks the master spent in its lost-link safe state (:mod:`teleop.link.heartbeat`): the run
+    the ticks the master spent in its lost-link safe state (:mod:`teleop.tick.heartbeat`): the run
     is "link_lost" unless the slave did worse than ``link_lost``."""
     counts, metrics = slave_counts or {}, metrics or {}
     if master_status == "interrupted":

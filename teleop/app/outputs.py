@@ -19,7 +19,7 @@ import shutil
 import tempfile
 from pathlib import Path
 
-from teleop.errors import ConfigError
+from teleop.util.errors import ConfigError
 
 SUMMARY = "metrics.json"
 

@@ -63,7 +63,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from teleop.errors import ConfigError
+from teleop.util.errors import ConfigError
 
 
 def compute_port_energy(E_in: np.ndarray, E_out: np.ndarray, power_W: np.ndarray, dt_s: float):

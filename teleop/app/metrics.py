@@ -13,9 +13,9 @@ import numpy as np
 
 from teleop.dynamics.rotations import cross
 from teleop.dynamics.rows import RowStack
-from teleop.loop import Hook
+from teleop.tick.loop import Hook
 from teleop.scenario.schema import FixtureSpec
-from teleop.session import Columns
+from teleop.app.session import Columns
 
 #: Rolling-error regulariser of Figure 8 D: 1 mm/s.
 ROLLING_EPS_M_S = 1e-3
