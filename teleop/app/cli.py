@@ -29,14 +29,12 @@ from pathlib import Path
 from teleop import __version__
 from teleop.util.errors import ConfigError, SceneError, TeleopError
 from teleop.util.inputs import plain
-from teleop.app.netcli import add_run_flags, add_subcommands, cmd_run_zenoh
+from teleop.app.args import add_scene_flags, scene_for, with_capture
+from teleop.app.netcli import add_run_flags, add_subcommands, cmd_run_zenoh, refuse_over_zenoh
 
-DEFAULT_SCENE = "straight_incision"
 #: exit codes: the run's status "ok"; any other status; bad input (nothing run, nothing written);
 #: Ctrl-C (the summary, if a run had started, says "interrupted")
 EXIT_OK, EXIT_FAILED, EXIT_BAD_INPUT, EXIT_INTERRUPTED = 0, 1, 2, 130
-#: command-line flags of the scene's top-level keys, for error messages
-FLAGS = {"duration_s": "--duration", "dt_s": "--dt", "seed": "--seed", "integrator": "--integrator", "master": "--master"}
 
 log = logging.getLogger("teleop")
 
@@ -64,65 +62,15 @@ def _summary_text(s: dict) -> str:
     return "\n".join(lines)
 
 
-def _scene_for(args):
-    """The scene of a ``run``, its overrides applied and checked: (scene, capture path from the
-    scene file or None)."""
-    from teleop.scenario.schema import hardware_interface, load_scene
-    from teleop.app.session import tick_count
-
-    base = load_scene(args.scene or DEFAULT_SCENE)
-    given = dict(duration_s=args.duration, seed=args.seed, master=args.master, integrator=args.integrator,
-                 dt_s=args.dt)
-    sets = list(args.set)
-    if args.can_log:  # the cobot's capture_path, as a TOML string (json.dumps quotes and escapes it)
-        if (args.master or base.master) != "cobot":
-            raise ConfigError("--can-log: only the cobot master has a CAN bus (add --master cobot)")
-        sets.append(f"cobot.capture_path={json.dumps(str(args.can_log))}")
-    try:
-        scene = base.with_overrides(sets, **given)
-    except SceneError as e:
-        if e.key in FLAGS and given.get(e.key) is not None:
-            raise ConfigError(f"{FLAGS[e.key]} {given[e.key]}: {e.reason}") from None
-        raise
-    where = "--duration" if args.duration is not None else "--dt" if args.dt is not None else f"{scene.path}: duration_s"
-    try:
-        n = tick_count(scene.duration_s, scene.dt_s, where)
-    except ConfigError as e:
-        raise ConfigError(str(e)) from None
-    if n == 0:
-        raise ConfigError(f"{where}: {scene.duration_s:g} s is shorter than one tick of dt {scene.dt_s:g} s: "
-                          "a run of zero ticks")
-    hw = hardware_interface(scene)
-    if hw is not None and not args.allow_hardware:
-        raise ConfigError(f"{scene.path}: cobot.interface: {hw!r} is a hardware CAN interface; "
-                          "add --allow-hardware to open it")
-    cap = scene.cobot.capture_path
-    from_file = cap is not None and cap == base.cobot.capture_path
-    if from_file and not args.out:
-        raise ConfigError(f"{scene.path}: cobot.capture_path: a scene's capture is written inside its run's "
-                          "folder; add --out DIR")
-    return scene, (cap if from_file else None)
-
-
-def _with_capture(scene, folder, cap: str):
-    """The scene with its file's capture path placed inside the run's (temporary) folder."""
-    from teleop.scenario.schema import parse_scene
-    from teleop.util.typed import as_table
-
-    target = folder.path(cap)
-    target.parent.mkdir(parents=True, exist_ok=True)
-    return parse_scene(as_table(scene), scene.path, pairs=[("cobot.capture_path", str(target))])
-
-
 def _write_run(result, view, rv, scene, folder) -> list[str]:
     """The run's files into the temporary folder, the summary last; returns their names. Beside the
     recording: the scene the run ran and the frames its view drew (what `teleop replay` needs)."""
     from teleop.app.plots import plot_log
     from teleop.app.view_bridge import save_scene_copy
 
+    save_scene_copy(scene, folder.tmp)
     if view is not None:
         view.save_html(folder.path("recording.html"))
-        save_scene_copy(scene, folder.tmp)
         rv.save_frames(folder.tmp)
     result.write_log(folder.path("log.npz"))
     plot_log(folder.path("log.npz"), folder.tmp)
@@ -131,13 +79,13 @@ def _write_run(result, view, rv, scene, folder) -> list[str]:
 
 
 def cmd_run(args) -> int:
-    if args.link == "zenoh":
-        return cmd_run_zenoh(args)
     from teleop.app.outputs import RunFolder, check_json_target, write_json
     from teleop.app.progress import RunBar, notice_compile
     from teleop.app.runtime import run_scene
 
-    scene, capture = _scene_for(args)
+    scene, capture = scene_for(args)
+    if args.link == "zenoh":
+        refuse_over_zenoh(args)
     if args.operator == "keyboard":
         from teleop.app.keyboard import require_terminal
         from teleop.app.session import MAX_TICKS
@@ -150,9 +98,9 @@ def cmd_run(args) -> int:
     view = bar = None
     try:
         if capture is not None:
-            scene = _with_capture(scene, folder, capture)
+            scene = with_capture(scene, folder, capture)
         notice_compile()
-        if args.viewer or args.out:
+        if (args.viewer or args.out) and args.link != "zenoh":  # over Zenoh: replay the run's folder
             from teleop.viz import make_view
             from teleop.app.view_bridge import viz_scene_for
 
@@ -162,7 +110,9 @@ def cmd_run(args) -> int:
         from teleop.app.view_bridge import RunView
 
         rv = RunView(view) if view is not None else None
-        if args.operator == "keyboard":  # real time, limited, until the person stops it
+        if args.link == "zenoh":  # two processes on loopback, wall clock
+            result = cmd_run_zenoh(scene, quiet=args.quiet)
+        elif args.operator == "keyboard":  # real time, limited, until the person stops it
             from teleop.app.keyboard import run_at_keyboard
 
             result = run_at_keyboard(scene, view=rv, quiet=args.quiet)
@@ -278,35 +228,7 @@ def build_parser() -> argparse.ArgumentParser:
     _add = sub.add_parser
     sub.add_parser = lambda *a, **kw: _add(*a, parents=[common, *kw.pop("parents", [])], **kw)
     run = sub.add_parser("run", help="run a scene (default: the scripted surgical cut)")
-    run.add_argument("scene", nargs="?", help="scene name (see 'teleop list') or path to a .toml file")
-    run.add_argument("--master", choices=["ideal", "cobot"], help="ideal: wrench straight to the tool; cobot: the CAN device")
-    view = run.add_mutually_exclusive_group()
-    view.add_argument("--headless", action="store_true", default=True, help="no viewer (default)")
-    view.add_argument("--viewer", action="store_true", help="show both sides live in Meshcat (prints the URL)")
-    run.add_argument("--host", default="127.0.0.1",
-                     help="address the viewer's web server binds (default 127.0.0.1: this machine only)")
-    run.add_argument("--realtime", action="store_true", help="pace ticks to the wall clock (default: simulated time; "
-                                                               "always with --operator keyboard)")
-    run.add_argument("--operator", choices=["script", "keyboard"], default="script",
-                     help="the scene's scripted operator (default) or you at the keyboard (in real time, until you "
-                          "press x)")
-    run.add_argument("--duration", type=float, help="simulated seconds (overrides the scene; a keyboard session "
-                                                    "runs until stopped unless given)")
-    run.add_argument("--seed", type=int, help="random seed (overrides the scene)")
-    run.add_argument("--integrator", help="integrator name (overrides the scene)")
-    run.add_argument("--dt", type=float, help="control period in s (overrides the scene)")
-    run.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
-                     help="set any scene key, VALUE as TOML (e.g. --set slave.solver=daqp --set tool.mass_kg=0.3)")
-    run.add_argument("--allow-hardware", action="store_true",
-                     help="let the scene open a hardware CAN interface (cobot.interface other than a simulated one)")
-    run.add_argument("--can-log", metavar="PATH",
-                     help="cobot master: write the CAN traffic here (.log candump, .asc, .blf, .csv by suffix)")
-    run.add_argument("--json", help="write the run summary as JSON here ('-': to stdout, the text summary to stderr)")
-    run.add_argument("--out", help="write metrics.json, log.npz, recording.html and PNG plots into this folder "
-                                   "(whole or not at all)")
-    run.add_argument("--view", choices=["perspective", "side"], default="perspective",
-                     help="viewer camera: perspective from above, or side (level, orthographic)")
-    run.add_argument("--hold", action="store_true", help="with --viewer: keep the page served after the run until Ctrl-C")
+    add_scene_flags(run, optional_scene=True)
     add_run_flags(run)
     run.set_defaults(func=cmd_run)
     add_subcommands(sub)

@@ -13,9 +13,9 @@ import numpy as np
 
 from teleop.dynamics.rotations import cross
 from teleop.dynamics.rows import RowStack
-from teleop.tick.loop import Hook
+from teleop.tick.ports import Hook
 from teleop.scenario.schema import FixtureSpec
-from teleop.app.session import Columns
+from teleop.app.recorders import Columns
 
 #: Rolling-error regulariser of Figure 8 D: 1 mm/s.
 ROLLING_EPS_M_S = 1e-3
@@ -233,19 +233,19 @@ def band_rms(x: np.ndarray, dt: float, lo_hz: float, hi_hz: float) -> float:
 
 
 class MasterMetrics(Hook):
-    """A :class:`MetricSet` fed every tick from the virtual tool as the tick starts, the operator's
+    """A master-side hook: a :class:`MetricSet` fed every tick from the virtual tool as the tick starts, the operator's
     wrench of the tick and the constraint wrench it produced."""
 
     def __init__(self, metrics: MetricSet):
         self.metrics = metrics
         self._state = None
 
-    def before_tick(self, i, t_s, loop) -> None:
-        m = loop.master
+    def before_tick(self, i, t_s, side) -> None:
+        m = side.master
         self._state = (*m.virtual_pose(), *m.virtual_twist())
 
-    def after_tick(self, i, t_s, loop) -> None:
-        self.metrics.update(*self._state, loop.hand_W, loop.tool.constraint_wrench_W)
+    def after_tick(self, i, t_s, side) -> None:
+        self.metrics.update(*self._state, side.hand_W, side.tool.constraint_wrench_W)
 
     def log(self) -> dict:
         return {f"m_{k}": v for k, v in self.metrics.trimmed().items()}
@@ -270,14 +270,14 @@ class EnergyDrift(Hook):
         self.worst: float | None = None
         self._start = self._prev = None
 
-    def before_tick(self, i, t_s, loop) -> None:
+    def before_tick(self, i, t_s, side) -> None:
         if self.active and self._prev is None:
-            self._prev = loop.tool.energy()
+            self._prev = side.tool.energy()
 
-    def after_tick(self, i, t_s, loop) -> None:
+    def after_tick(self, i, t_s, side) -> None:
         if not self.active:
             return
-        tool = loop.tool
+        tool = side.tool
         W = tool.applied_W
         E = tool.energy()
         if tool.status == "ok" and (W is None or not np.any(W)):
@@ -303,7 +303,7 @@ def tissue_surface(spec):
 
 
 class SlaveMetrics(Hook):
-    """The slave's accuracy, every tick, in the patient frame (``spec``: the scene's fixture):
+    """A slave-side hook: the slave's accuracy, every tick, in the patient frame (``spec``: the scene's fixture):
 
     * ``tip_tracking_rms_m``, ``tip_tracking_max_m`` - RMS and largest distance of the slave's tool
       frame from its target;
@@ -333,8 +333,8 @@ class SlaveMetrics(Hook):
         self.series = Columns({**{k: ((), float) for k in series}, "q": ((nq,), float), "tip": ((3,), float)}, n)
         self.n = 0
 
-    def after_tick(self, i, t_s, loop) -> None:
-        s, log = loop.slave.state, self.series
+    def after_tick(self, i, t_s, side) -> None:
+        s, log = side.state, self.series
         log.ensure(i)
         if self.surface is not None:
             sd, _, self._foot = self.surface.signed_distance(s.tip, self._foot)
@@ -351,7 +351,7 @@ class SlaveMetrics(Hook):
         if self.rows is not None and self.rows.m:
             h = self.rows.evaluate(np.ascontiguousarray(s.p), np.ascontiguousarray(s.R))[2]
             log["fixture_residual"][i] = float(np.abs(h[np.asarray(self.rows.holonomic_mask, bool)]).max(initial=0.0))
-        log["q"][i] = loop.slave.arm.q
+        log["q"][i] = side.arm.q
         log["tip"][i] = s.tip
         self.n = i + 1
 
@@ -379,7 +379,7 @@ class SlaveMetrics(Hook):
 
 
 class TremorProbe(Hook):
-    """How much physiological tremor the fixtures remove: the hand's tremor and the slave tip's
+    """A loop hook (it needs both sides in one process): how much physiological tremor the fixtures remove: the hand's tremor and the slave tip's
     motion, both across the cut (the plane normal and the blade's side axis, in slave units), in the
     tremor band. ``tremor_removed_pct`` = 100 (1 - out / in)."""
 

@@ -1,11 +1,24 @@
 """The command-line side of :mod:`teleop.app.netrun` (kept apart so that ``teleop --help`` loads
-nothing heavy): the ``master`` and ``slave`` subcommands and ``run --link zenoh``."""
+nothing heavy): the ``master`` and ``slave`` subcommands and ``run --link zenoh``. Each takes the
+flags ``teleop run`` takes (:func:`teleop.app.args.add_scene_flags`), and refuses with one line
+those a side in its own process cannot honour."""
 
 from __future__ import annotations
 
 import json
+import signal
+import subprocess
 import sys
+import tempfile
 from pathlib import Path
+
+from teleop.app.args import add_scene_flags
+from teleop.util.errors import ConfigError
+
+#: exit codes, as :mod:`teleop.app.cli`'s
+EXIT_OK, EXIT_FAILED, EXIT_INTERRUPTED = 0, 1, 130
+#: how long the pair may take beyond the scene's duration before the parent stops it (s)
+PAIR_MARGIN_S = 240.0
 
 
 def add_subcommands(sub) -> None:
@@ -13,17 +26,22 @@ def add_subcommands(sub) -> None:
     for role, flag, default_help in (("slave", "--listen", "listen on this Zenoh endpoint (default tcp/127.0.0.1:7447)"),
                                      ("master", "--connect", "connect to the slave's endpoint (default tcp/127.0.0.1:7447)")):
         p = sub.add_parser(role, help=f"run the {role} side of a scene over Zenoh (wall clock, the scene's rate)")
-        p.add_argument("scene", help="scene name (see 'teleop list') or path to a .toml file")
+        add_scene_flags(p)
         p.add_argument(flag, dest="endpoint", default="tcp/127.0.0.1:7447", help=default_help)
         p.add_argument("--session", default="default", help="key expression name shared by the pair (default: default)")
         p.add_argument("--timeout", type=float, default=120.0, help="seconds to wait for the other side (default 120)")
-        p.add_argument("--set", action="append", default=[], metavar="KEY=VALUE", help="set any scene key (as 'run')")
         p.add_argument("--zenoh-config", metavar="FILE.json",
                        help='extra Zenoh settings, a JSON object {"path/to/key": "json5 value"} (e.g. TLS)')
         p.add_argument("--no-pin", dest="pin", action="store_false",
                        help="do not pin this side to a core of its own (pinned, it spins instead of sleeping)")
-        p.add_argument("--json", help="write this side's summary as JSON here")
-        p.set_defaults(func=cmd_side, role=role)
+        p.add_argument("--part", help=argparse_suppress())
+        p.set_defaults(func=cmd_side, role=role, link="zenoh")
+
+
+def argparse_suppress() -> str:
+    import argparse
+
+    return argparse.SUPPRESS  # --part DIR: where `run --link zenoh` collects the sides' runs (internal)
 
 
 def add_run_flags(run) -> None:
@@ -33,34 +51,115 @@ def add_run_flags(run) -> None:
                           "zenoh: master and slave as two processes on loopback, wall clock")
 
 
-def cmd_side(args) -> int:
-    from teleop.app.netrun import run_master, run_slave
-    from teleop.scenario.schema import load_scene
+def refuse_over_zenoh(args) -> None:
+    """The flags a side in its own process cannot honour: a one-line ConfigError."""
+    if getattr(args, "viewer", False):
+        raise ConfigError("--viewer: not over --link zenoh (each side runs in its own process); add --out DIR "
+                          "and watch the run with 'teleop replay DIR --viewer'")
+    if getattr(args, "operator", "script") == "keyboard":
+        raise ConfigError("--operator keyboard: not over --link zenoh yet; run it in one process "
+                          "('teleop run SCENE --operator keyboard')")
 
-    scene = load_scene(args.scene, sets=args.set)
+
+def cmd_side(args) -> int:
+    """``teleop master`` / ``teleop slave``: one side in this process, its own summary."""
+    from teleop.app.args import scene_for
+    from teleop.app.netrun import run_master, run_slave, save_side, side_result
+    from teleop.app.outputs import RunFolder, check_json_target, write_json
+
+    refuse_over_zenoh(args)
+    scene, capture = scene_for(args)
     extra = _zenoh_config(args.zenoh_config) if args.zenoh_config else None
-    if args.role == "slave":
-        out = run_slave(scene, listen=args.endpoint, session=args.session, timeout_s=args.timeout, config_json5=extra,
-                        pin=args.pin)
-    else:
-        out = run_master(scene, connect=args.endpoint, session=args.session, timeout_s=args.timeout, config_json5=extra,
-                         pin=args.pin)
-    out = {"scenario": scene.name, **out}
-    if args.json:
-        Path(args.json).parent.mkdir(parents=True, exist_ok=True)
-        Path(args.json).write_text(json.dumps(out, indent=2) + "\n")
-    hb = out["heartbeat"]
-    ck = out["clock"]
-    print(f"{args.role}: {out['status']}  steps={out['steps']}  late={out['late_ticks']}  "
-          f"real-time factor {ck['realtime_factor']:.2f} (behind at most {ck['behind_max_ms']:.0f} ms, load {ck['load_1min']:.1f})  "
-          f"link lost {hb['lost_events']}x ({hb['lost_ticks']} ticks, detected within {hb['detect_latency_max_s'] * 1e3:.1f} ms)")
-    return 0 if out["status"] == "ok" else 1
+    json_path = check_json_target(args.json) if args.json else None
+    folder = RunFolder(args.out) if args.out else None
+    try:
+        if capture is not None:
+            from teleop.app.args import with_capture
+
+            scene = with_capture(scene, folder, capture)
+        run = (run_slave(scene, listen=args.endpoint, session=args.session, timeout_s=args.timeout, config_json5=extra,
+                         pin=args.pin) if args.role == "slave" else
+               run_master(scene, connect=args.endpoint, session=args.session, timeout_s=args.timeout,
+                          config_json5=extra, pin=args.pin))
+        if args.part:
+            save_side(*run, args.part)
+        result = side_result(scene, *run)
+        if folder is not None:
+            _write_folder(result, scene, folder)
+            folder.commit()
+            folder = None
+    finally:
+        if folder is not None:
+            folder.abort()
+    return _report(result.summary, args, json_path, f"{args.role}: ")
+
+
+def cmd_run_zenoh(scene, quiet: bool = False):
+    """``teleop run SCENE --link zenoh``: the slave and the master as two child processes on a
+    free loopback port, each running ``scene`` (written resolved for them); their two runs merged
+    into one (:func:`teleop.app.netrun.merge`). A side whose process dies is judged by the other
+    (a lost peer: status ``link_lost``); Ctrl-C stops both between ticks and keeps what they ran."""
+    from teleop.app.netrun import free_endpoint, load_side, merge
+    from teleop.app.view_bridge import save_scene_copy
+
+    ep = free_endpoint()
+    with tempfile.TemporaryDirectory() as tmp:
+        path = save_scene_copy(scene, tmp)
+        py = [sys.executable, "-m", "teleop"]
+        common = ["--part", tmp, "-q"]  # the parent prints the one summary
+        slave = subprocess.Popen(py + ["slave", str(path), "--listen", ep] + common)
+        master = subprocess.Popen(py + ["master", str(path), "--connect", ep] + common)
+        codes = _wait_pair(master, slave, scene.duration_s + PAIR_MARGIN_S)
+        why = ", ".join(f"{k} process exit {c}" for k, c in codes.items() if c not in (0, 1))
+        result = merge(scene, load_side(tmp, "master"), load_side(tmp, "slave"), why)
+    result.summary["endpoint"] = ep
+    return result
+
+
+def _wait_pair(master, slave, timeout_s: float) -> dict:
+    """Wait for both children; Ctrl-C (or SIGTERM) is passed on to them as SIGINT, so each ends
+    its run between ticks and writes what it ran; a child past ``timeout_s`` is killed."""
+    procs = {"master": master, "slave": slave}
+    try:
+        for p in procs.values():
+            p.wait(timeout=timeout_s)
+    except (KeyboardInterrupt, subprocess.TimeoutExpired):
+        pass
+    finally:
+        for p in procs.values():
+            if p.poll() is None:
+                p.send_signal(signal.SIGINT)
+        for p in procs.values():
+            try:
+                p.wait(timeout=30)
+            except subprocess.TimeoutExpired:
+                p.kill()
+                p.wait()
+    return {k: p.returncode for k, p in procs.items()}
+
+
+def _write_folder(result, scene, folder) -> None:
+    from teleop.app.cli import _write_run
+
+    _write_run(result, None, None, scene, folder)
+
+
+def _report(summary: dict, args, json_path, prefix: str) -> int:
+    from teleop.app.cli import _summary_text
+    from teleop.app.outputs import write_json
+
+    if json_path is not None:
+        write_json(json_path, summary)
+    elif args.json == "-":
+        sys.stdout.write(json.dumps(summary, indent=2) + "\n")
+    if not args.quiet:
+        print(_summary_text(summary), file=sys.stderr if args.json == "-" else sys.stdout)
+    st = summary["status"]
+    return EXIT_INTERRUPTED if st == "interrupted" else EXIT_OK if st == "ok" else EXIT_FAILED
 
 
 def _zenoh_config(path: str) -> dict:
     """The --zenoh-config file: a JSON object of Zenoh configuration keys to json5 values."""
-    from teleop.util.errors import ConfigError
-
     try:
         data = json.loads(Path(path).read_text(encoding="utf-8"))
     except (OSError, UnicodeDecodeError, json.JSONDecodeError) as e:
@@ -68,20 +167,3 @@ def _zenoh_config(path: str) -> dict:
     if not isinstance(data, dict) or not all(isinstance(k, str) and isinstance(v, str) for k, v in data.items()):
         raise ConfigError(f'--zenoh-config {path}: expected {{"path/to/key": "json5 value", ...}} (strings)')
     return data
-
-
-def cmd_run_zenoh(args) -> int:
-    """``teleop run SCENE --link zenoh``: both sides on loopback, one summary."""
-    from teleop.app.netrun import run_pair
-    from teleop.scenario.schema import load_scene
-
-    scene_arg = args.scene or "straight_incision"
-    load_scene(scene_arg, sets=args.set)  # a bad scene fails here, before any process starts
-    summary = run_pair(scene_arg, sets=args.set)
-    if args.json:
-        Path(args.json).parent.mkdir(parents=True, exist_ok=True)
-        Path(args.json).write_text(json.dumps(summary, indent=2) + "\n")
-    print(f"zenoh run: {summary['status']}  endpoint {summary['endpoint']}", file=sys.stderr)
-    for k, v in summary["metrics"].items():
-        print(f"  {k:34s} {v:.4g}")
-    return 0 if summary["status"] == "ok" and not summary["nan"] else 1

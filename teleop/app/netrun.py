@@ -2,158 +2,49 @@
 
     teleop slave SCENE --listen tcp/127.0.0.1:7447 [--json OUT]
     teleop master SCENE --connect tcp/127.0.0.1:7447 [--json OUT]
-    teleop run SCENE --link zenoh [--json OUT]      # both on a free loopback port, one summary
+    teleop run SCENE --link zenoh [--out DIR] [--json OUT]   # both on a free loopback port, one summary
 
-Each process runs its half of :class:`teleop.tick.loop.BilateralLoop`'s tick (the same calls in the
-same order) and the two halves meet only in :class:`~teleop.link.zenoh_link.ZenohLink`. The
-passivity guard of the scene's [link] table runs at both ends, as in the simulated run.
+Each process builds its side with :mod:`teleop.app.assembly` and ticks it
+(:meth:`MasterSide.tick`, :meth:`SlaveSide.tick`): the same objects, hooks, metrics and verdict
+as the in-process run; only the link (:class:`~teleop.link.zenoh_link.ZenohLink`) and the clock
+differ. The passivity guard of the scene's [link] table runs at both ends.
 
-Start-up: each side first runs a twin of its half for a few ticks on a link to nowhere (the
-numba kernels' first loads, not the first ticks). The master sends hello commands (``t_s = -1``,
-clutch out) until a reply comes; the slave answers every hello. The master then ticks
-``duration_s / dt_s`` times on the wall clock; the slave ticks when the master's next command
-arrives (or one period past its own nominal tick start if none comes; when behind, back to back),
-until it has followed the master's last command (or, if the master is gone, for as long again plus
-``GRACE_S``). The master feels the newest reply at the start of its tick: a reply back within the
-period is felt at the same step as in one process (``reply_lag_ticks`` 0). Each side is pinned to
-a core of its own and waits by spinning (:func:`claim_core`; ``--no-pin``: sleep instead).
+Start-up: each side first runs a twin of itself for a few ticks on a link to nowhere (the numba
+kernels' first loads, not the first ticks). The master sends hello commands (``t_s = -1``, clutch
+out) until a reply comes; the slave answers every hello. The master then ticks ``duration_s /
+dt_s`` times on the wall clock; the slave ticks when the master's next command arrives (or one
+period past its own nominal tick start if none comes; when behind, back to back), until it has
+followed the master's last command (or, if the master is gone, for as long again plus
+``GRACE_S``). The master feels the newest reply at the start of its tick, as in one process
+(``reply_lag_ticks`` "0": in step with one process). Each side is pinned to a core of its own and
+waits by spinning (:func:`claim_core`; ``--no-pin``: sleep instead).
 
-Heartbeat and safe states: :mod:`teleop.tick.heartbeat`, the same as the in-process run's (a side
-that has heard nothing for ``link.heartbeat_ms``, 20 ms by default, goes to its safe state at once;
-the master also while the slave's replies say ``link_lost``), on the wall clock here. Each side
-counts lost-link events, lost ticks and the detection latency (time from the last message heard to
-the safe state, s) in its summary; a run with any lost tick is ``link_lost``, not "ok".
+Heartbeat and safe states are the sides' own (:mod:`teleop.tick.heartbeat`), on the wall clock
+here. A side that never hears its peer ends with status ``link_lost`` (exit 1), never a traceback.
 """
 
 from __future__ import annotations
 
-import json
 import math
 import os
 import socket
-import subprocess
-import sys
-import tempfile
 import time
-from pathlib import Path
+from dataclasses import asdict
 
 import numpy as np
 
-from teleop.tick.feedback import FeedbackPath
-from teleop.dynamics.constraints import RemoteCenter
+from teleop.app.assembly import build_master, build_slave, exempt_metrics
+from teleop.app.session import (_YIELD, PACE_SPIN_S, RunResult, Session, SideRun, _fine_timer_slack, _pace,
+                                _stop_requests, tick_count, tick_stats)
+from teleop.scenario.schema import Scene
+from teleop.tick.messages import ContactFeedback, ToolCommand
 from teleop.util.errors import TeleopError
-from teleop.tick.heartbeat import HeartbeatState, follow_or_hold, hold_master
-from teleop.tick.messages import ContactFeedback, MessageError, ToolCommand
-from teleop.app.runtime import make_guard, make_master, make_slave
-from teleop.scenario.build import build_fixture, build_registration, build_tool, master_fixture_spec
-from teleop.app.metrics import MasterMetrics, SlaveMetrics, make_metrics
-from teleop.scenario.operators import make_operator
-from teleop.app.session import (_YIELD, PACE_SPIN_S, GuardRecorder, MasterRecorder, SlaveCounter, _fine_timer_slack, _pace,
-                            run_status)
 
 GRACE_S = 2.0          # the slave's run beyond the scene's duration when the master is gone (s)
 CONNECT_TIMEOUT_S = 120.0  # the first message must come within this (s): a loaded machine is slow
+WARMUP_TICKS = 5       # ticks a side's twin runs before the clock starts
 _Z6 = np.zeros(6)
 _Z3 = np.zeros(3)
-
-
-class MasterHalf:
-    """The master's half of the tick (the slave's newest reply felt, operator, sense, tool step,
-    command, send), with the safe state on a lost link. Attributes as :class:`BilateralLoop` for
-    the hooks.
-
-    The reply is felt at the start of the tick, before the step: the reply to the command sent at
-    the end of the tick before, when the slave answered within the period, is then felt at the same
-    step as in one process (where it is felt at the end of the tick before); ``reply_lag`` counts
-    the ticks by how many ticks older the newest reply was (0: in step with one process; "none":
-    no new reply)."""
-
-    def __init__(self, tool, master, operator, dt_s, link, feedback, guard, hooks, heartbeat_s):
-        self.tool, self.master, self.operator, self.dt = tool, master, operator, dt_s
-        self.link, self.feedback, self.master_guard, self.hooks = link, feedback, guard, hooks
-        self.slave = self.slave_guard = None
-        self.heart = HeartbeatState(heartbeat_s)
-        self.peer_lost = False  # the newest reply says the slave hears nothing
-        self.hand_W, self.feedback_W, self.felt_W = np.zeros(6), np.zeros(6), np.zeros(6)
-        self.tick_ns, self.status, self.command_errors = 0, "ok", 0
-        self.slave_status: dict[str, int] = {}
-        self.reply_lag: dict = {}  # ticks whose newest reply answered the command of k ticks before the last
-
-    def tick(self, i: int) -> str:
-        t, master, tool = i * self.dt, self.master, self.tool
-        for h in self.hooks:
-            h.before_tick(i, t, self)
-        t0 = time.perf_counter_ns()
-        msg = self.link.receive_feedback(t)  # the reply to the last command, if it is back
-        if msg is not None and msg.t_s >= 0:
-            self.slave_status[msg.status] = self.slave_status.get(msg.status, 0) + 1
-            self.peer_lost = msg.status == "link_lost"
-        lag = "none" if msg is None or msg.command_seq < 0 else min(i - msg.command_seq, 5)
-        self.reply_lag[lag] = self.reply_lag.get(lag, 0) + 1
-        lost = self.heart.update(self.link.clock(), self.link.last_receive_s, self.peer_lost)
-        if not lost and i > 0:  # felt before the step, as one process feels it at the end of the tick before
-            self.feedback_W = self.feedback.update(msg)
-            if self.master_guard is not None:
-                self.feedback_W = self.master_guard.feedback(self.feedback_W, np.concatenate(tool.twist()), msg,
-                                                             t - self.dt)
-        self.hand_W = self.operator.wrench(t, *master.hand_state())
-        master.set_clutch(self.operator.clutch_engaged)
-        f_v = master.sense(self.hand_W)
-        p_r, R_r = tool.pose()
-        if lost:                                   # safe state: the tool holds, no remote force
-            st, st_m = "ok", hold_master(tool, master, self.feedback, p_r, R_r, self.master_guard)
-            self.feedback_W = self.felt_W = np.zeros(6)
-        else:
-            v_r, w_r = tool.twist()
-            self.felt_W = self.feedback.render(self.feedback_W, tool, f_v, self.dt, (p_r, R_r, v_r, w_r))
-            st = tool.step(self.dt, f_v + self.felt_W)
-            st_m = master.command(p_r, R_r, np.concatenate((v_r, w_r)), tool.acceleration_W)
-        mg = self.master_guard
-        energy = None if mg is None else mg.energy_J if lost else mg.energy_after(np.concatenate(tool.twist()))
-        try:  # sent even when lost: the heartbeat the slave listens for
-            self.link.send_command(ToolCommand(i + 1, t, *master.virtual_estimate(),
-                                               self.operator.clutch_engaged and not lost, energy))
-        except MessageError:
-            self.command_errors += 1
-        self.tick_ns = time.perf_counter_ns() - t0
-        self.heart.motion(tool.pose()[0], float(np.linalg.norm(tool.qd)))
-        for h in self.hooks:
-            h.after_tick(i, t, self)
-        self.status = st if st != "ok" else st_m
-        return self.status
-
-
-class SlaveHalf:
-    """The slave's half of the tick (receive, guard, follow, reply), with the safe state."""
-
-    def __init__(self, slave, link, guard, hooks, heartbeat_s, dt_s):
-        self.slave, self.link, self.slave_guard, self.hooks = slave, link, guard, hooks
-        self.master_guard = None
-        self.heart = HeartbeatState(heartbeat_s)
-        self.dt, self.tick_ns, self.last_seq = dt_s, 0, 0
-        self.without_command = self.skipped = 0  # ticks with no new command; commands never followed
-        self.pending = None  # the first command, taken while answering hellos
-
-    def tick(self, i: int) -> None:
-        t = i * self.dt
-        t0 = time.perf_counter_ns()
-        lost = self.heart.update(self.link.clock(), self.link.last_receive_s)
-        cmd = self.link.receive_command(t)
-        if cmd is None and self.pending is not None:
-            cmd = self.pending
-        self.pending = None
-        if cmd is not None and cmd.t_s < 0:
-            cmd = None  # a hello
-        if cmd is not None and not lost:
-            self.skipped += max(0, cmd.seq - self.last_seq - 1)
-            self.last_seq = cmd.seq
-        self.without_command += cmd is None
-        reply = follow_or_hold(self.slave, self.slave_guard, cmd, t, lost)  # lost: hold, say link_lost
-        self.link.send_feedback(reply)
-        self.tick_ns = time.perf_counter_ns() - t0
-        self.heart.motion(self.slave.state.p, float(np.linalg.norm(self.slave.arm.qd)))
-        for h in self.hooks:
-            h.after_tick(i, t, self)
 
 
 POLL_S = 1e-4  # the slave's poll period while it waits for the master's next command, unpinned (s)
@@ -204,197 +95,246 @@ def _open_link(role: str, session: str, listen, connect, timeout_s: float, confi
             time.sleep(0.2)
 
 
-def _hello(master, link, timeout_s: float) -> None:
-    """Master: hello commands until the slave answers."""
+def _hello(side, link, timeout_s: float) -> bool:
+    """Master: hello commands until the slave answers (True), or ``timeout_s`` passes (False)."""
     end = time.monotonic() + timeout_s
-    p, R, _, _ = master.virtual_estimate()
+    s = side.state
     while link.last_receive_s is None:
         if time.monotonic() > end:
-            raise TeleopError(f"master: no answer from the slave within {timeout_s:g} s "
-                              f"(is 'teleop slave' running on {link.connect}?)")
-        link.send_command(ToolCommand(0, -1.0, p, R, _Z3, _Z3, False))
+            return False
+        link.send_command(ToolCommand(0, -1.0, s.p, s.R, _Z3, _Z3, False))
         time.sleep(0.005)
+    return True
+
+
+def _answer_hellos(link, timeout_s: float) -> bool:
+    """Slave: answer hello commands until the first real one is waiting (True; left for the first
+    tick to take), or ``timeout_s`` passes (False)."""
+    end = time.monotonic() + timeout_s
+    while True:
+        cmd = link.peek()
+        if cmd is not None and cmd.t_s >= 0:
+            return True
+        if time.monotonic() > end:
+            return False
+        if cmd is not None:
+            link.receive_command(0.0)  # a hello, taken
+        if link.last_receive_s is not None:
+            link.send_feedback(ContactFeedback(0, -1.0, _Z6, "hold", -1))
+        time.sleep(0.001)
 
 
 class _Bench:
-    """A link that goes nowhere, for a half's warm-up twin: sends nothing, hears nothing, and to
+    """A link that goes nowhere, for a side's warm-up twin: sends nothing, hears nothing, and to
     a slave hands a command holding ``pose`` (master frame) with the clutch engaged."""
 
     def __init__(self, pose=None):
-        self.pose, self.last_receive_s, self.k = pose, None, 0
+        self.pose, self.k = pose, 0
 
-    def clock(self) -> float:
-        return time.monotonic()
+    def clock(self, t_s: float) -> float:
+        return t_s
+
+    def last_heard_s(self, side: str) -> None:
+        return None
 
     def send_command(self, msg) -> None:
         pass
 
     send_feedback = send_command
 
-    def receive_feedback(self, t_s: float = 0.0):
+    def receive_feedback(self, t_s: float) -> None:
         return None
 
-    def receive_command(self, t_s: float = 0.0):
+    def receive_command(self, t_s: float) -> ToolCommand:
         self.k += 1
         return ToolCommand(self.k, t_s, *self.pose, _Z3, _Z3, True)
 
 
-WARMUP_TICKS = 5  # ticks a half's twin runs before the clock starts
-
-
-def _master_half(scene, link, n: int):
-    """The master's half and its hooks, built from the scene (the run's, or a warm-up twin's);
-    returns (half, recorder, metrics, guard_log or None)."""
-    rng = np.random.default_rng(scene.seed)
-    tool = build_tool(scene)
-    spec_M = master_fixture_spec(scene)
-    operator = make_operator(scene.operator, spec_M, scene.effects, rng)
-    reg = build_registration(scene)
-    feedback = FeedbackPath(reg, scene.mapping.feedback_cutoff_hz, scene.dt_s,
-                            scene.mapping.feedback_local_damping)
-    guard = make_guard(scene, reg, n, networked=True)
-    metrics = MasterMetrics(make_metrics(spec_M, n, tool.body.mass_kg))
-    recorder = MasterRecorder(tool, n)
-    glog = _GuardLog(n, 0) if guard else None
-    hooks = [recorder, metrics] + ([glog] if glog else [])
-    master = make_master(scene, tool, rng)
-    half = MasterHalf(tool, master, operator, scene.dt_s, link, feedback, guard[0] if guard else None, hooks,
-                      scene.link.heartbeat_ms * 1e-3)
-    return half, recorder, metrics, glog
-
-
-def warm_up_master(scene) -> None:
-    """Run a twin of the master's half for a few ticks on a link to nowhere, so that the first
+def warm_up(scene: Scene, role: str) -> None:
+    """Run a twin of the ``role`` side for a few ticks on a link to nowhere, so that the first
     calls (numba kernels loaded from the cache, 60-170 ms each here) happen before the clock
     starts and not in the first ticks, where they tripped the 20 ms heartbeat."""
-    half = _master_half(scene, _Bench(), WARMUP_TICKS)[0]
-    with half.master:
-        for i in range(WARMUP_TICKS):
-            half.tick(i)
+    if role == "master":
+        side = build_master(scene, WARMUP_TICKS, np.random.default_rng(scene.seed), networked=True).side
+        with side.master:
+            for i in range(WARMUP_TICKS):
+                side.tick(i, i * scene.dt_s, _Bench())
+        return
+    sb = build_slave(scene, WARMUP_TICKS, networked=True)
+    bench = _Bench(_start_pose(scene))
+    for i in range(WARMUP_TICKS):
+        sb.side.tick(i, i * scene.dt_s, bench)
 
 
-def run_master(scene, connect: str | None, listen: str | None = None, session: str = "default",
-               timeout_s: float = CONNECT_TIMEOUT_S, config_json5: dict | None = None, pin: bool = True) -> dict:
-    """The master process: returns its summary (also the master's metrics). ``config_json5``:
-    extra Zenoh settings (TLS, see :mod:`teleop.link.zenoh_link`); ``pin``: :func:`claim_core`."""
-    n = int(round(scene.duration_s / scene.dt_s))
+def _start_pose(scene: Scene):
+    from teleop.scenario.build import build_tool
+
+    return build_tool(scene).pose()
+
+
+def run_master(scene: Scene, connect: str | None, listen: str | None = None, session: str = "default",
+               timeout_s: float = CONNECT_TIMEOUT_S, config_json5: dict | None = None, pin: bool = True) -> tuple[SideRun, dict]:
+    """The master process: its side ticked on the wall clock over Zenoh. Returns its run and its
+    metrics. ``config_json5``: extra Zenoh settings (TLS, see :mod:`teleop.link.zenoh_link`);
+    ``pin``: :func:`claim_core`."""
+    n = tick_count(scene.duration_s, scene.dt_s)
     core = claim_core("master") if pin else None
     spin_s = math.inf if core is not None else PACE_SPIN_S
-    warm_up_master(scene)
+    warm_up(scene, "master")
     link = _open_link("master", session, listen, connect, timeout_s, config_json5)
-    half, recorder, metrics, glog = _master_half(scene, link, n)
-    master = half.master
-    status, late = "ok", 0
-    with link, master:
-        _hello(master, link, timeout_s)
-        print("master: running", flush=True)
-        wall0, behind = time.perf_counter(), 0.0
-        for i in range(n):
-            half.heart.tick_late_s = max(0.0, time.perf_counter() - (wall0 + i * scene.dt_s))
-            behind = max(behind, half.heart.tick_late_s)
-            status = half.tick(i)
+    mb = build_master(scene, n, np.random.default_rng(scene.seed), networked=True)
+    side, dt = mb.side, scene.dt_s
+    status, late, steps, behind = "ok", 0, 0, 0.0
+    ticks = np.zeros(n)
+    wall0 = time.perf_counter()
+    with link, side.master, _stop_requests() as stop:
+        status = side.master.status
+        if status == "ok" and not _hello(side, link, timeout_s):
+            status = "link_lost"
+            print(f"master: no answer from the slave within {timeout_s:g} s (is 'teleop slave' running on "
+                  f"{link.connect}?)", flush=True)
+        elif status == "ok":
+            print("master: running", flush=True)
+        wall0 = time.perf_counter()
+        for i in range(n if status == "ok" else 0):
+            if stop:
+                status = "interrupted"
+                break
+            side.heart.tick_late_s = max(0.0, time.perf_counter() - (wall0 + i * dt))
+            behind = max(behind, side.heart.tick_late_s)
+            status = side.tick(i, i * dt, link)
+            ticks[i], steps = side.tick_ns * 1e-3, i + 1
             if status != "ok":
                 break
-            late += _pace(wall0 + (i + 1) * scene.dt_s, spin_s)
-        clock = _clock(wall0, recorder.n, scene.dt_s, behind, core)
-        link_stats = link.stats()
-    ticks = recorder.log["tick_us"][: recorder.n]
-    heart = half.heart.summary()
-    out = {"side": "master", "status": status if status != "ok" else ("link_lost" if heart["lost_ticks"] else "ok"),
-           "steps": recorder.n, "late_ticks": late, "clock": clock, "nan": bool(recorder.nan),
-           "tick_us": {"median": float(np.median(ticks)) if len(ticks) else 0.0,
-                       "p99": float(np.percentile(ticks, 99)) if len(ticks) else 0.0},
-           "heartbeat": heart, "zenoh": link_stats, "slave_statuses_heard": half.slave_status,
-           "reply_lag_ticks": {str(k): v for k, v in sorted(half.reply_lag.items(), key=str)},
-           "command_errors": half.command_errors, "feedback_damping_refused": half.feedback.refused,
-           "metrics": metrics.result()}
-    if glog:
-        out["passivity_master"] = glog.summary()
-    return out
+            late += _pace(wall0 + (i + 1) * dt, spin_s)
+        ck = _clock(wall0, steps, dt, behind, core)
+        runner = {"tick_us": tick_stats(ticks[:steps]), "late_ticks": late, "link": {"zenoh_master": link.stats()},
+                  "clock": {"master": ck}, "wall_s": round(ck["wall_s"], 3),
+                  "realtime_factor": round(ck["realtime_factor"], 3)}
+        runner.update({k: v for k, v in side.master.stats().items() if k != "master_status"})
+    log = mb.log(steps)
+    log["tick_us"] = ticks[:steps]
+    return SideRun(status, steps, dt, side.summary(), None, mb.recorder.nan, runner, log), mb.result()
 
 
-def _slave_half(scene, link, cap: int):
-    """The slave's half and its hooks, built from the scene (the run's, or a warm-up twin's);
-    returns (half, metrics, counter, guard_log or None, the tool's start pose)."""
-    tool = build_tool(scene)  # only for the initial pose, as in the simulated run
-    reg = build_registration(scene)
-    constraints_P = build_fixture(scene.fixture).constraints
-    slave = make_slave(scene, reg, constraints_P)
-    slave.reset(*tool.pose())
-    guard = make_guard(scene, reg, cap, networked=True)
-    rcm = [c for c in constraints_P if isinstance(c, RemoteCenter)]
-    metrics, counter = SlaveMetrics(scene.fixture, cap, slave.arm.nv, rcm), SlaveCounter()
-    glog = _GuardLog(cap, 1) if guard else None
-    hooks = [metrics, counter] + ([glog] if glog else [])
-    half = SlaveHalf(slave, link, guard[1] if guard else None, hooks, scene.link.heartbeat_ms * 1e-3, scene.dt_s)
-    return half, metrics, counter, glog, tool.pose()
-
-
-def warm_up_slave(scene) -> None:
-    """Run a twin of the slave's half for a few ticks, following a command that holds the start
-    pose (see :func:`warm_up_master`; here the fixture projection's kernels, 165 ms)."""
-    bench = _Bench()
-    half, _, _, _, pose = _slave_half(scene, bench, WARMUP_TICKS)
-    bench.pose = pose
-    for i in range(WARMUP_TICKS):
-        half.tick(i)
-
-
-def run_slave(scene, listen: str | None, connect: str | None = None, session: str = "default",
-              timeout_s: float = CONNECT_TIMEOUT_S, config_json5: dict | None = None, pin: bool = True) -> dict:
-    """The slave process: returns its summary (the slave's metrics); ``pin``: :func:`claim_core`."""
+def run_slave(scene: Scene, listen: str | None, connect: str | None = None, session: str = "default",
+              timeout_s: float = CONNECT_TIMEOUT_S, config_json5: dict | None = None, pin: bool = True) -> tuple[SideRun, dict]:
+    """The slave process: its side ticked as the master's commands come. Returns its run and its
+    metrics; ``pin``: :func:`claim_core`."""
     if scene.slave is None:
         raise TeleopError(f"{scene.path}: slave: the scene has no [slave] table: nothing to run on this side")
     core = claim_core("slave") if pin else None
     poll_s = 0.0 if core is not None else POLL_S
-    n = int(round(scene.duration_s / scene.dt_s))
+    n = tick_count(scene.duration_s, scene.dt_s)
     cap = n + int(round(GRACE_S / scene.dt_s)) + 1
-    warm_up_slave(scene)
+    warm_up(scene, "slave")
     link = _open_link("slave", session, listen, connect, timeout_s, config_json5)
-    half, metrics, counter, glog, _ = _slave_half(scene, link, cap)
-    late = steps = 0
-    tick_ns = []
-    with link:
-        end = time.monotonic() + timeout_s
-        while half.pending is None:  # answer hellos until the first real command
-            if time.monotonic() > end:
-                raise TeleopError(f"slave: no command from a master within {timeout_s:g} s")
-            cmd = link.receive_command(0.0)
-            if cmd is not None and cmd.t_s >= 0:
-                half.pending = cmd
-                print("slave: running", flush=True)
-                break
-            if link.last_receive_s is not None:
-                link.send_feedback(ContactFeedback(0, -1.0, _Z6, "hold", -1))
-            time.sleep(0.001)
+    sb = build_slave(scene, cap, networked=True)
+    side, dt = sb.side, scene.dt_s
+    status, late, steps, behind = "ok", 0, 0, 0.0
+    ticks = np.zeros(cap)
+    wall0 = time.perf_counter()
+    with link, _stop_requests() as stop:
+        if not _answer_hellos(link, timeout_s):
+            status = "link_lost"
+            print(f"slave: no command from a master within {timeout_s:g} s", flush=True)
+        else:
+            print("slave: running", flush=True)
         _fine_timer_slack()
-        wall0, behind = time.perf_counter(), 0.0
-        for i in range(cap):
-            half.heart.tick_late_s = max(0.0, time.perf_counter() - (wall0 + i * scene.dt_s))
-            behind = max(behind, half.heart.tick_late_s)
-            late += half.heart.tick_late_s > scene.dt_s  # past its timeout: a tick owed, run back to back
-            half.tick(i)
-            tick_ns.append(half.tick_ns)
-            steps = i + 1
-            if half.last_seq >= n:
+        wall0 = time.perf_counter()
+        for i in range(cap if status == "ok" else 0):
+            if stop:
+                status = "interrupted"
                 break
-            _await_command(link, wall0 + (i + 2) * scene.dt_s, poll_s)
-        clock = _clock(wall0, steps, scene.dt_s, behind, core)
-        link_stats = link.stats()
-    heart = half.heart.summary()
-    counts = counter.counts
-    status = run_status("ok", steps, counts)
-    if heart["lost_ticks"] and status in ("ok", "slave_link_lost", "slave_hold"):
-        status = "link_lost"  # this side's own word for it (the lost ticks were counted as such)
-    out = {"side": "slave", "status": status, "steps": steps, "late_ticks": late, "clock": clock,
-           "followed_last_command": half.last_seq >= n, "slave_statuses": counts, "heartbeat": heart,
-           "ticks_without_command": half.without_command, "commands_skipped": half.skipped,
-           "zenoh": link_stats, "tick_us": {"median": float(np.median(tick_ns)) * 1e-3 if tick_ns else 0.0,
-                                           "p99": float(np.percentile(tick_ns, 99)) * 1e-3 if tick_ns else 0.0},
-           "metrics": metrics.result()}
-    if glog:
-        out["passivity_slave"] = glog.summary()
-    return out
+            side.heart.tick_late_s = max(0.0, time.perf_counter() - (wall0 + i * dt))
+            behind = max(behind, side.heart.tick_late_s)
+            late += side.heart.tick_late_s > dt  # past its timeout: a tick owed, run back to back
+            side.tick(i, i * dt, link)
+            ticks[i], steps = side.tick_ns * 1e-3, i + 1
+            if side.last_seq >= n:
+                break
+            _await_command(link, wall0 + (i + 2) * dt, poll_s)
+        runner = {"tick_us": tick_stats(ticks[:steps]), "late_ticks": late, "link": {"zenoh_slave": link.stats()},
+                  "clock": {"slave": _clock(wall0, steps, dt, behind, core)}}
+    part = side.summary()
+    part["followed_last_command"] = side.last_seq >= n
+    log = sb.log(steps)
+    return SideRun(status, steps, dt, None, part, False, runner, log), sb.result()
+
+
+def side_result(scene: Scene, run: SideRun, metrics: dict) -> RunResult:
+    """One process's own summary (the shape of every run's: :meth:`Session.result`)."""
+    return scene_summary(scene, Session.result(run, metrics, exempt_metrics(scene)))
+
+
+def scene_summary(scene: Scene, result: RunResult) -> RunResult:
+    """The scene's names around a summary, as :func:`teleop.app.runtime.run_scene` gives them."""
+    result.summary = {"scenario": scene.name, **result.summary, "integrator": scene.integrator,
+                      "master": scene.master, "seed": scene.seed, "effects": list(scene.effects)}
+    return result
+
+
+def merge(scene: Scene, master: tuple[SideRun, dict] | None, slave: tuple[SideRun, dict] | None,
+          why: str = "") -> RunResult:
+    """The two processes' runs as one run (the in-process run's summary shape and verdict);
+    a side that left no run (its process died) is judged by the other (``why`` says what
+    happened to it)."""
+    m, s = (master or (None, {}))[0], (slave or (None, {}))[0]
+    if m is None and s is None:
+        raise TeleopError(f"teleop run --link zenoh: neither side left a summary ({why})")
+    steps = m.steps if m is not None else s.steps
+    status = m.status if m is not None else "link_lost"
+    if m is not None and s is not None and s.status == "interrupted":
+        status = "interrupted"
+    runner: dict = {"link": {}, "clock": {}}
+    for side in (m, s):
+        if side is not None:
+            runner["link"].update(side.runner["link"])
+            runner["clock"].update(side.runner["clock"])
+    if m is not None:
+        runner.update({k: v for k, v in m.runner.items() if k not in ("link", "clock")})
+    if s is not None:
+        runner["slave_tick_us"] = s.runner["tick_us"]
+        runner["slave_late_ticks"] = s.runner["late_ticks"]
+    log = {}
+    if m is not None and s is not None:
+        k = min(m.steps, s.steps)
+        log = {**{n: v[:k] for n, v in m.log.items()}, **{n: v[:k] for n, v in s.log.items()}}
+        log["tick_us"] = log["tick_us"] + log["slave_tick_us"]
+        steps = min(steps, k) if m.status == "ok" else steps
+    run = SideRun(status, steps, scene.dt_s, m.master if m is not None else None, s.slave if s is not None else None,
+                  m.nan if m is not None else False, runner, log)
+    result = side_result(scene, run, {**(master or (None, {}))[1], **(slave or (None, {}))[1]})
+    if why:
+        result.summary["processes"] = why
+        if m is None:
+            result.summary["status_reason"] = f"the master process left no summary ({why})"
+    return result
+
+
+def save_side(run: SideRun, metrics: dict, folder) -> None:
+    """A side's run into ``folder`` (``<side>.json`` and ``<side>.npz``), for :func:`load_side`."""
+    import json
+    from pathlib import Path
+
+    role = "master" if run.master is not None else "slave"
+    d = {k: v for k, v in asdict(run).items() if k != "log"}
+    (Path(folder) / f"{role}.json").write_text(json.dumps({"run": d, "metrics": metrics}, default=float))
+    np.savez(Path(folder) / f"{role}.npz", **run.log)
+
+
+def load_side(folder, role: str) -> tuple[SideRun, dict] | None:
+    """A side's run saved by :func:`save_side`, or None when its process left none."""
+    import json
+    from pathlib import Path
+
+    js, npz = Path(folder) / f"{role}.json", Path(folder) / f"{role}.npz"
+    if not (js.exists() and npz.exists()):
+        return None
+    d = json.loads(js.read_text())
+    with np.load(npz) as z:
+        log = {k: z[k] for k in z.files}
+    return SideRun(**d["run"], log=log), d["metrics"]
 
 
 def _clock(wall0: float, steps: int, dt_s: float, behind_s: float, core: int | None = None) -> dict:
@@ -409,32 +349,6 @@ def _clock(wall0: float, steps: int, dt_s: float, behind_s: float, core: int | N
             "behind_max_ms": behind_s * 1e3, "load_1min": os.getloadavg()[0], "core": core}
 
 
-class _GuardLog:
-    """One port's totals in a two-process run (the port's own log)."""
-
-    def __init__(self, n: int, side: int):
-        self.side, self.rec = side, GuardRecorder(n)
-
-    def before_tick(self, i, t_s, loop) -> None:
-        pass
-
-    def after_tick(self, i, t_s, loop) -> None:
-        g = loop.master_guard if self.side == 0 else loop.slave_guard
-        key = "master" if self.side == 0 else "slave"
-        log = self.rec.log
-        log[f"tdpa_W_{key}_J"][i], log[f"tdpa_diss_{key}_J"][i] = g.port.W, g.port.E_diss
-        if self.side == 1:
-            log["tdpa_drift_M"][i] = g.port.offset
-        else:
-            log["tdpa_alpha"][i] = g.port.action
-        self.rec.n = i + 1
-
-    def summary(self) -> dict:
-        key = "master" if self.side == 0 else "slave"
-        s = self.rec.summary()
-        return {k: v for k, v in s.items() if key in k or (self.side == 1 and k.startswith("drift"))}
-
-
 def free_endpoint() -> str:
     """A free TCP port on loopback, as a Zenoh endpoint."""
     with socket.socket() as s:
@@ -442,37 +356,3 @@ def free_endpoint() -> str:
         return f"tcp/127.0.0.1:{s.getsockname()[1]}"
 
 
-def run_pair(scene_arg: str, sets=(), timeout_s: float = CONNECT_TIMEOUT_S + 60.0) -> dict:
-    """``teleop run --link zenoh``: the slave and the master as two child processes on a free
-    loopback port; their two summaries merged into one."""
-    ep = free_endpoint()
-    extra = [a for s in sets for a in ("--set", s)]
-    with tempfile.TemporaryDirectory() as tmp:
-        js, jm = Path(tmp) / "slave.json", Path(tmp) / "master.json"
-        py = [sys.executable, "-m", "teleop"]
-        env = dict(os.environ)
-        slave = subprocess.Popen(py + ["slave", scene_arg, "--listen", ep, "--json", str(js)] + extra, env=env)
-        master = subprocess.Popen(py + ["master", scene_arg, "--connect", ep, "--json", str(jm)] + extra, env=env)
-        try:
-            rc_m = master.wait(timeout=timeout_s)
-            rc_s = slave.wait(timeout=timeout_s)
-        finally:
-            for p in (master, slave):
-                if p.poll() is None:
-                    p.kill()
-                    p.wait()
-        sides = {}
-        for name, path, rc in (("master", jm, rc_m), ("slave", js, rc_s)):
-            if not path.exists():
-                raise TeleopError(f"teleop run --link zenoh: the {name} process wrote no summary (exit {rc})")
-            sides[name] = json.loads(path.read_text())
-    return merge_summaries(sides["master"], sides["slave"], ep)
-
-
-def merge_summaries(m: dict, s: dict, endpoint: str) -> dict:
-    """One run summary from the two sides' (status "ok" only when both are)."""
-    status = m["status"] if m["status"] != "ok" else (s["status"] if s["status"] != "ok" else "ok")
-    if status == "ok" and not s.get("followed_last_command", False):
-        status = "link_lost"
-    return {"status": status, "link": "zenoh", "endpoint": endpoint, "nan": m["nan"],
-            "metrics": {**m["metrics"], **s["metrics"]}, "master": m, "slave": s}

@@ -212,6 +212,9 @@ class ScalpelPlane(Parametrization):
         X, Y = self.R0[:, 0], self.R0[:, 1]
         d0, d1 = self.d[0], self.d[1]
         self._Rd_c, self._Rd_s = d0 * X + d1 * Y, d0 * Y - d1 * X
+        #: a tip on the blade axis (d0 = d1 = 0, the shipped scalpels): R d does not turn with the
+        #: yaw, so psi is affine and its Jacobian constant (the integrator's one-call flat step)
+        self.flat = self.constant_jacobian = not (d0 or d1)
 
     def initial_chart(self):
         return EulerChart("ZYX", self.R0)
@@ -233,7 +236,7 @@ class ScalpelPlane(Parametrization):
         return q
 
     def jacobian(self, chart, z):
-        _, dRd = self._planar_Rd(float(z[2]))
+        _, dRd = self._planar_Rd(0.0 if z is None else float(z[2]))  # None: a flat psi's constant P
         P = np.zeros((6, 3))
         P[:3, 0] = self.R_plane[:, 0]
         P[:3, 1] = self.R_plane[:, 1]

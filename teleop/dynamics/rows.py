@@ -51,6 +51,12 @@ class RowStack:
         self._h = np.zeros(self.m)
         self._zero3 = np.zeros(3)
 
+    @property
+    def workspaces(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(G (m, 6), b (m,), h (m,)): the arrays :meth:`evaluate` fills and returns, for a kernel
+        that evaluates the compiled rows itself (:func:`teleop.dynamics.kernels.rows.stack_rows`)."""
+        return self._G, self._b, self._h
+
     def evaluate(self, p, R, v=None, w=None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """(G (m, 6), b (m,), h (m,)) at pose (p, R) and twist (v, w): b is zero when v, w are
         None, h is zero on nonholonomic rows. The arrays are this stack's workspaces, valid until

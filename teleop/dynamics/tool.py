@@ -198,6 +198,11 @@ class ReferenceTool:
             self.integrator.reset(self.model, s, self.fixture.parametrization)
             self.integrator.sync(s)
 
+    def hold(self) -> None:
+        """Stop the tool where it is (zero velocity; the pose and time unchanged): a side's safe
+        state. The next step starts from rest."""
+        self.state.qd = np.zeros(6)
+
     # -- read-outs ----------------------------------------------------------------------------------
     @property
     def q(self) -> np.ndarray:

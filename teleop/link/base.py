@@ -12,9 +12,10 @@ from __future__ import annotations
 from abc import ABC, abstractmethod
 
 from teleop.tick.messages import ContactFeedback, ToolCommand
+from teleop.tick.ports import MasterEnd, SlaveEnd
 
 
-class Link(ABC):
+class Link(ABC, MasterEnd, SlaveEnd):
     """Base of every transport. Context manager; ``close`` is safe to call twice."""
 
     @abstractmethod
@@ -43,6 +44,11 @@ class Link(ABC):
         one not newer; None before the first, or on a link that cannot lose one (the lockstep
         link, whose heartbeat never trips)."""
         return None
+
+    def clock(self, t_s: float) -> float:
+        """The time (s) ``last_heard_s`` is read in, at the tick's time ``t_s``: the simulated
+        time itself here; a network link answers with its wall clock."""
+        return t_s
 
     def close(self) -> None:
         """Release what the link holds."""

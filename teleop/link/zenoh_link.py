@@ -105,7 +105,7 @@ class ZenohLink(Link):
             raise ConfigError(f"ZenohLink.session: a plain non-empty name, got {session!r}")
         if listen is None and connect is None:
             listen, connect = (DEFAULT_ENDPOINT, None) if role == "slave" else (None, DEFAULT_ENDPOINT)
-        self.role, self.session_name, self.clock = role, session, clock
+        self.role, self.session_name, self._now = role, session, clock
         self.listen, self.connect = listen, connect
         self._box = Mailbox()
         self._heard_s: float | None = None  # see last_receive_s
@@ -193,6 +193,14 @@ class ZenohLink(Link):
     def receive_feedback(self, t_s: float = 0.0) -> ContactFeedback | None:
         """The newest in-order feedback received so far (``t_s`` unused: wall clock)."""
         return self._take("master")
+
+    def clock(self, t_s: float = 0.0) -> float:
+        """The wall clock (s) ``last_heard_s`` is read in; ``t_s`` (the tick's time) is not used."""
+        return self._now()
+
+    def last_heard_s(self, side: str = "") -> float | None:
+        """For a side's heartbeat: :attr:`last_receive_s` (this link has one side)."""
+        return self.last_receive_s
 
     def alive(self, now_s: float | None = None, timeout_s: float = 0.02) -> bool:
         """True if a frame came within ``timeout_s`` (s) before ``now_s`` (the clock's time,

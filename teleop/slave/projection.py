@@ -20,6 +20,7 @@ import math
 import numpy as np
 from numba import njit
 
+from teleop.dynamics.kernels.rows import stack_rows
 from teleop.dynamics.kernels.so3 import exp3
 
 _EPS = np.finfo(np.float64).eps  # singular values below eps * max(rows, 6) * s_max count as zero
@@ -63,17 +64,40 @@ def _project_twist(G, nu):
     nu -= np.linalg.lstsq(G, G @ nu, rcond=_EPS * max(G.shape[0], 6))[0]
 
 
+@njit(cache=True)
+def _project_compiled(table, params, mask, G, b, h, p, R, nu, iterations, tol):
+    """:func:`project_onto_fixture` on a stack of compiled rows only (:func:`stack_rows` into the
+    stack's workspaces G, b, h), p (3,), R (3, 3), nu (6,) updated in place: one call."""
+    s = 0.0
+    for i in range(3):
+        s += p[i] * p[i]
+        for j in range(3):
+            s += R[i, j] * R[i, j]
+    zero = np.zeros(3)
+    if mask.any() and math.isfinite(s):
+        for _ in range(iterations):
+            stack_rows(table, params, p, R, zero, zero, G, b, h)
+            if not _newton_step(G, h, mask, tol, p, R):
+                break
+    stack_rows(table, params, p, R, zero, zero, G, b, h)
+    _project_twist(G, nu)
+
+
 def project_onto_fixture(rows, p, R, v, w, iterations: int = 3, tol: float = 1e-12):
     """(p, R, v, w) moved onto the fixture of ``rows`` (a :class:`teleop.dynamics.rows.RowStack`):
     up to ``iterations`` Newton steps until max |h| < ``tol`` (m or rad) on the holonomic rows, then
     the twist onto the null space of all rows G. New arrays; a target that is not finite comes back
-    unchanged (the arm refuses it)."""
+    unchanged (the arm refuses it). Units: p m, R, v m/s, w rad/s (the fixture's frame)."""
     p = np.array(p, dtype=float)
     R = np.array(R, dtype=float)
-    nu = np.concatenate([np.asarray(v, dtype=float), np.asarray(w, dtype=float)])
+    nu = np.empty(6)
+    nu[:3], nu[3:] = v, w
     if rows.m == 0:
         return p, R, nu[:3], nu[3:]
-    mask = np.asarray(rows.holonomic_mask, dtype=np.bool_)
+    if not rows.python_rows:  # every row compiled: the whole projection in one call
+        _project_compiled(rows.table, rows.params, rows.holonomic_mask, *rows.workspaces, p, R, nu, iterations, tol)
+        return p, R, nu[:3], nu[3:]
+    mask = rows.holonomic_mask
     if mask.any() and math.isfinite(np.vdot(p, p) + np.vdot(R, R)):
         for _ in range(iterations):
             G, _, h = rows.evaluate(p, R)

@@ -43,9 +43,11 @@ from teleop.control.mapping import Registration
 from teleop.dynamics.effects import total_wrench
 from teleop.dynamics.kernels.small import is_positive_definite
 from teleop.tick.messages import ContactFeedback
+from teleop.tick.ports import ToolState
 
 
 _ZERO66 = np.zeros((6, 6))
+_ZERO66.flags.writeable = False
 _EYE6 = np.eye(6)
 _D_FLOOR = 1e-9  # N*s/m: a filtered damping below this after the contact ended is zero
 
@@ -61,10 +63,15 @@ class FeedbackPath:
         self.reg = registration
         self.alpha = 1.0 - math.exp(-2.0 * math.pi * cutoff_hz * dt_s) if cutoff_hz > 0 else 1.0
         self.local_damping = bool(local_damping)
+        self.refused = 0                    # replies whose damping was not positive semidefinite
+        self.reset()
+
+    def reset(self) -> None:
+        """Empty the filter and the model (the master's safe state on a lost link): the force
+        comes back from zero. Every field of the path's state is set here and only here."""
         self.wrench_M = np.zeros(6)         # the reported wrench W_s, filtered (N, N*m)
         self.offset_M = np.zeros(6)         # the model's offset F0 = W_s + D V_s, filtered (N, N*m)
-        self.damping_M = np.zeros((6, 6))   # D, filtered (N*s/m, N*m*s/rad: master units)
-        self.refused = 0                    # replies whose damping was not positive semidefinite
+        self.damping_M = _ZERO66            # D, filtered (N*s/m, N*m*s/rad: master units)
         self._target = np.zeros(6)
         self._offset = np.zeros(6)
         self._D = _ZERO66
@@ -102,22 +109,21 @@ class FeedbackPath:
             return
         self._D, self._offset = D, offset
 
-    def render(self, channel_M: np.ndarray, tool, f_other_W: np.ndarray, dt_s: float, state=None) -> np.ndarray:
+    def render(self, channel_M: np.ndarray, tool, f_other_W: np.ndarray, dt_s: float, state: ToolState,
+               gain: float = 1.0) -> np.ndarray:
         """The wrench (6,: N, N*m, M) the ``tool`` steps under from the slave: the channel's force
         ``channel_M`` (:meth:`update`'s, after the guard) minus the contact's damping at the tool's
-        twist after this step, D V+, solved implicitly (see the module docstring);
-        ``f_other_W`` (6,) the hand's wrench (the tool's own effects are added here); ``state``
-        the tool's (p, R, v, w) when the caller has read them this tick (None: read here). Returns
-        ``channel_M`` itself when there is no damping to render."""
+        twist after this step, D V+, solved implicitly (see the module docstring), both scaled by
+        ``gain`` in [0, 1] (the master's ramp after a lost link); ``f_other_W`` (6,) the hand's
+        wrench (the tool's own effects are added here); ``state`` the tool as the tick read it.
+        Returns ``gain * channel_M`` when there is no damping to render."""
         D = self.damping_M
-        if not self.local_damping or not D.any():
-            return channel_M
-        if state is None:
-            p, R = tool.pose()
-            v, w = tool.twist()
-        else:
-            p, R, v, w = state
-        f = total_wrench(tool.model.effects, p, R, v, w, tool.t, f_other_W)  # the step's own forces too
+        if not self.local_damping or D is _ZERO66 or not D.any():
+            return channel_M if gain == 1.0 else gain * channel_M
+        p, R, V = state
+        f = total_wrench(tool.model.effects, p, R, V[:3], V[3:], tool.t, f_other_W)  # the step's own forces too
         body = tool.body
-        ok, W = render_local_damping(body.mass_kg, body.J, R, np.concatenate((v, w)), f, channel_M, D, dt_s)
-        return W if ok else self.wrench_M  # singular: the reported wrench alone
+        if gain != 1.0:
+            channel_M, D = gain * channel_M, gain * D
+        ok, W = render_local_damping(body.mass_kg, body.J, R, V, f, channel_M, D, dt_s)
+        return W if ok else gain * self.wrench_M  # singular: the reported wrench alone

@@ -41,6 +41,16 @@ class MasterGuard:
 
     def __init__(self, params: TdpaParams, log_capacity: int = 0):
         self.port = MasterPassivity(params, log_capacity)
+        self.W_min_J = float("inf")  # the observer's lowest sum over the axes, seen at the ends of ticks (J)
+
+    def observe(self) -> None:
+        """At the end of the master side's tick: the observer's sum into the running minimum."""
+        self.W_min_J = min(self.W_min_J, float(self.port.W.sum()))
+
+    def summary(self) -> dict:
+        """``dissipated_master_J`` (J, all axes) and ``W_master_min_J`` (J) so far."""
+        return {"dissipated_master_J": self.port.dissipated_J,
+                "W_master_min_J": self.W_min_J if self.W_min_J != float("inf") else 0.0}
 
     @property
     def energy_J(self) -> np.ndarray:
@@ -72,6 +82,21 @@ class SlaveGuard:
         self.model_offset = bool(model_offset)  # count F0 = W + D V (the master renders D locally)
         self.f_M = np.zeros(6)  # the newest contact wrench, in M (N, N*m)
         self.speed = np.zeros(6)  # |commanded twist| low-passed (drift_speed_tau_s), m/s and rad/s in M
+        self.W_min_J = float("inf")  # the observer's lowest sum over the axes, at the ends of ticks (J)
+        self.drift_max_m = self.drift_final_m = 0.0  # |position offset| (m in M)
+
+    def observe(self) -> None:
+        """At the end of the slave side's tick: the observer's minimum and the drift."""
+        self.W_min_J = min(self.W_min_J, float(self.port.W.sum()))
+        self.drift_final_m = float(np.linalg.norm(self.port.offset[:3]))
+        self.drift_max_m = max(self.drift_max_m, self.drift_final_m)
+
+    def summary(self) -> dict:
+        """``dissipated_slave_J``, ``W_slave_min_J`` (J) and the drift ``drift_max_M_m``,
+        ``drift_final_M_m`` (m in M) so far."""
+        return {"dissipated_slave_J": self.port.dissipated_J,
+                "W_slave_min_J": self.W_min_J if self.W_min_J != float("inf") else 0.0,
+                "drift_max_M_m": self.drift_max_m, "drift_final_M_m": self.drift_final_m}
 
     @property
     def drift_M(self) -> np.ndarray:

@@ -1,6 +1,6 @@
-"""The link's heartbeat and each side's safe state, one source for both runs: the in-process run
-(:class:`teleop.tick.loop.BilateralLoop` over a simulated channel, in simulated time) and the
-two-process run over Zenoh (:mod:`teleop.app.netrun`, on the wall clock).
+"""The link's heartbeat: one side's view of whether its peer is still there. Each side owns one
+(:class:`~teleop.tick.master_side.MasterSide`, :class:`~teleop.tick.slave_side.SlaveSide`), in
+every run: one process over a simulated channel (simulated time), or two over Zenoh (wall clock).
 
 Every tick each side sends a message, so silence means a lost link. A side that has heard nothing
 for more than ``timeout_s`` (``[link] heartbeat_ms``, 20 ms by default) is **lost**; the master is
@@ -8,31 +8,18 @@ lost as well while the newest reply says ``link_lost`` (the slave hears nothing 
 way is down while replies still come). A side that has never heard the other is not lost: that is
 the start-up (the two-process run's handshake, a delayed channel's first message in flight).
 
-Safe states, for one tick each:
-
-* master (:func:`hold_master`): the reference tool holds still (zero velocity, not stepped), the
-  remote force is dropped (the feedback filter emptied), the device is commanded to hold the
-  tool's pose; its commands go out with the clutch open (they are the heartbeat the slave hears);
-* slave (:func:`follow_or_hold`): no command is followed, :meth:`teleop.slave.qp.SlaveArm.hold`
-  commands zero joint velocity (no QP) so the joints stop where they are, and the reply says
-  ``link_lost``.
-
-When messages come again each side resumes from where it held.
+The safe states are the sides' own methods (:meth:`MasterSide.hold`, :meth:`SlaveSide.hold`);
+nothing here touches another object's state. When messages come again each side resumes from
+where it held.
 """
 
 from __future__ import annotations
 
-from dataclasses import replace
-
 import numpy as np
-
-from teleop.tick.messages import ContactFeedback
 
 #: silence within this of the timeout does not count (s): simulated ticks are float sums
 SILENCE_EPS_S = 1e-9
 RESUME_WINDOW = 100  # ticks after a resume in which the position steps are watched
-_Z6 = np.zeros(6)
-_Z6.flags.writeable = False
 
 
 class HeartbeatState:
@@ -93,30 +80,3 @@ class HeartbeatState:
                 "heartbeat_s": self.timeout_s, "speed_while_lost_max": self.speed_lost_max,
                 "speed_while_lost_last": self.speed_lost_last, "step_max_m": self.step_max_m,
                 "step_after_resume_max_m": self.jump_after_resume_m}
-
-
-def hold_master(tool, master, feedback, p_r, R_r, master_guard=None) -> str:
-    """The master's safe state for one tick: the tool at zero velocity, not stepped; the feedback
-    filter emptied; the passivity guard's master port (if any) told the force it counted is no
-    longer rendered; the device commanded to hold the tool's pose (``p_r`` m, ``R_r``). Returns the
-    device's status."""
-    tool.state.qd = np.zeros(6)
-    feedback.wrench_M, feedback._target = np.zeros(6), np.zeros(6)
-    if master_guard is not None:
-        master_guard.drop_force()
-    return master.command(p_r, R_r, _Z6, _Z6)
-
-
-def follow_or_hold(slave, slave_guard, cmd, t_s: float, lost: bool) -> ContactFeedback:
-    """The slave's tick: the command followed (through the guard's slave port, if any), or, while
-    the link is lost, the joints held and the reply saying ``link_lost``."""
-    if lost:
-        cmd = None
-    cmd = cmd if slave_guard is None else slave_guard.command(cmd, t_s)
-    reply = slave.follow(cmd, t_s, hold=True) if lost else slave.follow(cmd, t_s)
-    if slave_guard is not None:
-        reply = slave_guard.reply(reply)
-    if lost:
-        slave.state.status = "link_lost"
-        reply = replace(reply, status="link_lost")  # the rest as measured (wrench, damping, energy)
-    return reply

@@ -21,6 +21,7 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
+from numba import njit
 
 from teleop.util.errors import TeleopError
 
@@ -35,6 +36,54 @@ SLAVE_STATUSES = ("ok", "saturated", "tracking_error", "fixtures_relaxed", "infe
 
 
 _ZERO36, _ZERO6 = np.zeros(36), np.zeros(6)
+_NO_ENERGY = np.zeros(6)  # the energy of a message without one (J): shared, read-only
+_NO_ENERGY.flags.writeable = False
+
+
+@njit(cache=True)
+def _well_formed(x, kind, r, e):
+    """True when the packed fields x (float64, 1-d) of a message pass every check of its
+    ``__post_init__``: all finite; ``kind`` 1: x[r:r + 9] a row-major 3x3 with |det - 1| <= 1e-6
+    (:func:`_det3`'s arithmetic); ``kind`` 2: x[r:r + 36] a 6x6 symmetric within 1e-9 of
+    max(1, its largest entry); x[e:] (the energy, J) >= 0. One compiled pass over the message:
+    the fast path of the checks, whose slow path names the field that fails."""
+    for i in range(x.shape[0]):
+        if not math.isfinite(x[i]):
+            return False
+    for i in range(e, x.shape[0]):
+        if x[i] < 0.0:
+            return False
+    if kind == 1:
+        a, b, c, d, f, g, h, k, m = x[r], x[r + 1], x[r + 2], x[r + 3], x[r + 4], x[r + 5], x[r + 6], x[r + 7], x[r + 8]
+        return abs(a * (f * m - g * k) - b * (d * m - g * h) + c * (d * k - f * h) - 1.0) <= 1e-6
+    asym, big = 0.0, 0.0
+    for i in range(6):
+        for j in range(6):
+            big = max(big, abs(x[r + 6 * i + j]))
+            asym = max(asym, abs(x[r + 6 * i + j] - x[r + 6 * j + i]))
+    return not asym > 1e-9 * max(1.0, big)
+
+
+def _fast_packed(parts, sizes, energy, kind: int, r: int) -> tuple | None:
+    """The parts (and ``energy``, None: none) as read-only float views into one array, as
+    :func:`_packed` and :func:`_energy` make them, when they pass every check of the message
+    (:func:`_well_formed`); None when they do not, or are not float arrays and lists of the
+    right total size (the field-by-field checks then name what is wrong)."""
+    n = sum(sizes)
+    try:
+        flat = np.concatenate(parts if energy is None else (*parts, energy), axis=None)
+    except (TypeError, ValueError):
+        return None
+    if flat.dtype != np.float64 or flat.size != n + (0 if energy is None else 6) \
+            or not _well_formed(flat, kind, r, n):
+        return None
+    flat.flags.writeable = False
+    out, i = [], 0
+    for k in sizes:
+        out.append(flat[i:i + k])
+        i += k
+    out.append(_NO_ENERGY if energy is None else flat[n:])
+    return tuple(out)
 
 
 def _packed(parts, sizes, names) -> tuple:
@@ -114,16 +163,22 @@ class ToolCommand:
     def __post_init__(self):
         object.__setattr__(self, "seq", _seq(self.seq, "ToolCommand.seq"))
         object.__setattr__(self, "t_s", _time(self.t_s, "ToolCommand.t_s"))
-        p, R, v, w = _packed((self.p_m, self.R, self.v_m_s, self.w_rad_s), (3, 9, 3, 3),
-                             ("ToolCommand.p_m", "ToolCommand.R", "ToolCommand.v_m_s", "ToolCommand.w_rad_s"))
-        if abs(_det3(R.tolist()) - 1.0) > 1e-6:
-            raise MessageError("ToolCommand.R: not a rotation (det != 1)")
+        parts = (self.p_m, self.R, self.v_m_s, self.w_rad_s)
+        fast = _fast_packed(parts, (3, 9, 3, 3), self.energy_J, 1, 3)
+        if fast is not None:  # well formed (the usual case): checked in one pass
+            p, R, v, w, energy = fast
+        else:  # the checks field by field, naming the first that fails
+            p, R, v, w = _packed(parts, (3, 9, 3, 3),
+                                 ("ToolCommand.p_m", "ToolCommand.R", "ToolCommand.v_m_s", "ToolCommand.w_rad_s"))
+            if abs(_det3(R.tolist()) - 1.0) > 1e-6:
+                raise MessageError("ToolCommand.R: not a rotation (det != 1)")
+            energy = _energy(self.energy_J, "ToolCommand.energy_J")
         object.__setattr__(self, "p_m", p)
         object.__setattr__(self, "R", R.reshape(3, 3))
         object.__setattr__(self, "v_m_s", v)
         object.__setattr__(self, "w_rad_s", w)
         object.__setattr__(self, "clutch", bool(self.clutch))
-        object.__setattr__(self, "energy_J", _energy(self.energy_J, "ToolCommand.energy_J"))
+        object.__setattr__(self, "energy_J", energy)
 
 
 @dataclass(frozen=True, slots=True)
@@ -152,11 +207,18 @@ class ContactFeedback:
         object.__setattr__(self, "t_s", _time(self.t_s, "ContactFeedback.t_s"))
         D = _ZERO36 if self.damping_P is None else self.damping_P
         V = _ZERO6 if self.twist_P is None else self.twist_P
-        W, D, V = _packed((self.wrench_P, D, V), (6, 36, 6),
-                          ("ContactFeedback.wrench_P", "ContactFeedback.damping_P", "ContactFeedback.twist_P"))
-        D = D.reshape(6, 6)
-        if float(np.abs(D - D.T).max()) > 1e-9 * max(1.0, float(np.abs(D).max())):
-            raise MessageError("ContactFeedback.damping_P: not symmetric")
+        parts = (self.wrench_P, D, V)
+        fast = _fast_packed(parts, (6, 36, 6), self.energy_J, 2, 6)
+        if fast is not None:  # well formed (the usual case): checked in one pass
+            W, D, V, energy = fast
+            D = D.reshape(6, 6)
+        else:  # the checks field by field, naming the first that fails
+            W, D, V = _packed(parts, (6, 36, 6),
+                              ("ContactFeedback.wrench_P", "ContactFeedback.damping_P", "ContactFeedback.twist_P"))
+            D = D.reshape(6, 6)
+            if float(np.abs(D - D.T).max()) > 1e-9 * max(1.0, float(np.abs(D).max())):
+                raise MessageError("ContactFeedback.damping_P: not symmetric")
+            energy = None
         object.__setattr__(self, "wrench_P", W)
         object.__setattr__(self, "damping_P", D)
         object.__setattr__(self, "twist_P", V)
@@ -166,7 +228,9 @@ class ContactFeedback:
         if isinstance(c, bool) or not isinstance(c, (int, np.integer)) or not -1 <= int(c) < 2**63:
             raise MessageError(f"ContactFeedback.command_seq: expected an integer >= -1, got {c!r}")
         object.__setattr__(self, "command_seq", int(c))
-        object.__setattr__(self, "energy_J", _energy(self.energy_J, "ContactFeedback.energy_J"))
+        if energy is None:
+            energy = _energy(self.energy_J, "ContactFeedback.energy_J")
+        object.__setattr__(self, "energy_J", energy)
 
     @property
     def model_offset_P(self) -> np.ndarray:

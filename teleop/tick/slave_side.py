@@ -1,4 +1,8 @@
-"""The slave side of the bilateral tick: a command in, a contact wrench out.
+"""The slave side of the bilateral tick: a command in, a contact wrench out. It owns everything
+on the slave's end of the link: its half of the tick (:meth:`SlaveSide.tick`), its passivity guard
+port, its heartbeat and its safe state (:meth:`SlaveSide.hold`). Every run composes it: the
+in-process loop (:mod:`teleop.tick.loop`) and the slave process over Zenoh
+(:mod:`teleop.app.netrun`) alike.
 
 ``follow(cmd)`` maps the master's :class:`~teleop.tick.messages.ToolCommand` into the patient frame
 (the registration), moves the target onto the patient-frame fixture, runs the follower QP under the
@@ -13,19 +17,32 @@ others) says ``joint_limit`` instead of what the
 follower reported, unless that was worse (a solver fallback, an invalid target); when the stop made
 the follower relax its fixture rows, the slave holds its joints from the next tick (the safe
 state, as on a lost link) until a command comes with the clutch open.
+While the heartbeat (:mod:`teleop.tick.heartbeat`) says the master is lost, no command is
+followed: the joints are commanded to stop where they are (:meth:`teleop.slave.qp.SlaveArm.hold`,
+no QP) and the reply says ``link_lost``; when commands come again it follows from where it held.
 Plain arguments only: no scene, no runtime.
 """
 
 from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import replace
+from time import perf_counter_ns
 
 import numpy as np
 
 from teleop.contact.damping import contact_damping, moved_to_origin
 from teleop.control.mapping import Registration
 from teleop.dynamics.rotations import cross
-from teleop.tick.messages import ContactFeedback, ToolCommand
 from teleop.slave.projection import project_onto_fixture
 from teleop.slave.qp import SlaveArm
+from teleop.tick.guard import SlaveGuard
+from teleop.tick.heartbeat import HeartbeatState
+from teleop.tick.messages import ContactFeedback, ToolCommand
+from teleop.tick.ports import Hook, SlaveEnd
+
+#: the heartbeat's timeout when none is given (s): ``[link] heartbeat_ms``'s default
+HEARTBEAT_S = 0.02
 
 
 #: the follower's statuses a joint at its position limit explains (it is reported instead)
@@ -51,11 +68,20 @@ class SlaveState:
 class SlaveSide:
     """``arm`` the follower, ``registration`` master -> patient, ``tissue`` (or None) with a
     ``wrench(tip, R, v_tip, w)`` method, ``tip_B`` the blade tip in the tool frame (m, slave
-    scale)."""
+    scale); ``guard`` the passivity guard's slave port (None: unguarded); ``heartbeat_s`` the
+    silence (s) after which the master is lost; ``hooks`` see this side around each tick."""
 
-    def __init__(self, arm: SlaveArm, registration: Registration, tissue=None, tip_B=(0.0, 0.0, 0.0)):
+    def __init__(self, arm: SlaveArm, registration: Registration, tissue=None, tip_B=(0.0, 0.0, 0.0),
+                 guard: SlaveGuard | None = None, heartbeat_s: float = HEARTBEAT_S, hooks: Sequence[Hook] = ()):
         self.arm, self.reg, self.tissue = arm, registration, tissue
         self.tip_B = np.asarray(tip_B, dtype=float)
+        self.guard, self.hooks = guard, list(hooks)
+        self.heart = HeartbeatState(heartbeat_s)
+        self.last_seq = 0              # the newest command taken (its seq)
+        self.without_command = 0       # ticks with no new command
+        self.skipped = 0               # commands never followed (a newer one came first)
+        self.tick_ns = 0               # the last tick's CPU time, hooks excluded (ns)
+        self.statuses: dict[str, int] = {}  # ticks per status
         self._rows = arm.qp.rows  # the fixture's rows (RowStack), the same the master evaluates
         self.state = SlaveState()
         self._target = None
@@ -75,6 +101,63 @@ class SlaveSide:
         """Counters for the run's summary: ``slave_qp_retries``, the ticks whose QP the exact
         active-set solver finished after the configured solver stopped short."""
         return {"slave_qp_retries": int(self.arm.qp.retries)}
+
+    def tick(self, i: int, t_s: float, link: SlaveEnd) -> ContactFeedback:
+        """The slave's half of tick ``i`` at time ``t_s`` (s): the newest command taken from
+        ``link``, the heartbeat checked, the command followed through the guard (or the joints
+        held while the master is lost) and the reply sent. Returns the reply."""
+        for h in self.hooks:
+            h.before_tick(i, t_s, self)
+        t0 = perf_counter_ns()
+        cmd = link.receive_command(t_s)
+        if cmd is not None and cmd.t_s < 0:
+            cmd = None  # a hello (the two-process handshake): nothing to follow
+        lost = self.heart.update(link.clock(t_s), link.last_heard_s("slave"))
+        if cmd is not None and not lost:
+            self.skipped += max(0, cmd.seq - self.last_seq - 1)
+            self.last_seq = cmd.seq
+        self.without_command += cmd is None
+        reply = self.hold(t_s) if lost else self._follow_guarded(cmd, t_s)
+        link.send_feedback(reply)
+        if self.guard is not None:
+            self.guard.observe()
+        self.tick_ns = perf_counter_ns() - t0
+        st = self.state.status
+        self.statuses[st] = self.statuses.get(st, 0) + 1
+        self.heart.motion(self.state.p, float(np.linalg.norm(self.arm.qd)))
+        for h in self.hooks:
+            h.after_tick(i, t_s, self)
+        return reply
+
+    def _follow_guarded(self, cmd: ToolCommand | None, t_s: float) -> ContactFeedback:
+        if self.guard is None:
+            return self.follow(cmd, t_s)
+        return self.guard.reply(self.follow(self.guard.command(cmd, t_s), t_s))
+
+    def hold(self, t_s: float) -> ContactFeedback:
+        """The safe state for one tick (the master is lost): no command followed, the joints
+        commanded to stop where they are, the guard's port counting the tick with no command; the
+        reply says ``link_lost`` (the rest as measured: wrench, damping, energy)."""
+        if self.guard is not None:
+            self.guard.command(None, t_s)
+        reply = self.follow(None, t_s, hold=True)
+        if self.guard is not None:
+            reply = self.guard.reply(reply)
+        self.state.status = "link_lost"
+        return replace(reply, status="link_lost")
+
+    def add_hooks(self, *hooks: Hook) -> None:
+        """More hooks, after those given when the side was made."""
+        self.hooks.extend(hooks)
+
+    def summary(self) -> dict:
+        """This side's part of a run's summary (:func:`teleop.tick.verdict.run_summary`)."""
+        out = {"slave_statuses": dict(self.statuses), "heartbeat": self.heart.summary(),
+               "last_command_seq": self.last_seq, "ticks_without_command": self.without_command,
+               "commands_skipped": self.skipped, **self.stats()}
+        if self.guard is not None:
+            out["passivity_slave"] = self.guard.summary()
+        return out
 
     def project(self, p, R, v, w):
         """The target moved onto the patient-frame fixture
