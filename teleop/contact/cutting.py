@@ -41,7 +41,7 @@ class CuttingModel(Checked):
                                   self.b_Ns_per_m2, self.lateral_Ns_per_m2, self.twist_Nms_per_m, self.v_smooth_mps)
         return out[0:3], out[3:6], out[6:9], v_c
 
-    def params(self) -> tuple[float, float, float, float, float]:
+    def law_params(self) -> tuple[float, float, float, float, float]:
         """(f N/m, b N*s/m^2, lateral N*s/m^2, twist N*m*s/m, v_smooth m/s): the coefficients as
         the compiled laws take them (:data:`teleop.contact.kernels.LAW_SIZE`)."""
         return (self.f_N_per_m, self.b_Ns_per_m2, self.lateral_Ns_per_m2, self.twist_Nms_per_m, self.v_smooth_mps)

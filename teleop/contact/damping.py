@@ -47,7 +47,8 @@ def psd_part(D: np.ndarray) -> np.ndarray:
 def moved_to_origin(D_tip: np.ndarray, d: np.ndarray) -> np.ndarray:
     """The damping D_tip (6, 6) of a wrench acting at the tip, seen at the tool origin, the tip
     at ``d`` (3,) m from it: X^T D_tip X, X the tip twist of the origin's (v - d x w, w)."""
-    if not np.any(d):  # the tip at the origin
+    d = np.asarray(d, dtype=float)
+    if not d.any():  # the tip at the origin
         return D_tip
     X = np.eye(6)
     X[:3, 3:] = np.array([[0.0, d[2], -d[1]], [-d[2], 0.0, d[0]], [d[1], -d[0], 0.0]])

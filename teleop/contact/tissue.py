@@ -20,7 +20,7 @@ from typing import Literal
 import numpy as np
 
 from teleop.contact.cutting import CuttingModel
-from teleop.contact.kernels import contact_damping_at_tip
+from teleop.contact.kernels import block_damping, block_wrench, contact_damping, contact_law, plane_depth
 from teleop.util.typed import Checked, setting, validate
 
 
@@ -63,6 +63,16 @@ class TissueBlock(Checked):
     def __post_init__(self):
         super().__post_init__()
         object.__setattr__(self, "normal", self.normal / np.linalg.norm(self.normal))
+        # what the compiled laws take (teleop.contact.kernels), made once
+        object.__setattr__(self, "_geom", np.array([*self.origin_m, *self.normal, self.thickness_m], dtype=float))
+        object.__setattr__(self, "_law", self.law())
+
+    def law(self) -> np.ndarray:
+        """The contact law's coefficients as the compiled laws take them, (LAW_SIZE,)
+        (:data:`teleop.contact.kernels.LAW_SIZE`): model, stiffness, exponent, alpha s/m,
+        damping N*s/m, then the cutting model's (:meth:`CuttingModel.law_params`)."""
+        return np.array([1.0 if self.model == "hunt_crossley" else 0.0, self.stiffness, self.exponent,
+                         self.alpha_s_per_m, self.damping_Ns_per_m, *self.cutting.law_params()], dtype=float)
 
     @classmethod
     def from_dict(cls, d: dict, where: str = "tissue") -> "TissueBlock":
@@ -71,8 +81,7 @@ class TissueBlock(Checked):
 
     def compute_depth(self, p_tip) -> float:
         """Penetration (m) of the point below the surface, clamped to [0, thickness]."""
-        d = -float(self.normal @ (np.asarray(p_tip, float) - self.origin_m))
-        return min(max(d, 0.0), self.thickness_m)
+        return plane_depth(np.asarray(p_tip, dtype=float), self._geom)
 
     def compute_contact(self, p_tip, R_tool, v_tip, w) -> ContactReport:
         """The contact at the blade tip (pure): see the module docstring."""
@@ -81,49 +90,32 @@ class TissueBlock(Checked):
     def contact_law(self, d: float, n, R_tool, v_tip, w) -> ContactReport:
         """The contact of a tip ``d`` m deep under a surface of outward unit normal ``n`` (3,):
         the normal model and the cutting model of the module docstring (any surface's tissue uses
-        this one law)."""
-        v_tip = np.asarray(v_tip, dtype=float)
-        w = np.asarray(w, dtype=float)
+        this one law, :func:`teleop.contact.kernels.contact_law`)."""
         if d <= 0.0:
             return ContactReport(np.zeros(6), 0.0, False, 0.0, 0.0, 0.0, 0.0)
-        d_dot = -float(n @ v_tip)
-        if self.model == "hunt_crossley":
-            fn = self.stiffness * d**self.exponent * (1.0 + 1.5 * self.alpha_s_per_m * d_dot)
-        else:
-            fn = self.stiffness * d + self.damping_Ns_per_m * d_dot
-        fn = max(fn, 0.0)
-        F_cut, F_lat, tau, v_c = self.cutting.compute_forces(d, n, np.asarray(R_tool, float), v_tip, w)
-        F = np.empty(6)
-        F[:3] = fn * n + F_cut + F_lat
-        F[3:] = tau
-        return ContactReport(F, d, True, fn, math.hypot(*F_cut.tolist()), math.hypot(*F_lat.tolist()), v_c)
+        out = contact_law(float(d), np.asarray(n, dtype=float), np.asarray(R_tool, dtype=float),
+                          np.asarray(v_tip, dtype=float), np.asarray(w, dtype=float), self._law)
+        return ContactReport(out[:6], d, True, float(out[15]), math.hypot(*out[6:9].tolist()),
+                             math.hypot(*out[9:12].tolist()), float(out[16]))
 
     def wrench(self, p_tip, R_tool, v_tip, w) -> np.ndarray:
-        """World wrench (6,) on the tool at the tip: (N, N*m)."""
-        return self.compute_contact(p_tip, R_tool, v_tip, w).wrench
+        """World wrench (6,) on the tool at the tip: (N, N*m). One compiled call
+        (:func:`teleop.contact.kernels.block_wrench`, the law of :meth:`contact_law`)."""
+        return block_wrench(np.asarray(p_tip, dtype=float), np.asarray(R_tool, dtype=float),
+                            np.asarray(v_tip, dtype=float), np.asarray(w, dtype=float), self._geom, self._law)
 
     def damping(self, p_tip, R_tool, v_tip, w) -> np.ndarray:
-        """-dW/d(v_tip, w) (6, 6) of :meth:`wrench` at the tip (:mod:`teleop.contact.damping`)."""
-        return self.damping_law(self.compute_depth(p_tip), self.normal, R_tool, v_tip, w)
+        """-dW/d(v_tip, w) (6, 6) of :meth:`wrench` at the tip (:mod:`teleop.contact.damping`);
+        one compiled call (:func:`teleop.contact.kernels.block_damping`)."""
+        return block_damping(np.asarray(p_tip, dtype=float), np.asarray(R_tool, dtype=float),
+                             np.asarray(v_tip, dtype=float), self._geom, self._law)
 
     def damping_law(self, d: float, n, R_tool, v_tip, w) -> np.ndarray:
         """-dW/d(v_tip, w) (6, 6) of :meth:`contact_law`, written out: the normal model's damping
         along n (Hunt-Crossley k d^e 1.5 alpha, Kelvin-Voigt c; none while the force is clamped at
-        zero) plus the cutting model's (:func:`teleop.contact.kernels.contact_damping_at_tip`)."""
-        if d <= 0.0:
-            return np.zeros((6, 6))
-        n = np.asarray(n, dtype=float)
-        v_tip = np.asarray(v_tip, dtype=float)
-        d_dot = -float(n @ v_tip)
-        if self.model == "hunt_crossley":
-            kd = self.stiffness * d**self.exponent
-            fn, c_n = kd * (1.0 + 1.5 * self.alpha_s_per_m * d_dot), kd * 1.5 * self.alpha_s_per_m
-        else:
-            fn, c_n = self.stiffness * d + self.damping_Ns_per_m * d_dot, self.damping_Ns_per_m
-        cm = self.cutting
-        return contact_damping_at_tip(d, n, np.asarray(R_tool, dtype=float), v_tip, cm.f_N_per_m, cm.b_Ns_per_m2,
-                                      cm.lateral_Ns_per_m2, cm.twist_Nms_per_m, cm.v_smooth_mps,
-                                      c_n if fn > 0.0 else 0.0)
+        zero) plus the cutting model's (:func:`teleop.contact.kernels.contact_damping`)."""
+        return contact_damping(float(d), np.asarray(n, dtype=float), np.asarray(R_tool, dtype=float),
+                               np.asarray(v_tip, dtype=float), self._law)
 
 
 class SurfaceTissue:
