@@ -73,3 +73,18 @@ def render_local_damping(mass, J_B, R, V, f, channel, D, dt):
             s -= D[i, j] * V_next[j]
         W[i] = s
     return ok, W
+
+
+@njit(cache=True)
+def damping_to_master(Rb, gc, D):
+    """The contact damping D (6, 6; W_P = -D V_P) as the master feels it (:meth:`teleop.control.
+    mapping.Registration.damping_to_master`): the symmetric part of D_M = (Rb^T D Rb) * gc, Rb
+    (6, 6) blockdiag(R_PM, R_PM), gc (6, 6) the gains (force or torque scale over the motion
+    scale) elementwise. A new array."""
+    M = matmul(Rb.T, matmul(D, Rb))
+    out = np.empty((6, 6))
+    for i in range(6):
+        for j in range(6):
+            out[i, j] = 0.5 * (M[i, j] * gc[i, j] + M[j, i] * gc[j, i])
+    return out
+

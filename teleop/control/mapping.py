@@ -22,6 +22,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from teleop.control.kernels import damping_to_master
 from teleop.dynamics.registry import FrameMap
 from teleop.util.errors import ConfigError
 
@@ -65,6 +66,7 @@ class Registration:
         g = np.array([self.force_scale] * 3 + [self.torque_scale] * 3)
         c = np.array([1.0 / self.scale] * 3 + [1.0] * 3)
         object.__setattr__(self, "_damping_map", (Rb, g[:, None] * c[None, :]))  # damping_to_master's factors
+        object.__setattr__(self, "_wrench_map", g[:, None] * Rb.T)  # wrench_to_master's: W_M = B W_P
 
     # -- poses and twists -------------------------------------------------------------------
     def point_to_patient(self, x_M) -> np.ndarray:
@@ -90,12 +92,10 @@ class Registration:
         return self.point_to_master(p), self.X_PM_R.T @ np.asarray(R_P, float)
 
     def wrench_to_master(self, F_P) -> np.ndarray:
-        """Slave contact wrench (N, N*m; P axes) -> wrench to render at the master (M axes)."""
-        F_P = np.asarray(F_P, dtype=float)
-        out = np.empty(6)
-        out[:3] = self.force_scale * (self.X_PM_R.T @ F_P[:3])
-        out[3:] = self.torque_scale * (self.X_PM_R.T @ F_P[3:])
-        return out
+        """Slave contact wrench (6,: N, N*m; P axes) -> wrench to render at the master (M axes):
+        forces times ``force_scale``, torques times ``torque_scale``, both rotated by R_PM^T (one
+        product with the 6 x 6 map made at construction)."""
+        return self._wrench_map @ np.asarray(F_P, dtype=float)
 
     def twist_to_master(self, V_P) -> np.ndarray:
         """Slave tool twist (6,: m/s, rad/s; P axes) -> master twist (M axes): the inverse of
@@ -109,5 +109,4 @@ class Registration:
         with W_M = B W_P (``wrench_to_master``) and V_P = T V_M (``target``); its symmetric part
         (D_M is symmetric when ``torque_scale`` is ``force_scale * scale``, the default)."""
         Rb, gc = self._damping_map
-        D_M = (Rb.T @ np.asarray(D_P, dtype=float) @ Rb) * gc
-        return 0.5 * (D_M + D_M.T)
+        return damping_to_master(Rb, gc, np.asarray(D_P, dtype=float))  # one compiled call
