@@ -37,10 +37,11 @@ def axis_rotation(axis: int, angle: float) -> np.ndarray:
 
 
 def cross(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """Cross product of two 3-vectors, without numpy.cross's dispatch overhead."""
-    return np.array(
-        [a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0]]
-    )
+    """Cross product of two 3-vectors (any units; a new (3,) array), without numpy.cross's dispatch
+    overhead: on Python floats (an array's ``tolist``, the cheapest read of three numbers)."""
+    a0, a1, a2 = a.tolist() if type(a) is np.ndarray else a
+    b0, b1, b2 = b.tolist() if type(b) is np.ndarray else b
+    return np.array([a1 * b2 - a2 * b1, a2 * b0 - a0 * b2, a0 * b1 - a1 * b0])
 
 
 def inverse3(E: np.ndarray) -> np.ndarray:
