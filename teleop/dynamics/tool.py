@@ -200,8 +200,11 @@ class ReferenceTool:
 
     def hold(self) -> None:
         """Stop the tool where it is (zero velocity; the pose and time unchanged): a side's safe
-        state. The next step starts from rest."""
+        state. The next step starts from rest: the parametric integrator's own rates ``zd`` are
+        zeroed too (the step integrates them, not ``qd``)."""
         self.state.qd = np.zeros(6)
+        if self.state.zd is not None:
+            self.state.zd = np.zeros_like(self.state.zd)
 
     # -- read-outs ----------------------------------------------------------------------------------
     @property

@@ -126,7 +126,8 @@ class _Way:
         self.sent = self.lost = self.dropped_queue = self.bursts = self.superseded = 0
         self.max_age_s = 0.0
         self.age_sum_s = 0.0
-        self.cut_s = math.inf  # from this send / arrival time (s) on, every message is lost
+        self.cut_s = math.inf  # from this send / arrival time (s) on, every message is lost ...
+        self.restore_s = math.inf  # ... until this one (s)
         self.cut = 0
         self.last_arrival_s = None  # arrival time (s) of the last message received
 
@@ -143,7 +144,7 @@ class _Way:
             self.lost += 1
             return
         t = msg.t_s
-        if t >= self.cut_s - _EPS_S:
+        if self._down(t):
             self.cut += 1
             return
         if math.isfinite(self.bw):
@@ -159,11 +160,15 @@ class _Way:
         heapq.heappush(self.flight, (t + self.delay_s + jitter, self.order, msg))
         self.order += 1
 
+    def _down(self, t_s: float) -> bool:
+        """The way is cut at time ``t_s`` (s)."""
+        return self.cut_s - _EPS_S <= t_s < self.restore_s - _EPS_S
+
     def receive(self, t_s: float):
         box = self.box
         while self.flight and self.flight[0][0] <= t_s + _EPS_S:
             arrival, _, msg = heapq.heappop(self.flight)
-            if arrival >= self.cut_s - _EPS_S:  # in flight when the link was cut
+            if self._down(arrival):  # in flight when the link was cut
                 self.cut += 1
                 continue
             self.last_arrival_s = arrival
@@ -220,7 +225,16 @@ class SimulatedChannel(Link):
         for way in ways:
             if way not in ("command", "feedback"):
                 raise ValueError(f"SimulatedChannel.cut: way {way!r}: expected 'command' or 'feedback'")
-            (self._cmd if way == "command" else self._fb).cut_s = float(t_s)
+            w = self._cmd if way == "command" else self._fb
+            w.cut_s, w.restore_s = float(t_s), math.inf
+
+    def restore(self, t_s: float, ways=("command", "feedback")) -> None:
+        """Messages of ``ways`` sent and arriving at or after ``t_s`` (s) get through again (those
+        of the cut before it stay lost)."""
+        for way in ways:
+            if way not in ("command", "feedback"):
+                raise ValueError(f"SimulatedChannel.restore: way {way!r}: expected 'command' or 'feedback'")
+            (self._cmd if way == "command" else self._fb).restore_s = float(t_s)
 
     def stats(self) -> dict:
         """``{"command": {...}, "feedback": {...}}``: sent, delivered, lost (loss and bursts), cut

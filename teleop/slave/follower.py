@@ -134,11 +134,16 @@ class FollowerQP:
         until the next build, or None when the target is not finite (the system is then unusable).
         The target is C-ordered float arrays of shapes (3,), (3, 3), (3,), (3,), as
         ``SlaveArm.step`` makes it: the kernel indexes them unchecked."""
-        self._p[:] = T[:3, 3]  # contiguous copies: the rows' kernel runs its fastest specialisation
-        self._R[:] = T[:3, :3]
-        G, _, h = self.rows.evaluate(self._p, self._R)
-        ep2 = kernels.build_system(q, J, T, p_t, R_t, v_t, w_t, q_post, G, h, *self._kernel_consts,
-                                   self._K, self._rhs, self._e)
+        rows = self.rows
+        if rows.python_rows:  # a user's row: the stack evaluated in Python, then the system
+            self._p[:] = T[:3, 3]  # contiguous copies: the rows' kernel runs its fastest specialisation
+            self._R[:] = T[:3, :3]
+            G, _, h = rows.evaluate(self._p, self._R)
+            ep2 = kernels.build_system(q, J, T, p_t, R_t, v_t, w_t, q_post, G, h, *self._kernel_consts,
+                                       self._K, self._rhs, self._e)
+        else:  # every row compiled: rows and system in one call
+            ep2 = kernels.build_system_on_rows(rows.table, rows.params, *rows.workspaces, q, J, T, p_t, R_t, v_t,
+                                               w_t, q_post, *self._kernel_consts, self._K, self._rhs, self._e)
         if ep2 < 0.0:
             return None
         self.position_error_m = math.sqrt(ep2)

@@ -18,6 +18,7 @@ import math
 import numpy as np
 from numba import njit
 
+from teleop.dynamics.kernels.rows import stack_rows
 from teleop.dynamics.kernels.small import solve_into
 from teleop.dynamics.kernels.so3 import log3
 
@@ -44,6 +45,48 @@ def velocity_bounds(q, qd_prev, dt, q_min, q_max, margin, v_max, a_max, lb, ub):
         if lo > hi:
             lo = hi = min(max(qd_prev[i], -cap_dn), cap_up)
         lb[i], ub[i] = lo, hi
+
+
+@njit(cache=True)
+def at_position_limit(q, q_min, q_max, v_max, margin, dt):
+    """Per joint (bool, nv): within one tick at its velocity limit (v_max dt, rad) plus ``margin``
+    (rad) of q_min or q_max, or past it (:meth:`teleop.slave.limits.JointLimits.at_limit`)."""
+    out = np.empty(q.shape[0], dtype=np.bool_)
+    for i in range(q.shape[0]):
+        room = v_max[i] * dt + margin
+        out[i] = q[i] - q_min[i] < room or q_max[i] - q[i] < room
+    return out
+
+
+@njit(cache=True)
+def advance_joints(q, qd, qd_cmd, alpha, lag, dt):
+    """One tick of dt s of the joint servo: (q, qd, qdd) new arrays (rad, rad/s, rad/s^2) after
+    commanding qd_cmd (rad/s): qd+ = qd + alpha (qd_cmd - qd) with a servo lag (``lag``), else
+    qd_cmd; qdd = (qd+ - qd) / dt; q+ = q + qd+ dt (revolute and prismatic joints: a sum)."""
+    n = q.shape[0]
+    q1, qd1, qdd = np.empty(n), np.empty(n), np.empty(n)
+    for i in range(n):
+        qd1[i] = qd[i] + alpha * (qd_cmd[i] - qd[i]) if lag else qd_cmd[i]
+        qdd[i] = (qd1[i] - qd[i]) / dt
+        q1[i] = q[i] + qd1[i] * dt
+    return q1, qd1, qdd
+
+
+@njit(cache=True)
+def build_system_on_rows(table, params, G, b, h, q, J, T, p_t, R_t, v_t, w_t, q_post, k_fix, W, k_task,
+                         w_post_k, lam0, lm_p, lm_o, K, rhs, e):
+    """:func:`build_system` with the fixture rows evaluated here, at the tool's pose T (4, 4), by
+    :func:`teleop.dynamics.kernels.rows.stack_rows` (``table``, ``params``) into the stack's
+    workspaces G, b, h: the follower's build in one call when every row is compiled."""
+    p, R = np.empty(3), np.empty((3, 3))
+    for i in range(3):
+        p[i] = T[i, 3]
+        for j in range(3):
+            R[i, j] = T[i, j]
+    zero = np.zeros(3)
+    stack_rows(table, params, p, R, zero, zero, G, b, h)
+    return build_system(q, J, T, p_t, R_t, v_t, w_t, q_post, G, h, k_fix, W, k_task, w_post_k, lam0, lm_p, lm_o,
+                        K, rhs, e)
 
 
 @njit(cache=True)

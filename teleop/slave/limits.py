@@ -22,7 +22,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from teleop.util.errors import ConfigError
-from teleop.slave.kernels import velocity_bounds
+from teleop.slave.kernels import at_position_limit, velocity_bounds
 
 
 @dataclass(frozen=True, eq=False)
@@ -71,9 +71,10 @@ class JointLimits:
         """Per joint (bool, nv): at a position limit, i.e. within one tick at its velocity limit
         (v_max dt, rad) of q_min + margin or q_max - margin, or past it. There the tick's
         no-crossing cap (room / dt in :func:`teleop.slave.kernels.velocity_bounds`) is tighter than
-        the velocity limit: the stop, not the joint's speed, decides how far it may move."""
-        room = self.v_max * dt + self.margin_rad
-        return (q - self.q_min < room) | (self.q_max - q < room)
+        the velocity limit: the stop, not the joint's speed, decides how far it may move. One
+        compiled call (:func:`teleop.slave.kernels.at_position_limit`)."""
+        return at_position_limit(np.asarray(q, dtype=float), self.q_min, self.q_max, self.v_max,
+                                 float(self.margin_rad), float(dt))
 
     def clip_position(self, q: np.ndarray) -> np.ndarray:
         """q clipped into [q_min, q_max] (rad)."""

@@ -15,6 +15,7 @@ from teleop.dynamics.constraints import stack_residual
 from teleop.util.errors import ConfigError
 from teleop.slave.arm import build_model
 from teleop.slave.follower import FollowerQP, compute_target_twist
+from teleop.slave.kernels import advance_joints
 
 __all__ = ["STATUSES", "FollowerQP", "SlaveArm", "compute_target_twist"]
 
@@ -24,14 +25,15 @@ _ZERO3.flags.writeable = False
 _ZERO6.flags.writeable = False
 
 
-def _target_arrays(p, R, v, w):
+def _target_arrays(p, R, v, w) -> tuple | None:
     """(p, R, v, w) as C-ordered float arrays of shapes (3,), (3, 3), (3,), (3,) (what the kernels
     index unchecked; already such arrays pass through without a copy), or None when they are not."""
+    c = np.ascontiguousarray
     try:
-        out = tuple(np.ascontiguousarray(x, dtype=float) for x in (p, R, v, w))
+        p, R, v, w = c(p, dtype=float), c(R, dtype=float), c(v, dtype=float), c(w, dtype=float)
     except (TypeError, ValueError):
         return None
-    return out if [a.shape for a in out] == [(3,), (3, 3), (3,), (3,)] else None
+    return (p, R, v, w) if p.shape == v.shape == w.shape == (3,) and R.shape == (3, 3) else None
 
 
 class SlaveArm:
@@ -51,6 +53,7 @@ class SlaveArm:
         am = build_model(cfg)
         self.model, self.frame_E, self.limits = am.model, am.frame_E, am.limits
         self.data = self.model.createData()
+        self._tau_data = self.model.createData()  # the torques' own, read on demand (see ``tau``)
         self.nv = self.model.nv
         self.q_post = am.q0.copy()
         self.qp = FollowerQP(self.nv, fixture_constraints, cfg)
@@ -68,12 +71,28 @@ class SlaveArm:
         self.qd_cmd = np.zeros(self.nv)
         self.qdd = np.zeros(self.nv)
         self._kinematics()
-        self.tau = pin.rnea(self.model, self.data, self.q, self.qd, self.qdd).copy()
+        self._torques_at(None)
 
     def _kinematics(self):
         """J (6, nv) and the pose matrix T_WE (4, 4) of the tool frame, new arrays."""
         self.J = pin.computeFrameJacobian(self.model, self.data, self.q, self.frame_E, pin.LOCAL_WORLD_ALIGNED)
         self.T_WE = pin.updateFramePlacement(self.model, self.data, self.frame_E).homogeneous  # a copy
+
+    def _torques_at(self, F_tip_W) -> None:
+        """Keep the state (and the contact wrench F_tip_W, or None) the joint torques are of; they
+        are computed when read (:attr:`tau`): nothing in the tick needs them."""
+        F = None if F_tip_W is None else np.array(F_tip_W, dtype=float)
+        self._tau_of, self._tau = (self.q, self.qd, self.qdd, self.J, F), None
+
+    @property
+    def tau(self) -> np.ndarray:
+        """The joint torques (N*m) of the last tick: inverse dynamics (pin.rnea) at its state, less
+        J^T F_tip_W for the contact wrench the motors resist. Computed on first read."""
+        if self._tau is None:
+            q, qd, qdd, J, F = self._tau_of
+            tau = pin.rnea(self.model, self._tau_data, q, qd, qdd).copy()
+            self._tau = tau if F is None else tau - J.T @ F
+        return self._tau
 
     @property
     def p(self) -> np.ndarray:
@@ -171,17 +190,12 @@ class SlaveArm:
         self.status = "hold"
         return self.status
 
-    def _advance(self, qd_cmd, F_tip_W):
+    def _advance(self, qd_cmd, F_tip_W) -> None:
         """Command the joint velocity qd_cmd (rad/s) through the servo lag for one tick; update
-        the state, the kinematics and the joint torques."""
-        dt = self.dt
+        the state and the kinematics (the joint torques of ``F_tip_W``, N and N*m, when read)."""
         self.qd_cmd = qd_cmd
-        qd_new = self.qd + self._alpha * (qd_cmd - self.qd) if self.cfg.servo_lag_s > 0 else qd_cmd.copy()
-        self.qdd = (qd_new - self.qd) / dt
-        self.qd = qd_new
         # build_model admits only nq == nv, i.e. revolute and prismatic joints: pin.integrate is a sum
-        self.q = self.q + qd_new * dt
+        self.q, self.qd, self.qdd = advance_joints(self.q, self.qd, np.asarray(qd_cmd, dtype=float), self._alpha,
+                                                   self.cfg.servo_lag_s > 0, self.dt)
         self._kinematics()
-        self.tau = pin.rnea(self.model, self.data, self.q, self.qd, self.qdd)
-        if F_tip_W is not None:
-            self.tau = self.tau - self.J.T @ np.asarray(F_tip_W, dtype=float)
+        self._torques_at(F_tip_W)

@@ -109,21 +109,28 @@ class FeedbackPath:
             return
         self._D, self._offset = D, offset
 
-    def render(self, channel_M: np.ndarray, tool, f_other_W: np.ndarray, dt_s: float, state: ToolState,
-               gain: float = 1.0) -> np.ndarray:
+    def render(self, channel_M: np.ndarray, tool, f_other_W: np.ndarray, dt_s: float,
+               state: ToolState | None = None, gain: float = 1.0) -> np.ndarray:
         """The wrench (6,: N, N*m, M) the ``tool`` steps under from the slave: the channel's force
         ``channel_M`` (:meth:`update`'s, after the guard) minus the contact's damping at the tool's
-        twist after this step, D V+, solved implicitly (see the module docstring), both scaled by
-        ``gain`` in [0, 1] (the master's ramp after a lost link); ``f_other_W`` (6,) the hand's
-        wrench (the tool's own effects are added here); ``state`` the tool as the tick read it.
+        twist after this step, D V+, solved implicitly (see the module docstring); ``gain`` in
+        [0, 1] scales the channel's force alone (the master's ramp after a lost link: the damper is
+        passive and is rendered whole, so a tool let go after a hold meets the contact's
+        resistance at once); ``f_other_W`` (6,) the hand's
+        wrench (the tool's own effects are added here); ``state`` the tool as the tick read it (None:
+        read here).
         Returns ``gain * channel_M`` when there is no damping to render."""
         D = self.damping_M
         if not self.local_damping or D is _ZERO66 or not D.any():
             return channel_M if gain == 1.0 else gain * channel_M
-        p, R, V = state
+        if state is None:
+            p, R = tool.pose()
+            V = np.concatenate(tool.twist())
+        else:
+            p, R, V = state
         f = total_wrench(tool.model.effects, p, R, V[:3], V[3:], tool.t, f_other_W)  # the step's own forces too
         body = tool.body
         if gain != 1.0:
-            channel_M, D = gain * channel_M, gain * D
+            channel_M = gain * channel_M
         ok, W = render_local_damping(body.mass_kg, body.J, R, V, f, channel_M, D, dt_s)
         return W if ok else gain * self.wrench_M  # singular: the reported wrench alone

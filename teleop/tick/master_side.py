@@ -18,9 +18,10 @@ One tick, in order (:meth:`MasterSide.tick`):
    (clutch out while lost: it is then only the heartbeat).
 
 The tool is read once per tick (a :class:`~teleop.tick.ports.ToolState`, kept to start the next
-tick). After a lost link the slave's force comes back as a ramp: the felt wrench is scaled by a
-gain that moves by ``dt / RAMP_S`` a tick, down while held and up after, so a resume never
-steps the force the hand feels.
+tick). After a lost link the slave's force comes back as a ramp: the channel's force is scaled
+by a gain that moves by ``dt / RAMP_S`` a tick, down while held and up after (the contact's
+damper, passive, is rendered whole, and the hand's wrench is scaled alike while the gain is
+below one), so neither the loss nor the resume steps the force and the tool does not lurch.
 """
 
 from __future__ import annotations
@@ -120,20 +121,25 @@ class MasterSide:
         return self._q_ref is self.tool.state.q and self._qd_ref is self.tool.state.qd
 
     def _step(self, state: ToolState, f_v: np.ndarray) -> tuple[str, str]:
-        """The tool stepped under the hand and the slave's force; the device told to follow."""
+        """The tool stepped under the hand and the slave's force; the device told to follow.
+        While the gain ramps back after a hold, the hand's wrench is scaled with the channel's
+        force: the tool comes back to life gently instead of lurching under a hand that kept
+        pushing against the held device."""
         tool = self.tool
         self._holding = False
-        self.gain = min(1.0, self.gain + self._ramp)
+        g = self.gain = min(1.0, self.gain + self._ramp)
+        f_in = f_v if g == 1.0 else g * f_v
         if self.feedback is not None:
-            self.felt_W = self.feedback.render(self.feedback_W, tool, f_v, self.dt, state, self.gain)
-        st = tool.step(self.dt, f_v + self.felt_W)                    # §II: eqs. 8-11
+            self.felt_W = self.feedback.render(self.feedback_W, tool, f_in, self.dt, state, g)
+        st = tool.step(self.dt, f_in + self.felt_W)                   # §II: eqs. 8-11
         return st, self.master.command(state.p, state.R, state.V, tool.acceleration_W)  # eqs. 18-19
 
     def hold(self, state: ToolState) -> str:
         """The safe state for one tick (the slave is lost): the tool at zero velocity, not
-        stepped; the slave's force dropped (the feedback path emptied, the guard told nothing is
-        rendered) and faded out of ``felt_W``; the device commanded to hold the tool's pose.
-        Returns the device's status."""
+        stepped; the slave's force dropped (nothing fed to the next step, the guard told nothing
+        is rendered) and faded out of ``felt_W`` by the gain; the device commanded to hold the
+        tool's pose. The feedback path keeps its last contact model, which the replies refresh
+        after the resume while the gain brings the force back. Returns the device's status."""
         if not self._holding:
             self._holding = True
             self._held_felt = self.felt_W / self.gain if self.gain > 0.0 else _Z6
@@ -141,8 +147,6 @@ class MasterSide:
         self.felt_W = self.gain * self._held_felt
         self.feedback_W = np.zeros(6)
         self.tool.hold()
-        if self.feedback is not None:
-            self.feedback.reset()
         if self.guard is not None:
             self.guard.drop_force()
         return self.master.command(state.p, state.R, _Z6, _Z6)

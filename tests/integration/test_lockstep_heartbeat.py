@@ -26,7 +26,7 @@ class Cut(Hook):
             loop.link.cut(t_s, self.ways)
 
     def after_tick(self, i, t_s, loop):
-        self.rows.append((i, loop.master_heart.lost, loop.slave_heart.lost, np.abs(loop.tool.qd).max(),
+        self.rows.append((i, loop.master_side.heart.lost, loop.slave_side.heart.lost, np.abs(loop.tool.qd).max(),
                           np.abs(loop.feedback_W).max(), np.abs(loop.slave.arm.qd).max(), loop.slave.state.status,
                           np.linalg.norm(loop.slave.state.v)))
 

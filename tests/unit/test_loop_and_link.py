@@ -1,12 +1,16 @@
 """The bilateral tick's seams: messages checked on creation, the lockstep link's order, the run's
 status covering the slave, and the loop driven by stand-in sides."""
 
+import types
+
 import numpy as np
 import pytest
 
 from teleop.link import ContactFeedback, LockstepLink, MessageError, ToolCommand
-from teleop.tick.loop import BilateralLoop, Hook
-from teleop.app.session import SLAVE_FAULTS, run_status
+from teleop.tick.loop import BilateralLoop
+from teleop.tick.master_side import MasterSide
+from teleop.tick.ports import Hook
+from teleop.tick.verdict import SLAVE_FAULTS, run_status
 
 
 def _cmd(seq, p=(0.0, 0.0, 0.0), R=None):
@@ -64,7 +68,13 @@ class _Tool:
     def __init__(self):
         self.p, self.v, self.t = np.zeros(3), np.zeros(3), 0.0
         self.acceleration_W = np.zeros(6)
+        self.state = types.SimpleNamespace(q=np.zeros(6), qd=np.zeros(6))
+        self.rank, self.recharts = 0, 0
         self.seen = []
+
+    @property
+    def qd(self):
+        return self.state.qd
 
     def pose(self):
         return self.p.copy(), np.eye(3)
@@ -77,7 +87,11 @@ class _Tool:
         self.v = self.v + h * F[:3]
         self.p = self.p + h * self.v
         self.t += h
+        self.state = types.SimpleNamespace(q=np.r_[self.p, 0, 0, 0], qd=np.r_[self.v, 0, 0, 0])
         return "ok"
+
+    def hold(self):
+        self.v = np.zeros(3)
 
 
 class _Master:
@@ -98,9 +112,6 @@ class _Master:
     def command(self, p, R, nu, a):
         return "ok"
 
-    def virtual_estimate(self):
-        return (*self.tool.pose(), *self.tool.twist())
-
 
 class _Operator:
     clutch_engaged, stop = True, False
@@ -110,22 +121,35 @@ class _Operator:
 
 
 class _Slave:
-    """Pushes back with -10 N along x whenever it follows a command; records what it received."""
+    """A slave side that pushes back with -10 N along x whenever it follows a command; records the
+    commands it received."""
 
     def __init__(self):
-        self.got = []
+        self.got, self.tick_ns = [], 0
 
-    def follow(self, cmd, t):
+    def tick(self, i, t, link):
+        cmd = link.receive_command(t)
         self.got.append(None if cmd is None else cmd.seq)
-        return ContactFeedback(len(self.got), t, [-10.0, 0, 0, 0, 0, 0], "ok", -1 if cmd is None else cmd.seq)
+        link.send_feedback(ContactFeedback(len(self.got), t, [-10.0, 0, 0, 0, 0, 0], "ok",
+                                           -1 if cmd is None else cmd.seq))
 
 
 class _Feedback:
+    refused = 0
+
     def update(self, msg):
         return np.zeros(6) if msg is None else np.asarray(msg.wrench_P)
 
-    def render(self, wrench, tool, f_other, dt, state=None):  # no contact damping to render
-        return wrench
+    def render(self, wrench, tool, f_other, dt, state=None, gain=1.0):  # no contact damping to render
+        return gain * wrench
+
+    def reset(self):
+        pass
+
+
+def _loop(tool, slave, hooks=(), master=None):
+    side = MasterSide(tool, master or _Master(tool), _Operator(), 1e-3, feedback=_Feedback())
+    return BilateralLoop(side, slave, LockstepLink(), hooks)
 
 
 def test_loop_feeds_the_slave_force_back_at_the_next_step_and_calls_hooks_in_order():
@@ -139,20 +163,19 @@ def test_loop_feeds_the_slave_force_back_at_the_next_step_and_calls_hooks_in_ord
             calls.append(("after", i))
 
     tool, slave = _Tool(), _Slave()
-    loop = BilateralLoop(tool, _Master(tool), _Operator(), 1e-3, slave=slave, feedback=_Feedback(), hooks=[Rec()])
+    loop = _loop(tool, slave, hooks=[Rec()])
     for i in range(3):
         assert loop.tick(i) == "ok"
-    assert slave.got == [0, 1, 2]
+    assert slave.got == [1, 2, 3]  # command i + 1 sent at tick i
     assert tool.seen[0][0] == 1.0                      # no feedback yet on the first step
     assert tool.seen[1][0] == pytest.approx(1.0 - 10.0)  # then the slave's force, one tick late
     assert calls == [("before", 0), ("after", 0), ("before", 1), ("after", 1), ("before", 2), ("after", 2)]
     assert loop.tick_ns > 0
 
 
-def test_loop_sends_nothing_when_the_estimate_is_not_finite():
+def test_loop_sends_nothing_when_the_tool_is_not_finite():
     tool, slave = _Tool(), _Slave()
-    master = _Master(tool)
-    master.virtual_estimate = lambda: (np.array([np.nan, 0, 0]), np.eye(3), np.zeros(3), np.zeros(3))
-    loop = BilateralLoop(tool, master, _Operator(), 1e-3, slave=slave, feedback=_Feedback())
+    tool.step = lambda h, F: setattr(tool, "p", np.array([np.nan, 0, 0])) or "ok"
+    loop = _loop(tool, slave)
     assert loop.tick(0) == "ok"
-    assert slave.got == [None] and loop.command_errors == 1
+    assert slave.got == [None] and loop.master_side.command_errors == 1

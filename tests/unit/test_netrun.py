@@ -7,7 +7,9 @@ import pytest
 from teleop.tick.feedback import FeedbackPath
 from teleop.link import ContactFeedback
 from teleop.master.ideal import IdealMaster
-from teleop.app.netrun import HeartbeatState, MasterHalf, SlaveHalf, merge_summaries
+from teleop.tick.heartbeat import HeartbeatState
+from teleop.tick.master_side import MasterSide
+from teleop.tick.verdict import run_summary
 from teleop.app.runtime import make_slave
 from teleop.scenario.build import build_fixture, build_registration, build_tool, master_fixture_spec
 from teleop.scenario.operators import make_operator
@@ -23,8 +25,11 @@ class FakeLink:
         self.now, self.up, self.last_receive_s = 0.0, True, None
         self.sent, self.inbox = [], None
 
-    def clock(self):
+    def clock(self, t_s=0.0):
         return self.now
+
+    def last_heard_s(self, side=""):
+        return self.last_receive_s
 
     def alive(self, now_s=None, timeout_s=0.02):
         return self.last_receive_s is not None and (self.now if now_s is None else now_s) - self.last_receive_s <= timeout_s
@@ -62,12 +67,14 @@ def _master_half(link):
     tool = build_tool(scene)
     op = make_operator(scene.operator, master_fixture_spec(scene), scene.effects, rng)
     fb = FeedbackPath(build_registration(scene), 0.0, DT)
-    return MasterHalf(tool, IdealMaster(tool, DT), op, DT, link, fb, None, [], 0.02)
+    return MasterSide(tool, IdealMaster(tool, DT), op, DT, fb, None, 0.02)
 
 
 def test_master_safe_state_holds_the_tool_and_drops_the_force_then_resumes_without_a_jump():
     link = FakeLink()
     half = _master_half(link)
+    tick = half.tick
+    half.tick = lambda i: tick(i, i * DT, link)
     link.last_receive_s = 0.0
     for i in range(600):  # the hand starts pulling at 0.5 s
         link.now = i * DT
@@ -102,7 +109,9 @@ def test_slave_safe_state_holds_the_joints_and_reports_link_lost():
     tool = build_tool(scene)
     slave.reset(*tool.pose())
     link = FakeLink()
-    half = SlaveHalf(slave, link, None, [], 0.02, DT)
+    half = slave
+    tick = half.tick
+    half.tick = lambda i: tick(i, i * DT, link)
     from teleop.link import ToolCommand
 
     p, R = tool.pose()
@@ -121,13 +130,21 @@ def test_slave_safe_state_holds_the_joints_and_reports_link_lost():
 
 
 def test_merged_status_is_ok_only_when_both_sides_are():
-    m = {"status": "ok", "nan": False, "metrics": {"a": 1.0}}
-    s = {"status": "ok", "followed_last_command": True, "metrics": {"b": 2.0}}
-    assert merge_summaries(m, s, "tcp/x")["status"] == "ok"
-    assert merge_summaries(m, {**s, "status": "link_lost"}, "tcp/x")["status"] == "link_lost"
-    assert merge_summaries({**m, "status": "link_lost"}, s, "tcp/x")["status"] == "link_lost"
-    assert merge_summaries(m, {**s, "followed_last_command": False}, "tcp/x")["status"] == "link_lost"
-    assert merge_summaries(m, s, "tcp/x")["metrics"] == {"a": 1.0, "b": 2.0}
+    hb = {"lost_ticks": 0}
+    m = {"heartbeat": hb, "slave_statuses_heard": {"ok": 10}}
+    s = {"heartbeat": hb, "slave_statuses": {"ok": 10}, "followed_last_command": True, "last_command_seq": 10}
+    metrics = {"a": 1.0, "b": 2.0}
+
+    def status(master_status="ok", m=m, s=s):
+        return run_summary(master_status, 10, DT, m, s, metrics, False)["status"]
+
+    assert status() == "ok"
+    assert status(s={**s, "slave_statuses": {"ok": 5, "link_lost": 5}}) == "slave_link_lost"
+    assert status(s={**s, "heartbeat": {"lost_ticks": 3}}) == "link_lost"
+    assert status(m={**m, "heartbeat": {"lost_ticks": 3}}) == "link_lost"
+    assert status(s={**s, "followed_last_command": False}) == "link_lost"
+    assert run_summary("ok", 10, DT, m, s, metrics, False)["metrics"] == metrics
+    assert status(m=None) == "ok" and status(s=None) == "ok"  # a side alone judges by what it has
 
 
 def test_cli_bad_input_is_one_line_and_exit_2(capsys):

@@ -1,13 +1,15 @@
-"""The run's status (teleop.app.session.verdict): one test holds each status of the README's table."""
+"""The run's status (teleop.tick.verdict.verdict): one test holds each status of the README's table."""
 
 import logging
 
 import numpy as np
 import pytest
 
-from teleop.app import session
-from teleop.app.session import (FIXTURE_TOLERANCES, RELAXED_SHARE_MAX, SLAVE_FIXTURE_TOLERANCES, SLAVE_TARGET_MAX_M,
-                            Columns, tick_count, verdict)
+from teleop.app import recorders, session
+from teleop.app.recorders import Columns
+from teleop.app.session import tick_count
+from teleop.tick.verdict import (FIXTURE_TOLERANCES, RELAXED_SHARE_MAX, SLAVE_FIXTURE_TOLERANCES, SLAVE_TARGET_MAX_M,
+                                 verdict)
 
 GOOD = {"depth_error_max_m": 0.0, "cut_depth_error_max_m": 1e-9, "tip_tracking_max_m": 1e-5}
 
@@ -58,12 +60,12 @@ def test_a_trocar_fixture_lets_the_blade_tilt():
 
 def test_the_log_grows_in_chunks_instead_of_being_reserved():
     cols = Columns({"t": ((), float), "R": ((3, 3), float)}, expected=86_400_000)
-    assert cols.capacity == session.LOG_CHUNK  # not 86.4 M rows (40 GB with the recorder's columns)
-    for i in range(3 * session.LOG_CHUNK + 5):
+    assert cols.capacity == recorders.LOG_CHUNK  # not 86.4 M rows (40 GB with the recorder's columns)
+    for i in range(3 * recorders.LOG_CHUNK + 5):
         cols.ensure(i)
         cols["t"][i] = i
-    t = cols.trimmed(3 * session.LOG_CHUNK + 5)["t"]
-    assert np.array_equal(t, np.arange(t.size)) and cols.capacity < 8 * session.LOG_CHUNK
+    t = cols.trimmed(3 * recorders.LOG_CHUNK + 5)["t"]
+    assert np.array_equal(t, np.arange(t.size)) and cols.capacity < 8 * recorders.LOG_CHUNK
 
 
 def test_a_run_past_the_limit_is_refused_naming_it():
