@@ -21,6 +21,7 @@ import numpy as np
 from numba import njit
 
 from teleop.dynamics.kernels.rows import stack_rows
+from teleop.dynamics.kernels.small import lstsq_min_norm
 from teleop.dynamics.kernels.so3 import exp3
 
 _EPS = np.finfo(np.float64).eps  # singular values below eps * max(rows, 6) * s_max count as zero
@@ -48,7 +49,7 @@ def _newton_step(G, h, mask, tol, p, R) -> bool:
             j += 1
     if not np.all(np.isfinite(Gh)):
         return False
-    d = np.linalg.lstsq(Gh, hh, rcond=_EPS * max(k, 6))[0]
+    d = lstsq_min_norm(Gh, hh, _EPS * max(k, 6))
     E = exp3(d[3:])
     R[:, :] = E @ R
     for i in range(3):
@@ -61,7 +62,11 @@ def _project_twist(G, nu):
     """nu (6,) minus its least-squares component along the rows G (m, 6), in place."""
     if not (np.all(np.isfinite(G)) and np.all(np.isfinite(nu))):
         return
-    nu -= np.linalg.lstsq(G, G @ nu, rcond=_EPS * max(G.shape[0], 6))[0]
+    Gnu = np.zeros(G.shape[0])
+    for r in range(G.shape[0]):
+        for c in range(6):
+            Gnu[r] += G[r, c] * nu[c]
+    nu -= lstsq_min_norm(G, Gnu, _EPS * max(G.shape[0], 6))
 
 
 @njit(cache=True)

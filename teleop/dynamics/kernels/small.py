@@ -5,8 +5,8 @@ wrappers that check layouts, copy to Fortran order and allocate workspaces: abou
 at these sizes, several times the arithmetic (a 6x6 matrix-vector product is 36 multiply-adds).
 The loops below take tens of nanoseconds. They are the textbook algorithms, tested against numpy
 and LAPACK on random matrices (tests/property/test_small_linalg.py); LAPACK stays where the work
-is larger or rare (the SVD near a singularity). Any layout (a transposed view included) is
-accepted: the loops index, they do not assume contiguity.
+is larger or rare (the eigendecomposition near a singularity). Any layout (a transposed view
+included) is accepted: the loops index, they do not assume contiguity.
 """
 
 from __future__ import annotations
@@ -118,3 +118,68 @@ def solve(A, b):
     """(ok, x): :func:`solve_into` into a new array."""
     x = np.empty(A.shape[0])
     return solve_into(A, b, x), x
+
+
+#: :func:`lstsq_min_norm`: a pair of columns counts as orthogonal when |w_i . w_j| is below this
+#: times |w_i| |w_j| (one-sided Jacobi's usual test, at the double precision's unit round-off)
+JACOBI_TOL = 2.0 ** -52
+JACOBI_SWEEPS = 60
+
+
+@njit(cache=True)
+def lstsq_min_norm(A, b, rcond):
+    """x (n,): the minimum-norm least-squares solution of A x = b, A (m, n) small, b (m,), with the
+    singular values s_i <= rcond * max(s) taken as zero (LAPACK gelsd's rule, so a rank-deficient
+    A, e.g. a row given twice, is fine). By a one-sided Jacobi SVD (Hestenes): the columns of
+    A^T are rotated pairwise until orthogonal, A^T V = W, so A = V W^T and
+    x = sum_i W_i (V_i . b) / s_i^2 over the kept s_i = |W_i|. Units: x in b's over A's."""
+    m, n = A.shape
+    W = np.empty((n, m))
+    for i in range(m):
+        for j in range(n):
+            W[j, i] = A[i, j]
+    V = np.eye(m)
+    for _ in range(JACOBI_SWEEPS):
+        rotated = False
+        for i in range(m - 1):
+            for j in range(i + 1, m):
+                a = c = g = 0.0
+                for k in range(n):
+                    a += W[k, i] * W[k, i]
+                    c += W[k, j] * W[k, j]
+                    g += W[k, i] * W[k, j]
+                if not abs(g) > JACOBI_TOL * math.sqrt(a * c):
+                    continue
+                rotated = True
+                zeta = (c - a) / (2.0 * g)
+                t = math.copysign(1.0, zeta) / (abs(zeta) + math.sqrt(1.0 + zeta * zeta))
+                cs = 1.0 / math.sqrt(1.0 + t * t)
+                sn = cs * t
+                for k in range(n):
+                    wi, wj = W[k, i], W[k, j]
+                    W[k, i], W[k, j] = cs * wi - sn * wj, sn * wi + cs * wj
+                for k in range(m):
+                    vi, vj = V[k, i], V[k, j]
+                    V[k, i], V[k, j] = cs * vi - sn * vj, sn * vi + cs * vj
+        if not rotated:
+            break
+    s2 = np.empty(m)
+    top = 0.0
+    for i in range(m):
+        q = 0.0
+        for k in range(n):
+            q += W[k, i] * W[k, i]
+        s2[i] = q
+        top = max(top, q)
+    x = np.zeros(n)
+    floor = rcond * math.sqrt(top)
+    for i in range(m):
+        if math.sqrt(s2[i]) > floor:
+            f = 0.0
+            for k in range(m):
+                f += V[k, i] * b[k]
+            f /= s2[i]
+            for k in range(n):
+                x[k] += f * W[k, i]
+    return x
+
