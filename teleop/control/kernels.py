@@ -88,3 +88,33 @@ def damping_to_master(Rb, gc, D):
             out[i, j] = 0.5 * (M[i, j] * gc[i, j] + M[j, i] * gc[j, i])
     return out
 
+
+@njit(cache=True, inline="always")
+def _to_patient(p_PM, R_PM, scale, x, out):
+    """out (3,) = p_PM + R_PM x / scale: a master point x (m) in the patient frame (m)."""
+    for i in range(3):
+        out[i] = p_PM[i] + (R_PM[i, 0] * x[0] + R_PM[i, 1] * x[1] + R_PM[i, 2] * x[2]) / scale
+
+
+@njit(cache=True)
+def point_to_patient(p_PM, R_PM, scale, x):
+    """A master point x (3,) m in the patient frame (:meth:`teleop.control.mapping.Registration.
+    point_to_patient`), a new array."""
+    out = np.empty(3)
+    _to_patient(p_PM, R_PM, scale, x, out)
+    return out
+
+
+@njit(cache=True)
+def target_to_patient(p_PM, R_PM, scale, p, R, v, w):
+    """(p m, R, v m/s, w rad/s) of the master's tool (M) as the slave's target (P), new arrays
+    (:meth:`teleop.control.mapping.Registration.target`): the point through
+    :func:`point_to_patient`'s map, R_PM R, R_PM v / scale and R_PM w."""
+    p_P, v_P, w_P = np.empty(3), np.empty(3), np.empty(3)
+    _to_patient(p_PM, R_PM, scale, p, p_P)
+    R_P = matmul(R_PM, R)
+    for i in range(3):
+        v_P[i] = (R_PM[i, 0] * v[0] + R_PM[i, 1] * v[1] + R_PM[i, 2] * v[2]) / scale
+        w_P[i] = R_PM[i, 0] * w[0] + R_PM[i, 1] * w[1] + R_PM[i, 2] * w[2]
+    return p_P, R_P, v_P, w_P
+

@@ -22,7 +22,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from teleop.control.kernels import damping_to_master
+from teleop.control.kernels import damping_to_master, point_to_patient, target_to_patient
 from teleop.dynamics.registry import FrameMap
 from teleop.util.errors import ConfigError
 
@@ -70,16 +70,20 @@ class Registration:
 
     # -- poses and twists -------------------------------------------------------------------
     def point_to_patient(self, x_M) -> np.ndarray:
-        return self.X_PM_p + self.X_PM_R @ np.asarray(x_M, dtype=float) / self.scale
+        """A master point x_M (3,) m in the patient frame (m): p_PM + R_PM x_M / scale (compiled,
+        :func:`teleop.control.kernels.point_to_patient`, the map ``target`` uses)."""
+        return point_to_patient(self.X_PM_p, self.X_PM_R, float(self.scale), np.asarray(x_M, dtype=float))
 
     def point_to_master(self, x_P) -> np.ndarray:
         return self.scale * (self.X_PM_R.T @ (np.asarray(x_P, dtype=float) - self.X_PM_p))
 
     def target(self, p_r, R_r, v_r, w_r):
-        """Reference tool pose/twist in M -> slave tool target (p m, R, v m/s, w rad/s) in P."""
-        R = self.X_PM_R
-        return (self.point_to_patient(p_r), R @ np.asarray(R_r, float),
-                R @ np.asarray(v_r, float) / self.scale, R @ np.asarray(w_r, float))
+        """Reference tool pose/twist in M (p_r m, R_r, v_r m/s, w_r rad/s) -> slave tool target
+        (p m, R, v m/s, w rad/s) in P, new arrays: one compiled call
+        (:func:`teleop.control.kernels.target_to_patient`)."""
+        f = float
+        return target_to_patient(self.X_PM_p, self.X_PM_R, f(self.scale), np.asarray(p_r, f), np.asarray(R_r, f),
+                                 np.asarray(v_r, f), np.asarray(w_r, f))
 
     def master_frame(self) -> FrameMap:
         """Where patient-frame geometry lands in the master workspace: the one map that fixture
