@@ -64,26 +64,23 @@ def _well_formed(x, kind, r, e):
     return not asym > 1e-9 * max(1.0, big)
 
 
-def _fast_packed(parts, sizes, energy, kind: int, r: int) -> tuple | None:
-    """The parts (and ``energy``, None: none) as read-only float views into one array, as
-    :func:`_packed` and :func:`_energy` make them, when they pass every check of the message
-    (:func:`_well_formed`); None when they do not, or are not float arrays and lists of the
-    right total size (the field-by-field checks then name what is wrong)."""
-    n = sum(sizes)
+_F64 = np.dtype(np.float64)
+
+
+def _fast_flat(parts: tuple, energy, n: int, kind: int, r: int) -> np.ndarray | None:
+    """The parts (``n`` numbers) and ``energy`` (None: none; else 6 more) as one read-only float
+    array, when they pass every check of the message (:func:`_well_formed`): the fields are then
+    views into it, as :func:`_packed` and :func:`_energy` make them. None when they do not, or are
+    not float arrays and lists of the right total size (the field-by-field checks then name what
+    is wrong)."""
     try:
         flat = np.concatenate(parts if energy is None else (*parts, energy), axis=None)
     except (TypeError, ValueError):
         return None
-    if flat.dtype != np.float64 or flat.size != n + (0 if energy is None else 6) \
-            or not _well_formed(flat, kind, r, n):
+    if flat.dtype is not _F64 or flat.size != (n if energy is None else n + 6) or not _well_formed(flat, kind, r, n):
         return None
     flat.flags.writeable = False
-    out, i = [], 0
-    for k in sizes:
-        out.append(flat[i:i + k])
-        i += k
-    out.append(_NO_ENERGY if energy is None else flat[n:])
-    return tuple(out)
+    return flat
 
 
 def _packed(parts, sizes, names) -> tuple:
@@ -164,9 +161,10 @@ class ToolCommand:
         object.__setattr__(self, "seq", _seq(self.seq, "ToolCommand.seq"))
         object.__setattr__(self, "t_s", _time(self.t_s, "ToolCommand.t_s"))
         parts = (self.p_m, self.R, self.v_m_s, self.w_rad_s)
-        fast = _fast_packed(parts, (3, 9, 3, 3), self.energy_J, 1, 3)
-        if fast is not None:  # well formed (the usual case): checked in one pass
-            p, R, v, w, energy = fast
+        f = _fast_flat(parts, self.energy_J, 18, 1, 3)
+        if f is not None:  # well formed (the usual case): checked in one pass
+            p, R, v, w = f[0:3], f[3:12], f[12:15], f[15:18]
+            energy = _NO_ENERGY if f.size == 18 else f[18:]
         else:  # the checks field by field, naming the first that fails
             p, R, v, w = _packed(parts, (3, 9, 3, 3),
                                  ("ToolCommand.p_m", "ToolCommand.R", "ToolCommand.v_m_s", "ToolCommand.w_rad_s"))
@@ -208,10 +206,10 @@ class ContactFeedback:
         D = _ZERO36 if self.damping_P is None else self.damping_P
         V = _ZERO6 if self.twist_P is None else self.twist_P
         parts = (self.wrench_P, D, V)
-        fast = _fast_packed(parts, (6, 36, 6), self.energy_J, 2, 6)
-        if fast is not None:  # well formed (the usual case): checked in one pass
-            W, D, V, energy = fast
-            D = D.reshape(6, 6)
+        f = _fast_flat(parts, self.energy_J, 48, 2, 6)
+        if f is not None:  # well formed (the usual case): checked in one pass
+            W, D, V = f[0:6], f[6:42].reshape(6, 6), f[42:48]
+            energy = _NO_ENERGY if f.size == 48 else f[48:]
         else:  # the checks field by field, naming the first that fails
             W, D, V = _packed(parts, (6, 36, 6),
                               ("ContactFeedback.wrench_P", "ContactFeedback.damping_P", "ContactFeedback.twist_P"))
