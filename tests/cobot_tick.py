@@ -1,9 +1,27 @@
-"""The bilateral tick on the master side, as the run loop does it, for the master tests: operator
-wrench -> master.sense -> reference tool step -> master.command."""
+"""The master side of the bilateral tick for the master tests: the same MasterSide every run
+composes (hand -> sense -> tool step -> command), driven with a wrench the test sets and, if
+given, a contact wrench fed to the tool as the slave's would be."""
+
+import weakref
 
 import numpy as np
 
 from teleop.master import CobotConfig, CobotMaster
+from teleop.tick.master_side import MasterSide, SetWrench
+
+_SIDES: "weakref.WeakKeyDictionary[CobotMaster, MasterSide]" = weakref.WeakKeyDictionary()
+
+
+class _Contact:
+    """Stands in for the feedback path: renders the contact wrench the test gives, as it is."""
+
+    refused = 0
+
+    def __init__(self):
+        self.W = np.zeros(6)
+
+    def render(self, channel, tool, f_other, dt, state=None, gain=1.0):
+        return self.W
 
 
 def make_cobot(tool, cfg: CobotConfig, dt_s: float, rng) -> CobotMaster:
@@ -12,10 +30,11 @@ def make_cobot(tool, cfg: CobotConfig, dt_s: float, rng) -> CobotMaster:
 
 
 def tick(master, tool, hand_wrench_W, contact_wrench_W=None) -> str:
-    """One period; returns the master's status if it is not "ok", else the tool's."""
-    f_v = master.sense(hand_wrench_W)
-    p_r, R_r = tool.pose()
-    v_r, w_r = tool.twist()
-    st = tool.step(master.dt_s, f_v if contact_wrench_W is None else f_v + contact_wrench_W)
-    st_master = master.command(p_r, R_r, np.concatenate([v_r, w_r]), tool.acceleration_W)
-    return st_master if st_master != "ok" else st
+    """One period of the master side; returns its status (the tool's if it is not "ok", else the
+    master's)."""
+    side = _SIDES.get(master)
+    if side is None or side.tool is not tool:
+        side = _SIDES[master] = MasterSide(tool, master, SetWrench(), master.dt_s, feedback=_Contact())
+    side.operator.W = np.asarray(hand_wrench_W, dtype=float)
+    side.feedback.W = np.zeros(6) if contact_wrench_W is None else np.asarray(contact_wrench_W, dtype=float)
+    return side.tick(0, tool.t)

@@ -119,12 +119,12 @@ class Injector:
                 # a slave fault: its fallback / bound acts in this very tick
                 self.detected_at = self.safe_at = t_s
                 self.detail = f"slave {loop.slave.state.status}"
-            elif self.fault == "link_loss" and (loop.master_heart.lost or loop.slave_heart.lost):
-                sides = [n for n, h in (("master", loop.master_heart), ("slave", loop.slave_heart)) if h.lost]
+            elif self.fault == "link_loss" and (loop.master_side.heart.lost or loop.slave_side.heart.lost):
+                sides = [n for n, h in (("master", loop.master_side.heart), ("slave", loop.slave_side.heart)) if h.lost]
                 self.detected_at, self.detail = t_s, f"heartbeat {' and '.join(sides)} ({self.ways} cut)"
         if self.fault == "link_loss" and self.detected_at is not None:
             if self.safe_at is None:  # issue 12's safe states: the tool held, no remote force; the slave still
-                held = loop.master_heart.lost and not np.any(loop.tool.qd) and not np.any(loop.feedback_W)
+                held = loop.master_side.heart.lost and not np.any(loop.tool.qd) and not np.any(loop.feedback_W)
                 if held and speed < SAFE_TIP_M_S:
                     self.safe_at = t_s
             m = loop.master

@@ -1,6 +1,7 @@
 """Master tick benchmark: driver decode + engine step + controller + encode, per 1 kHz cycle,
 WITHOUT the device simulation (its frames are pre-recorded from a lockstep run and replayed).
-A tick is the master side of the bilateral period: ``sense``, the reference tool's step, ``command``.
+A tick is the master side of the bilateral period, as every run ticks it (``MasterSide.tick``:
+the hand, ``sense``, the reference tool's step, ``command``).
 
     python tools/master_bench.py [--steps N]
 
@@ -35,13 +36,17 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 PHASES = ("decode", "engine", "controller", "encode_send")
 
 
-def _tick(m, tool, hand) -> str:
-    """sense -> tool step -> command (the run loop's master side)."""
-    f_v = m.sense(hand)
-    p_r, R_r = tool.pose()
-    v_r, w_r = tool.twist()
-    tool.step(m.dt_s, f_v)
-    return m.command(p_r, R_r, np.concatenate([v_r, w_r]), tool.acceleration_W)
+def _side(m, tool):
+    """The master side every run ticks (teleop.tick.master_side), driven with a set wrench."""
+    from teleop.tick.master_side import MasterSide, SetWrench
+
+    return MasterSide(tool, m, SetWrench(), m.dt_s)
+
+
+def _tick(side, hand) -> str:
+    """hand -> sense -> tool step -> command: one MasterSide.tick."""
+    side.operator.W = hand
+    return side.tick(0, side.tool.t)
 
 
 def _disk_tool():
@@ -63,9 +68,10 @@ def _record_feedback(n: int):
     tool = _disk_tool()
     m = CobotMaster(CobotConfig.from_dict({}, "bench"), 1e-3, np.random.default_rng(0), *tool.pose(), tool.body.mass_kg)
     frames = []
+    side = _side(m, tool)
     with m:
         for i in range(n):
-            _tick(m, tool, np.array([3.0 * np.cos(i * 1e-3), 0.5, 0, 0, 0, 0.02]))
+            _tick(side, np.array([3.0 * np.cos(i * 1e-3), 0.5, 0, 0, 0, 0.02]))
             frames.append((m.driver.joints_rad_m.copy(), m.driver.wrench_S.copy()))
     return m, frames
 
@@ -141,6 +147,7 @@ def measure(n_steps: int = 5000, yard=None) -> dict:
     m.driver.send_heartbeat = clock.wrap(m.driver.send_heartbeat, "encode_send")
     m.driver.send_command = clock.wrap(m.driver.send_command, "encode_send")
     tool.step = clock.wrap(tool.step, "engine")
+    side = _side(m, tool)
     samples = np.empty(n_steps)
     phases = {p: np.empty(n_steps) for p in PHASES}
     wrench_in = np.array([1.0, 0.2, 0, 0, 0, 0.01])
@@ -158,7 +165,7 @@ def measure(n_steps: int = 5000, yard=None) -> dict:
             replay.send(can.Message(arbitration_id=fid, data=data, is_fd=fd, is_extended_id=False))
         clock.take()
         t0 = time.perf_counter_ns()
-        _tick(m, tool, wrench_in)  # SYNC + read/decode + engine + controller + command encode/send
+        _tick(side, wrench_in)  # SYNC + read/decode + engine + controller + command encode/send
         total = time.perf_counter_ns() - t0
         split = clock.take()
         samples[i] = total * 1e-3

@@ -31,6 +31,8 @@ from pathlib import Path
 import matplotlib
 import numpy as np
 
+from teleop.tick.master_side import MasterSide, SetWrench
+
 from teleop.control.stability import LoopParams, critical_mass
 from teleop.dynamics import fixtures
 from teleop.dynamics.body import RigidBody
@@ -78,13 +80,11 @@ def run_point(point: dict) -> dict:
     kick[3 if angular else 0] = (KICK_RAD_PER_S if angular else KICK_M_PER_S) * d["mass"] / PULSE_S
     n, n_tail = round(DURATION_S / dt), round(TAIL_S / dt)
     err, status = np.zeros(n), "ok"
+    side = MasterSide(tool, master, SetWrench(), dt)  # the master side every run ticks
     with master:
         for i in range(n):
-            f_v = master.sense(kick if i * dt < PULSE_S else np.zeros(6))
-            (p_r, R_r), (v_r, w_r) = tool.pose(), tool.twist()
-            st = tool.step(dt, f_v)
-            status = master.command(p_r, R_r, np.concatenate([v_r, w_r]), tool.acceleration_W)
-            status = status if status != "ok" else st
+            side.operator.W = kick if i * dt < PULSE_S else np.zeros(6)
+            status = side.tick(i, i * dt)
             e = master.ctrl.error
             err[i] = np.linalg.norm(e[3:] if angular else e[:3])
             if status != "ok" or not np.isfinite(tool.q).all():

@@ -193,3 +193,16 @@ class MasterSide:
         if self.guard is not None:
             out["passivity_master"] = self.guard.summary()
         return out
+
+
+class SetWrench:
+    """An operator whose wrench the caller sets before each tick (``W``: (6,) N, N*m in M), for
+    the benches, studies and tests that drive a master side directly."""
+
+    clutch_engaged = True
+
+    def __init__(self) -> None:
+        self.W = np.zeros(6)
+
+    def wrench(self, t_s: float, p: np.ndarray, R: np.ndarray, v: np.ndarray, w: np.ndarray) -> np.ndarray:
+        return self.W
