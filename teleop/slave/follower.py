@@ -102,6 +102,10 @@ class FollowerQP:
                                cfg.weight_posture * cfg.k_posture_1ps, float(cfg.damping + cfg.weight_posture),
                                float(cfg.lm_damping * cfg.weight_position),
                                float(cfg.lm_damping * cfg.weight_orientation))
+        c = self._kernel_consts  # packed (12,) for kernels.bounded_system
+        self._consts = np.array([c[0], *W, *c[2:]], dtype=float)
+        self._presolved = False  # build_within solved the bound-free system already (its margin kept)
+        self._margin = np.nan
         # the full problem in x = (qd, s), for the QP solver
         self._H = np.zeros((n, n))
         self._H[nv:, nv:] = rho * np.eye(m)
@@ -128,6 +132,31 @@ class FollowerQP:
         self._lb2, self._ub2 = np.full(n, -np.inf), np.full(n, np.inf)
         self._z = np.zeros(n)
 
+    def build_within(self, limits, q, qd_prev, dt: float, J, T, p_t, R_t, v_t, w_t, q_post):
+        """:meth:`build` with the joint velocity bounds of the tick made here
+        (``limits.compute_velocity_bounds(q, qd_prev, dt)``, rad/s). On compiled rows, one call
+        (:func:`teleop.slave.kernels.bounded_system`) that with ``cfg.kkt_shortcut`` also solves
+        the system without its bounds, which :meth:`solve` then takes. Returns (e or None as
+        :meth:`build` does, lb, ub)."""
+        rows = self.rows
+        if rows.python_rows:
+            lb, ub = limits.compute_velocity_bounds(q, qd_prev, dt)
+            return self.build(q, J, T, p_t, R_t, v_t, w_t, q_post, lb, ub), lb, ub
+        bounds = np.empty((2, self.nv))
+        shortcut = bool(self.cfg.kkt_shortcut)
+        ep2, margin = kernels.bounded_system(
+            rows.table, rows.params, *rows.workspaces, limits.packed, float(limits.margin_rad),
+            np.asarray(q, dtype=float), np.asarray(qd_prev, dtype=float), float(dt), J, T, p_t, R_t, v_t, w_t,
+            q_post, self._consts, self._K, self._rhs, self._e, bounds, self._z, shortcut)
+        lb, ub = bounds[0], bounds[1]
+        if ep2 < 0.0:
+            self._presolved = False
+            return None, lb, ub
+        self.position_error_m = math.sqrt(ep2)
+        self._lbq, self._ubq = lb, ub
+        self._presolved, self._margin = shortcut, margin
+        return self._e, lb, ub
+
     def build(self, q, J, T, p_t, R_t, v_t, w_t, q_post, lb, ub):
         """Fill the linear system from the state (q rad, J, the tool's pose matrix T (4, 4)) and the
         target; keep the bounds lb, ub (nv,) rad/s. Returns the pose error e (6,), a buffer valid
@@ -135,6 +164,7 @@ class FollowerQP:
         The target is C-ordered float arrays of shapes (3,), (3, 3), (3,), (3,), as
         ``SlaveArm.step`` makes it: the kernel indexes them unchecked."""
         rows = self.rows
+        self._presolved = False
         if rows.python_rows:  # a user's row: the stack evaluated in Python, then the system
             self._p[:] = T[:3, 3]  # contiguous copies: the rows' kernel runs its fastest specialisation
             self._R[:] = T[:3, :3]
@@ -167,7 +197,10 @@ class FollowerQP:
         lb, ub, m = self._lbq, self._ubq, self.m
         if self.cfg.kkt_shortcut:
             z = self._z
-            margin = kernels.solve_unbounded(self._K, self._rhs, self.nv, lb, ub, z)
+            if self._presolved:  # build_within solved it
+                margin, self._presolved = self._margin, False
+            else:
+                margin = kernels.solve_unbounded(self._K, self._rhs, self.nv, lb, ub, z)
             if margin >= 0.0:  # no bound is active: this is the QP's solution (NaN: singular)
                 self.bound_margin, self.used_solver = margin, False
                 y = z[:m].copy()

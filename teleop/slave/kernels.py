@@ -59,17 +59,15 @@ def at_position_limit(q, q_min, q_max, v_max, margin, dt):
 
 
 @njit(cache=True)
-def advance_joints(q, qd, qd_cmd, alpha, lag, dt):
-    """One tick of dt s of the joint servo: (q, qd, qdd) new arrays (rad, rad/s, rad/s^2) after
-    commanding qd_cmd (rad/s): qd+ = qd + alpha (qd_cmd - qd) with a servo lag (``lag``), else
-    qd_cmd; qdd = (qd+ - qd) / dt; q+ = q + qd+ dt (revolute and prismatic joints: a sum)."""
-    n = q.shape[0]
-    q1, qd1, qdd = np.empty(n), np.empty(n), np.empty(n)
-    for i in range(n):
-        qd1[i] = qd[i] + alpha * (qd_cmd[i] - qd[i]) if lag else qd_cmd[i]
-        qdd[i] = (qd1[i] - qd[i]) / dt
-        q1[i] = q[i] + qd1[i] * dt
-    return q1, qd1, qdd
+def advance_joints(q, qd, qd_cmd, alpha, lag, dt, out):
+    """One tick of dt s of the joint servo after commanding qd_cmd (rad/s), into out (3, nv): the
+    new q, qd and qdd (rad, rad/s, rad/s^2): qd+ = qd + alpha (qd_cmd - qd) with a servo lag
+    (``lag``), else qd_cmd; qdd = (qd+ - qd) / dt; q+ = q + qd+ dt (revolute and prismatic joints:
+    a sum)."""
+    for i in range(q.shape[0]):
+        out[1, i] = qd[i] + alpha * (qd_cmd[i] - qd[i]) if lag else qd_cmd[i]
+        out[2, i] = (out[1, i] - qd[i]) / dt
+        out[0, i] = q[i] + out[1, i] * dt
 
 
 @njit(cache=True)
@@ -87,6 +85,24 @@ def build_system_on_rows(table, params, G, b, h, q, J, T, p_t, R_t, v_t, w_t, q_
     stack_rows(table, params, p, R, zero, zero, G, b, h)
     return build_system(q, J, T, p_t, R_t, v_t, w_t, q_post, G, h, k_fix, W, k_task, w_post_k, lam0, lm_p, lm_o,
                         K, rhs, e)
+
+
+@njit(cache=True)
+def bounded_system(table, params, G, b, h, lim, margin_rad, q, qd_prev, dt, J, T, p_t, R_t, v_t, w_t, q_post, c,
+                   K, rhs, e, bounds, z, shortcut):
+    """The follower's tick up to its solver in one call, on compiled rows: :func:`velocity_bounds`
+    into bounds (2, nv) (lb, ub rad/s; ``lim`` (4, nv) = q_min, q_max rad, v_max rad/s, a_max
+    rad/s^2, ``margin_rad``), :func:`build_system_on_rows` (``c`` (12,) its constants k_fix, W (6),
+    k_task, w_post_k, lam0, lm_p, lm_o) and, with ``shortcut``, :func:`solve_unbounded` into z.
+    Returns (|p_t - p|^2 m^2 or -1 for a target not finite, the unbounded solution's margin to
+    the bounds rad/s: NaN when singular or not solved)."""
+    velocity_bounds(q, qd_prev, dt, lim[0], lim[1], margin_rad, lim[2], lim[3], bounds[0], bounds[1])
+    ep2 = build_system_on_rows(table, params, G, b, h, q, J, T, p_t, R_t, v_t, w_t, q_post, c[0], c[1:7], c[7],
+                               c[8], c[9], c[10], c[11], K, rhs, e)
+    margin = np.nan
+    if ep2 >= 0.0 and shortcut:
+        margin = solve_unbounded(K, rhs, q.shape[0], bounds[0], bounds[1], z)
+    return ep2, margin
 
 
 @njit(cache=True)

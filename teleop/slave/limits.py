@@ -54,6 +54,8 @@ class JointLimits:
                 raise ConfigError(f"slave.limits.{key}: expected finite positive values, got {arrs[key].tolist()}")
         if not np.isfinite(self.margin_rad) or self.margin_rad < 0:
             raise ConfigError(f"slave.limits.margin_rad: expected >= 0, got {self.margin_rad}")
+        #: (4, nv): q_min, q_max (rad), v_max (rad/s), a_max (rad/s^2), as the kernels take them
+        object.__setattr__(self, "packed", np.array([arrs["q_min"], arrs["q_max"], arrs["v_max"], arrs["a_max"]]))
 
     @property
     def nv(self) -> int:

@@ -156,8 +156,11 @@ class SlaveArm:
         cfg, qp = self.cfg, self.qp
         target = _target_arrays(p_target, R_target, _ZERO3 if v_target is None else v_target,
                                 _ZERO3 if w_target is None else w_target)
-        lb, ub = self.limits.compute_velocity_bounds(self.q, self.qd_cmd, self.dt)
-        e = None if target is None else qp.build(self.q, self.J, self.T_WE, *target, self.q_post, lb, ub)
+        if target is None:
+            e, (lb, ub) = None, self.limits.compute_velocity_bounds(self.q, self.qd_cmd, self.dt)
+        else:
+            e, lb, ub = qp.build_within(self.limits, self.q, self.qd_cmd, self.dt, self.J, self.T_WE, *target,
+                                        self.q_post)
         if e is None:  # a target that is not finite never reaches the solver: stop within the bounds
             qd, status = qp.compute_fallback(self.J, _ZERO6, lb, ub, True, self.qd_cmd), "invalid_target"
             self.slack, self.fixture_forces = np.zeros(qp.m), np.zeros(qp.m)
@@ -195,7 +198,9 @@ class SlaveArm:
         the state and the kinematics (the joint torques of ``F_tip_W``, N and N*m, when read)."""
         self.qd_cmd = qd_cmd
         # build_model admits only nq == nv, i.e. revolute and prismatic joints: pin.integrate is a sum
-        self.q, self.qd, self.qdd = advance_joints(self.q, self.qd, np.asarray(qd_cmd, dtype=float), self._alpha,
-                                                   self.cfg.servo_lag_s > 0, self.dt)
+        state = np.empty((3, self.nv))  # the new q, qd, qdd: views of one array
+        advance_joints(self.q, self.qd, np.asarray(qd_cmd, dtype=float), self._alpha, self.cfg.servo_lag_s > 0,
+                       self.dt, state)
+        self.q, self.qd, self.qdd = state[0], state[1], state[2]
         self._kinematics()
         self._torques_at(F_tip_W)
