@@ -30,7 +30,7 @@ from teleop import __version__
 from teleop.util.errors import ConfigError, SceneError, TeleopError
 from teleop.util.inputs import plain
 from teleop.app.args import add_scene_flags, scene_for, with_capture
-from teleop.app.netcli import add_run_flags, add_subcommands, cmd_run_zenoh, refuse_over_zenoh
+from teleop.app.netcli import add_run_flags, add_subcommands, cmd_run_zenoh, record_from_log, refuse_over_zenoh
 
 #: exit codes: the run's status "ok"; any other status; bad input (nothing run, nothing written);
 #: Ctrl-C (the summary, if a run had started, says "interrupted")
@@ -121,6 +121,9 @@ def cmd_run(args) -> int:
             result = run_scene(scene, progress=bar, realtime=args.realtime, view=rv)
             bar.close()
         written = _write_run(result, view, rv, scene, folder) if folder is not None else []
+        if folder is not None and args.link == "zenoh":  # the recording drawn from the merged log
+            record_from_log(result, scene, folder)
+            written = sorted(p.name for p in folder.tmp.iterdir())
         if folder is not None:
             folder.commit()
             folder = None

@@ -139,13 +139,18 @@ def _wait_pair(master, slave, timeout_s: float) -> dict:
 
 
 def _write_folder(result, scene, folder) -> None:
-    """The run's files as an in-process run writes them; its ``recording.html`` drawn from the
-    log (the two sides' views are in two processes, so the recording is made afterwards)."""
     from teleop.app.cli import _write_run
+
+    _write_run(result, None, None, scene, folder)
+    record_from_log(result, scene, folder)
+
+
+def record_from_log(result, scene, folder) -> None:
+    """A run folder's ``recording.html`` drawn from its log, as an in-process run's view draws it
+    live (over Zenoh the two sides' views are in two processes, so it is made afterwards)."""
     from teleop.app.view_bridge import replay_run, viz_scene_for
     from teleop.viz import make_view
 
-    _write_run(result, None, None, scene, folder)
     if "p_r" in result.log:  # a side's run (a slave alone has no master pose to draw)
         with make_view("meshcat", viz_scene_for(scene), record=True) as v:
             replay_run(folder.tmp, v)

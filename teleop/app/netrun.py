@@ -300,8 +300,7 @@ def merge(scene: Scene, master: tuple[SideRun, dict] | None, slave: tuple[SideRu
     if m is not None and s is not None:
         k = min(m.steps, s.steps)
         log = {**{n: v[:k] for n, v in m.log.items()}, **{n: v[:k] for n, v in s.log.items()}}
-        log["tick_us"] = log["tick_us"] + log["slave_tick_us"]
-        steps = min(steps, k) if m.status == "ok" else steps
+        log["tick_us"] = log["tick_us"] + log["slave_tick_us"]  # the log: the ticks both sides ran
     run = SideRun(status, steps, scene.dt_s, m.master if m is not None else None, s.slave if s is not None else None,
                   m.nan if m is not None else False, runner, log)
     result = side_result(scene, run, {**(master or (None, {}))[1], **(slave or (None, {}))[1]})

@@ -106,15 +106,13 @@ def point_to_patient(p_PM, R_PM, scale, x):
 
 
 @njit(cache=True)
-def target_to_patient(p_PM, R_PM, scale, p, R, v, w):
-    """(p m, R, v m/s, w rad/s) of the master's tool (M) as the slave's target (P), new arrays
-    (:meth:`teleop.control.mapping.Registration.target`): the point through
-    :func:`point_to_patient`'s map, R_PM R, R_PM v / scale and R_PM w."""
-    p_P, v_P, w_P = np.empty(3), np.empty(3), np.empty(3)
-    _to_patient(p_PM, R_PM, scale, p, p_P)
-    R_P = matmul(R_PM, R)
+def target_to_patient(p_PM, R_PM, scale, p, R, v, w, out):
+    """(p m, R, v m/s, w rad/s) of the master's tool (M) as the slave's target (P), into out (18,)
+    = (p, R row-major, v, w) (:meth:`teleop.control.mapping.Registration.target`): the point
+    through :func:`point_to_patient`'s map, R_PM R, R_PM v / scale and R_PM w."""
+    _to_patient(p_PM, R_PM, scale, p, out[0:3])
     for i in range(3):
-        v_P[i] = (R_PM[i, 0] * v[0] + R_PM[i, 1] * v[1] + R_PM[i, 2] * v[2]) / scale
-        w_P[i] = R_PM[i, 0] * w[0] + R_PM[i, 1] * w[1] + R_PM[i, 2] * w[2]
-    return p_P, R_P, v_P, w_P
-
+        for j in range(3):
+            out[3 + 3 * i + j] = R_PM[i, 0] * R[0, j] + R_PM[i, 1] * R[1, j] + R_PM[i, 2] * R[2, j]
+        out[12 + i] = (R_PM[i, 0] * v[0] + R_PM[i, 1] * v[1] + R_PM[i, 2] * v[2]) / scale
+        out[15 + i] = R_PM[i, 0] * w[0] + R_PM[i, 1] * w[1] + R_PM[i, 2] * w[2]

@@ -81,9 +81,10 @@ class Registration:
         """Reference tool pose/twist in M (p_r m, R_r, v_r m/s, w_r rad/s) -> slave tool target
         (p m, R, v m/s, w rad/s) in P, new arrays: one compiled call
         (:func:`teleop.control.kernels.target_to_patient`)."""
-        f = float
-        return target_to_patient(self.X_PM_p, self.X_PM_R, f(self.scale), np.asarray(p_r, f), np.asarray(R_r, f),
-                                 np.asarray(v_r, f), np.asarray(w_r, f))
+        f, out = float, np.empty(18)
+        target_to_patient(self.X_PM_p, self.X_PM_R, f(self.scale), np.asarray(p_r, f), np.asarray(R_r, f),
+                          np.asarray(v_r, f), np.asarray(w_r, f), out)
+        return out[0:3], out[3:12].reshape(3, 3), out[12:15], out[15:18]
 
     def master_frame(self) -> FrameMap:
         """Where patient-frame geometry lands in the master workspace: the one map that fixture

@@ -1,79 +1,165 @@
-"""Versioned binary wire format of the two link messages (no pickle).
+"""Versioned binary wire format of the link's frames, authenticated (no pickle).
 
 One frame, all little-endian::
 
     offset size  field
     0      4     magic      b"TLNK"
     4      1     version    u8, WIRE_VERSION (bumped on any layout change, incl. SLAVE_STATUSES)
-    5      1     type       u8, 1 ToolCommand, 2 ContactFeedback
+    5      1     type       u8, 1 ToolCommand, 2 ContactFeedback, 16-18 pairing (teleop.link.pairing)
     6      2     length     u16, payload bytes
-    8      8     seq        u64, the message's sequence number
-    16     n     payload    (below)
-    16+n   4     crc        u32, CRC-32/ISO-HDLC over bytes [0, 16+n)
+    8      8     session    u64, the pairing's session id (0 in pairing frames)
+    16     8     counter    u64, the sender's frame number in the session, from 1 (0 in pairing frames)
+    24     8     seq        u64, the message's sequence number (< 2^63)
+    32     n     payload    (below)
+    32+n   32    tag        HMAC-SHA256 over bytes [0, 32+n), keyed per session and direction
 
 ToolCommand payload (209 bytes): t_s f64 (s), p_m 3 f64 (m), R 9 f64 row-major, v_m_s 3 f64 (m/s),
 w_rad_s 3 f64 (rad/s), clutch u8, energy_J 6 f64 (J).
 ContactFeedback payload (337 bytes): t_s f64 (s), wrench_P 6 f64 (N, N*m), status u8 (index in
 SLAVE_STATUSES), command_seq i64, energy_J 6 f64 (J), damping_P 21 f64 (the upper triangle, row by
-row: N*s/m, N*s, N*m*s/rad), twist_P 6 f64 (m/s, rad/s). Version 3 added the last two.
+row: N*s/m, N*s, N*m*s/rad), twist_P 6 f64 (m/s, rad/s).
 
-The CRC is CRC-32/ISO-HDLC (poly 0x04C11DB7 reflected, init and xorout 0xFFFFFFFF): crccheck's
-``Crc32`` names it and is the reference the tests check against; it is computed by the project's
-one compiled CRC, :func:`teleop.util.crc32.crc32` (the CAN frames' too), because crccheck is pure
-Python, bit by bit (~0.45 ms per 200-byte frame here, half a 1 kHz tick).
+Version 4 added the session and counter fields and replaced the CRC-32 with the tag: a frame
+whose tag does not verify under the receiver's key is refused before anything in it is read
+(any changed bit, and any frame made without the key). The HMAC is ``cryptography``'s
+(OpenSSL's), a keyed copy per frame (:class:`Mac`). :data:`PLAIN` is the MAC under a public
+all-zero key, for tools and tests that need a frame and no peer: an integrity check only, which
+no link accepts (their keys are derived per session, :mod:`teleop.link.pairing`).
 
-:func:`decode` checks magic, version, type, length, CRC and finite values, in that order, and
-raises :class:`~teleop.tick.messages.MessageError` naming the reason.
+:func:`decode` checks magic, version, type, length, tag, sequence range and the values (finite,
+a known clutch byte and status), in that order, and raises
+:class:`~teleop.tick.messages.MessageError` naming the reason (``str(e)`` starts ``wire: bad MAC``
+for a failed tag).
 """
 
 from __future__ import annotations
 
 import math
 import struct
+from typing import NamedTuple
 
 import numpy as np
+from cryptography.exceptions import InvalidSignature
+from cryptography.hazmat.primitives import hashes, hmac
 
-from teleop.util.crc32 import crc32 as _crc32
 from teleop.tick.messages import SLAVE_STATUSES, ContactFeedback, MessageError, ToolCommand
 
 MAGIC = b"TLNK"
-WIRE_VERSION = 3
+WIRE_VERSION = 4
 TYPE_COMMAND = 1
 TYPE_FEEDBACK = 2
+TYPE_HELLO, TYPE_WELCOME, TYPE_REFUSE = 16, 17, 18
+TAG_SIZE = 32
+MAX_SEQ = 2**63
 
-_HEADER = struct.Struct("<4sBBHQ")
-_CRC = struct.Struct("<I")
+_HEADER = struct.Struct("<4sBBHQQQ")
+HEADER_SIZE = _HEADER.size
 _COMMAND = struct.Struct("<19dB6d")
 _FEEDBACK = struct.Struct("<7dBq33d")
 _UPPER = np.triu_indices(6)
 _PAYLOAD = {TYPE_COMMAND: _COMMAND, TYPE_FEEDBACK: _FEEDBACK}
+#: payload sizes of the pairing frames (teleop.link.pairing packs them)
+PAIRING_SIZES = {TYPE_HELLO: 96, TYPE_WELCOME: 200, TYPE_REFUSE: 200}
+_SIZES = {**{k: v.size for k, v in _PAYLOAD.items()}, **PAIRING_SIZES}
 
-#: frame sizes in bytes (header + payload + crc)
-COMMAND_SIZE = _HEADER.size + _COMMAND.size + _CRC.size
-FEEDBACK_SIZE = _HEADER.size + _FEEDBACK.size + _CRC.size
-
-
-def crc32(data: bytes) -> int:
-    """CRC-32/ISO-HDLC of ``data`` (same value as ``crccheck.crc.Crc32.calc``)."""
-    return _crc32(data)
+#: frame sizes in bytes (header + payload + tag)
+COMMAND_SIZE = HEADER_SIZE + _COMMAND.size + TAG_SIZE
+FEEDBACK_SIZE = HEADER_SIZE + _FEEDBACK.size + TAG_SIZE
 
 
-def _frame(kind: int, seq: int, payload: bytes) -> bytes:
-    head = _HEADER.pack(MAGIC, WIRE_VERSION, kind, len(payload), seq) + payload
-    return head + _CRC.pack(crc32(head))
+class Mac:
+    """HMAC-SHA256 under one key (``cryptography``): each frame's tag is a copy of the keyed
+    state, so the key is set up once."""
+
+    __slots__ = ("_h",)
+
+    def __init__(self, key: bytes):
+        if len(key) < 16:
+            raise ValueError("wire.Mac: a key of at least 16 bytes")
+        self._h = hmac.HMAC(key, hashes.SHA256())
+
+    def tag(self, data: bytes) -> bytes:
+        """The 32-byte tag of ``data``."""
+        h = self._h.copy()
+        h.update(data)
+        return h.finalize()
+
+    def ok(self, data: bytes | memoryview, tag: bytes | memoryview) -> bool:
+        """True when ``tag`` is the tag of ``data`` (compared in constant time)."""
+        h = self._h.copy()
+        h.update(data)
+        try:
+            h.verify(bytes(tag))
+            return True
+        except InvalidSignature:
+            return False
 
 
-def encode(msg: ToolCommand | ContactFeedback) -> bytes:
-    """The frame of one message (bytes)."""
+#: the MAC under the public all-zero key: integrity only, for tools and tests (no link takes it)
+PLAIN = Mac(bytes(32))
+
+
+class Header(NamedTuple):
+    """The fields of a frame's header that :func:`parse` checked."""
+
+    kind: int
+    session: int
+    counter: int
+    seq: int
+
+
+def seal(kind: int, session: int, counter: int, seq: int, payload: bytes, mac: Mac) -> bytes:
+    """One frame: the header, ``payload`` and the tag under ``mac``."""
+    head = _HEADER.pack(MAGIC, WIRE_VERSION, kind, len(payload), session, counter, seq) + payload
+    return head + mac.tag(head)
+
+
+def parse(data: bytes) -> Header:
+    """The header of a frame whose layout is right (magic, version, a known type, its length);
+    MessageError("wire: <reason>") if not. The tag is not checked here (:func:`verified`)."""
+    if len(data) < HEADER_SIZE + TAG_SIZE:
+        raise MessageError(f"wire: frame too short ({len(data)} bytes)")
+    magic, version, kind, length, session, counter, seq = _HEADER.unpack_from(data)
+    if magic != MAGIC:
+        raise MessageError(f"wire: bad magic {magic!r}")
+    if version != WIRE_VERSION:
+        raise MessageError(f"wire: unsupported version {version} (this side speaks {WIRE_VERSION})")
+    size = _SIZES.get(kind)
+    if size is None:
+        raise MessageError(f"wire: unknown message type {kind}")
+    if length != size or len(data) != HEADER_SIZE + length + TAG_SIZE:
+        raise MessageError(f"wire: bad length (header says {length}, type {kind} needs "
+                           f"{size}, frame has {len(data)} bytes)")
+    return Header(kind, session, counter, seq)
+
+
+def verified(data: bytes, mac: Mac) -> bool:
+    """True when the frame's tag verifies under ``mac`` (the layout :func:`parse`'d first)."""
+    n = len(data) - TAG_SIZE
+    view = memoryview(data)
+    return mac.ok(view[:n], view[n:])
+
+
+def payload(data: bytes) -> bytes:
+    """The payload bytes of a parsed frame."""
+    return data[HEADER_SIZE: len(data) - TAG_SIZE]
+
+
+def pack_message(msg: ToolCommand | ContactFeedback) -> tuple[int, bytes]:
+    """The type and payload of one message."""
     if isinstance(msg, ToolCommand):
-        payload = _COMMAND.pack(msg.t_s, *msg.p_m, *msg.R.reshape(-1), *msg.v_m_s, *msg.w_rad_s,
-                                1 if msg.clutch else 0, *msg.energy_J)
-        return _frame(TYPE_COMMAND, msg.seq, payload)
+        return TYPE_COMMAND, _COMMAND.pack(msg.t_s, *msg.p_m, *msg.R.reshape(-1), *msg.v_m_s,
+                                           *msg.w_rad_s, 1 if msg.clutch else 0, *msg.energy_J)
     if isinstance(msg, ContactFeedback):
-        payload = _FEEDBACK.pack(msg.t_s, *msg.wrench_P, SLAVE_STATUSES.index(msg.status),
-                                 msg.command_seq, *msg.energy_J, *msg.damping_P[_UPPER], *msg.twist_P)
-        return _frame(TYPE_FEEDBACK, msg.seq, payload)
+        return TYPE_FEEDBACK, _FEEDBACK.pack(msg.t_s, *msg.wrench_P, SLAVE_STATUSES.index(msg.status),
+                                             msg.command_seq, *msg.energy_J, *msg.damping_P[_UPPER], *msg.twist_P)
     raise MessageError(f"wire.encode: not a link message: {type(msg).__name__}")
+
+
+def encode(msg: ToolCommand | ContactFeedback, mac: Mac = PLAIN, session: int = 0, counter: int = 0) -> bytes:
+    """The frame of one message (bytes), tagged under ``mac``."""
+    kind, body = pack_message(msg)
+    return seal(kind, session, counter, msg.seq, body, mac)
 
 
 def encoded_size(msg: ToolCommand | ContactFeedback) -> int:
@@ -81,28 +167,25 @@ def encoded_size(msg: ToolCommand | ContactFeedback) -> int:
     return COMMAND_SIZE if isinstance(msg, ToolCommand) else FEEDBACK_SIZE
 
 
-def decode(data: bytes | bytearray | memoryview) -> ToolCommand | ContactFeedback:
-    """The message of one frame; MessageError("wire: <reason>") if the frame is not valid."""
+def decode(data: bytes | bytearray | memoryview, mac: Mac = PLAIN) -> ToolCommand | ContactFeedback:
+    """The message of one frame tagged under ``mac``; MessageError("wire: <reason>") if the frame
+    is not valid."""
     data = bytes(data)
-    if len(data) < _HEADER.size + _CRC.size:
-        raise MessageError(f"wire: frame too short ({len(data)} bytes)")
-    magic, version, kind, length, seq = _HEADER.unpack_from(data)
-    if magic != MAGIC:
-        raise MessageError(f"wire: bad magic {magic!r}")
-    if version != WIRE_VERSION:
-        raise MessageError(f"wire: unsupported version {version} (this side speaks {WIRE_VERSION})")
+    head = parse(data)
+    if not verified(data, mac):
+        raise MessageError("wire: bad MAC (not made with this key, or changed on the way)")
+    return unpack_message(head, data)
+
+
+def unpack_message(head: Header, data: bytes) -> ToolCommand | ContactFeedback:
+    """The message of a parsed and verified frame; MessageError if its values are not valid."""
+    kind, seq = head.kind, head.seq
     layout = _PAYLOAD.get(kind)
     if layout is None:
-        raise MessageError(f"wire: unknown message type {kind}")
-    if length != layout.size or len(data) != _HEADER.size + length + _CRC.size:
-        raise MessageError(f"wire: bad length (header says {length}, type {kind} needs "
-                           f"{layout.size}, frame has {len(data)} bytes)")
-    (crc,) = _CRC.unpack_from(data, _HEADER.size + length)
-    if crc != crc32(data[: _HEADER.size + length]):
-        raise MessageError("wire: CRC mismatch")
-    if seq >= 2**63:
+        raise MessageError(f"wire: type {kind} is not a message")
+    if seq >= MAX_SEQ:
         raise MessageError(f"wire: sequence number out of range ({seq})")
-    v = layout.unpack_from(data, _HEADER.size)
+    v = layout.unpack_from(data, HEADER_SIZE)
     floats = v[:19] + v[20:] if kind == TYPE_COMMAND else v[:7] + v[9:]
     if not all(math.isfinite(x) for x in floats):
         raise MessageError("wire: non-finite value in payload")

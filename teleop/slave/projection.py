@@ -70,14 +70,18 @@ def _project_twist(G, nu):
 
 
 @njit(cache=True)
-def _project_compiled(table, params, mask, G, b, h, p, R, nu, iterations, tol):
+def _project_compiled(table, params, mask, G, b, h, p0, R0, v0, w0, iterations, tol, out):
     """:func:`project_onto_fixture` on a stack of compiled rows only (:func:`stack_rows` into the
-    stack's workspaces G, b, h), p (3,), R (3, 3), nu (6,) updated in place: one call."""
+    stack's workspaces G, b, h), one call: the target copied into out (18,) = (p, R row-major, v,
+    w) and moved there."""
+    p, R, nu = out[0:3], out[3:12].reshape((3, 3)), out[12:18]
     s = 0.0
     for i in range(3):
-        s += p[i] * p[i]
+        p[i], nu[i], nu[3 + i] = p0[i], v0[i], w0[i]
         for j in range(3):
+            R[i, j] = R0[i, j]
             s += R[i, j] * R[i, j]
+        s += p[i] * p[i]
     zero = np.zeros(3)
     if mask.any() and math.isfinite(s):
         for _ in range(iterations):
@@ -93,14 +97,16 @@ def project_onto_fixture(rows, p, R, v, w, iterations: int = 3, tol: float = 1e-
     up to ``iterations`` Newton steps until max |h| < ``tol`` (m or rad) on the holonomic rows, then
     the twist onto the null space of all rows G. New arrays; a target that is not finite comes back
     unchanged (the arm refuses it). Units: p m, R, v m/s, w rad/s (the fixture's frame)."""
+    if rows.m and not rows.python_rows:  # every row compiled: the whole projection in one call
+        c, out = np.ascontiguousarray, np.empty(18)
+        _project_compiled(rows.table, rows.params, rows.holonomic_mask, *rows.workspaces, c(p, dtype=float),
+                          c(R, dtype=float), c(v, dtype=float), c(w, dtype=float), iterations, tol, out)
+        return out[0:3], out[3:12].reshape(3, 3), out[12:15], out[15:18]
     p = np.array(p, dtype=float)
     R = np.array(R, dtype=float)
     nu = np.empty(6)
     nu[:3], nu[3:] = v, w
     if rows.m == 0:
-        return p, R, nu[:3], nu[3:]
-    if not rows.python_rows:  # every row compiled: the whole projection in one call
-        _project_compiled(rows.table, rows.params, rows.holonomic_mask, *rows.workspaces, p, R, nu, iterations, tol)
         return p, R, nu[:3], nu[3:]
     mask = rows.holonomic_mask
     if mask.any() and math.isfinite(np.vdot(p, p) + np.vdot(R, R)):

@@ -36,8 +36,8 @@ SLAVE_FIXTURE_TOLERANCES = {"cut_depth_error_max_m": 1e-3, "rcm_error_max_m": 2e
 def verdict(master_status: str, steps: int, slave_counts: dict | None = None, metrics: dict | None = None,
             nan: bool = False, exempt=(), master_link_lost: int = 0) -> tuple[str, str]:
     """The run's one-word status and a one-line reason, first match wins: "interrupted" (Ctrl-C),
-    "no_ticks", the master side's fault, "nan", "slave_<status>" (the worst slave fault, see
-    SLAVE_FAULTS), "fixture_violated" (the master side past FIXTURE_TOLERANCES),
+    "no_ticks", the master side's fault, "nan", "link_lost" (either side lost the link and held),
+    "slave_<status>" (the worst slave fault, see SLAVE_FAULTS), "fixture_violated" (the master side past FIXTURE_TOLERANCES),
     "slave_fixture_violated" (SLAVE_FIXTURE_TOLERANCES), "slave_off_target" (the slave's tool
     farther than SLAVE_TARGET_MAX_M from its target), else "ok". ``exempt``: metric names the
     scene's fixture does not hold (a trocar's fixture lets the blade tilt). ``master_link_lost``:
@@ -57,6 +57,8 @@ def verdict(master_status: str, steps: int, slave_counts: dict | None = None, me
         s not in DEGRADED or counts[s] / total > RELAXED_SHARE_MAX)]
     if master_link_lost and (not worst or SLAVE_FAULTS.index(worst[-1]) <= SLAVE_FAULTS.index("link_lost")):
         return "link_lost", f"the master lost the link to the slave on {master_link_lost} ticks (held in its safe state)"
+    if worst and worst[-1] == "link_lost":  # the link's fault, not the slave's: the same word either side
+        return "link_lost", f"the slave lost the link to the master on {counts['link_lost']} of {total} ticks (held)"
     if worst:
         s = worst[-1]
         return f"slave_{s}", f"the slave was {s!r} on {counts[s]} of {total} ticks"

@@ -139,7 +139,7 @@ def test_merged_status_is_ok_only_when_both_sides_are():
         return run_summary(master_status, 10, DT, m, s, metrics, False)["status"]
 
     assert status() == "ok"
-    assert status(s={**s, "slave_statuses": {"ok": 5, "link_lost": 5}}) == "slave_link_lost"
+    assert status(s={**s, "slave_statuses": {"ok": 5, "link_lost": 5}}) == "link_lost"
     assert status(s={**s, "heartbeat": {"lost_ticks": 3}}) == "link_lost"
     assert status(m={**m, "heartbeat": {"lost_ticks": 3}}) == "link_lost"
     assert status(s={**s, "followed_last_command": False}) == "link_lost"
