@@ -35,6 +35,7 @@ decayed, is zero again); a D that is not positive semidefinite is not rendered (
 from __future__ import annotations
 
 import math
+from typing import Any
 
 import numpy as np
 
@@ -85,7 +86,7 @@ class FeedbackPath:
         if msg is not None:
             self._target = self.reg.wrench_to_master(msg.wrench_P)
             self._offset, self._D = self._target, _ZERO66
-            if self.local_damping and msg.damping_P.any():
+            if self.local_damping and np.any(msg.damping_P):
                 self._take_model(msg)
         a = self.alpha
         self.wrench_M = self.wrench_M + a * (self._target - self.wrench_M)
@@ -109,7 +110,7 @@ class FeedbackPath:
             return
         self._D, self._offset = D, offset
 
-    def render(self, channel_M: np.ndarray, tool, f_other_W: np.ndarray, dt_s: float,
+    def render(self, channel_M: np.ndarray, tool: Any, f_other_W: np.ndarray, dt_s: float,
                state: ToolState | None = None, gain: float = 1.0) -> np.ndarray:
         """The wrench (6,: N, N*m, M) the ``tool`` steps under from the slave: the channel's force
         ``channel_M`` (:meth:`update`'s, after the guard) minus the contact's damping at the tool's

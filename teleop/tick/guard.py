@@ -27,7 +27,11 @@ Both ports work in M units: the slave maps its contact wrench with the registrat
 
 from __future__ import annotations
 
+from typing import Any
+
 import numpy as np
+
+from teleop.control.mapping import Registration
 
 from teleop.dynamics.kernels.so3 import exp3
 from teleop.tick.messages import ContactFeedback, ToolCommand
@@ -39,7 +43,7 @@ _ZERO6 = np.zeros(6)
 class MasterGuard:
     """The master port: ``feedback(wrench_M, twist_M, msg, t_s)`` -> the wrench to render."""
 
-    def __init__(self, params: TdpaParams, log_capacity: int = 0):
+    def __init__(self, params: TdpaParams, log_capacity: int = 0) -> None:
         self.port = MasterPassivity(params, log_capacity)
         self.W_min_J = float("inf")  # the observer's lowest sum over the axes, seen at the ends of ticks (J)
 
@@ -57,7 +61,7 @@ class MasterGuard:
         """(6,) J: the master port's input energy counted so far."""
         return self.port.energy_J
 
-    def energy_after(self, twist_M) -> np.ndarray:
+    def energy_after(self, twist_M: np.ndarray) -> np.ndarray:
         """(6,) J: the input energy for the command sent this tick, with the work of the force
         rendered last counted at the tool's ``twist_M`` (6,) after its step."""
         return self.port.energy_after(twist_M)
@@ -66,7 +70,7 @@ class MasterGuard:
         """The remote force is dropped (a lost link's safe state): nothing rendered any more."""
         self.port.f_channel = self.port.f_rendered = np.zeros(6)
 
-    def feedback(self, wrench_M, twist_M, msg: ContactFeedback | None, t_s: float) -> np.ndarray:
+    def feedback(self, wrench_M: np.ndarray, twist_M: np.ndarray, msg: ContactFeedback | None, t_s: float) -> np.ndarray:
         """The felt wrench (6,: N, N*m, M) after damping, from the filtered feedback ``wrench_M``,
         the reference tool's ``twist_M`` (6,: m/s, rad/s) and the newest feedback ``msg`` (its
         ``energy_J``; None: hold the last)."""
@@ -76,7 +80,8 @@ class MasterGuard:
 class SlaveGuard:
     """The slave port: ``command(cmd, t_s)`` before the slave follows, ``reply(fb)`` after."""
 
-    def __init__(self, params: TdpaParams, registration, log_capacity: int = 0, model_offset: bool = True):
+    def __init__(self, params: TdpaParams, registration: Registration, log_capacity: int = 0,
+                 model_offset: bool = True) -> None:
         self.port = SlavePassivity(params, log_capacity)
         self.reg = registration
         self.model_offset = bool(model_offset)  # count F0 = W + D V (the master renders D locally)
@@ -106,13 +111,14 @@ class SlaveGuard:
     def command(self, cmd: ToolCommand | None, t_s: float) -> ToolCommand | None:
         """The command the slave follows: ``cmd`` with its twist corrected and its pose offset by
         the drift (None stays None: the slave holds, the observer still counts the tick)."""
-        live = cmd is not None and cmd.clutch
-        v_des = np.concatenate((cmd.v_m_s, cmd.w_rad_s)) if live else _ZERO6
+        live = cmd if cmd is not None and cmd.clutch else None
+        v_des = np.concatenate((live.v_m_s, live.w_rad_s)) if live is not None else _ZERO6
         v = self.port.step(v_des, self.f_M, None if cmd is None else cmd.energy_J, t_s)
         p = self.port.params
         self.speed = self.speed + p.dt_s / (p.drift_speed_tau_s + p.dt_s) * (np.abs(v_des) - self.speed)
-        if not live:
+        if live is None:
             return cmd
+        cmd = live
         off = self.port.offset
         return ToolCommand(cmd.seq, cmd.t_s, cmd.p_m + off[:3], exp3(off[3:]) @ cmd.R, v[:3], v[3:],
                            cmd.clutch, cmd.energy_J)
@@ -126,14 +132,13 @@ class SlaveGuard:
         if np.any(off):  # the drift reflected to the master: a spring pulling it toward the slave's target
             p = self.port.params
             pull_M = np.asarray(p.drift_stiffness) * off * np.minimum(self.speed / p.drift_speed, 1.0)
-            R = self.reg.X_PM_R
-            wrench_P = wrench_P + np.concatenate((R @ pull_M[:3] / self.reg.force_scale,
-                                                  R @ pull_M[3:] / self.reg.torque_scale))
+            R, fs, ts = self.reg.X_PM_R, float(self.reg.force_scale), float(self.reg.torque_scale or 1.0)
+            wrench_P = wrench_P + np.concatenate((R @ pull_M[:3] / fs, R @ pull_M[3:] / ts))
         return ContactFeedback(fb.seq, fb.t_s, wrench_P, fb.status, fb.command_seq, self.port.energy_J,
                                fb.damping_P, fb.twist_P)
 
 
-def tdpa_params(link, dt_s: float, mass_kg: float, inertia_kgm2, enabled: bool) -> TdpaParams:
+def tdpa_params(link: Any, dt_s: float, mass_kg: float, inertia_kgm2: Any, enabled: bool) -> TdpaParams:
     """TdpaParams from a scene's [link] table: the master damping cap ``link.alpha_max`` times what
     the tool's explicit step takes (mass/dt on force axes, the smallest principal inertia/dt on
     torque axes), so the damping can never destabilise the tool itself; the reflected drift

@@ -36,7 +36,7 @@ class HeartbeatState:
         self.tick_late_s = 0.0  # set by a wall-clock run loop before each tick: its lateness (s)
         self.speed_lost_max = self.speed_lost_last = 0.0  # the side's speed while lost (m/s or rad/s)
         self.jump_after_resume_m = self.step_max_m = 0.0  # position step per tick (m)
-        self._prev = None
+        self._prev: np.ndarray | None = None
         self._since_resume = 10**9
 
     def silent(self, now_s: float, last_heard_s: float | None) -> bool:
@@ -59,7 +59,7 @@ class HeartbeatState:
         self.ticks_lost += self.lost
         return self.lost
 
-    def motion(self, p, speed: float) -> None:
+    def motion(self, p: np.ndarray, speed: float) -> None:
         """After the tick: the side's position ``p`` (3,) m and speed, for the safe-state and
         no-jump figures (the largest step within ``RESUME_WINDOW`` ticks of a resume)."""
         if self.lost:

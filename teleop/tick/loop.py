@@ -15,7 +15,9 @@ and, for brevity, the master side's read-outs (``loop.tool``, ``loop.hand_W``, .
 from __future__ import annotations
 
 from collections.abc import Sequence
-from typing import Protocol
+from typing import Any, Protocol
+
+import numpy as np
 
 from teleop.tick.master_side import MasterSide
 from teleop.tick.ports import Hook, MasterEnd, SlaveEnd
@@ -49,7 +51,7 @@ class BilateralLoop:
         for h in self.hooks:
             h.before_tick(i, t, self)
         status = ms.tick(i, t, self.link if ss is not None else None)
-        if ss is not None:
+        if ss is not None and self.link is not None:
             ss.tick(i, t, self.link)
         self.tick_ns = ms.tick_ns + (ss.tick_ns if ss is not None else 0)
         for h in self.hooks:
@@ -62,19 +64,19 @@ class BilateralLoop:
         return self.master_side.dt
 
     @property
-    def tool(self):
+    def tool(self) -> Any:
         return self.master_side.tool
 
     @property
-    def master(self):
+    def master(self) -> Any:
         return self.master_side.master
 
     @property
-    def operator(self):
+    def operator(self) -> Any:
         return self.master_side.operator
 
     @property
-    def feedback(self):
+    def feedback(self) -> Any:
         return self.master_side.feedback
 
     @property
@@ -82,15 +84,15 @@ class BilateralLoop:
         return self.slave_side
 
     @property
-    def hand_W(self):
+    def hand_W(self) -> np.ndarray:
         return self.master_side.hand_W
 
     @property
-    def felt_W(self):
+    def felt_W(self) -> np.ndarray:
         return self.master_side.felt_W
 
     @property
-    def feedback_W(self):
+    def feedback_W(self) -> np.ndarray:
         return self.master_side.feedback_W
 
     @property

@@ -28,6 +28,7 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 from time import perf_counter_ns
+from typing import Any
 
 import numpy as np
 
@@ -56,8 +57,9 @@ class MasterSide:
     tool stepped under, ``feedback_W`` the channel's force for the next step (after the guard),
     all (6,: N, N*m, M); ``state`` the tool as read at the end of the tick; ``status``."""
 
-    def __init__(self, tool, master, operator: Operator, dt_s: float, feedback: FeedbackPath | None = None,
-                 guard: MasterGuard | None = None, heartbeat_s: float = HEARTBEAT_S, hooks: Sequence[Hook] = ()):
+    def __init__(self, tool: Any, master: Any, operator: Operator, dt_s: float, feedback: FeedbackPath | None = None,
+                 guard: MasterGuard | None = None, heartbeat_s: float = HEARTBEAT_S,
+                 hooks: Sequence[Hook] = ()) -> None:
         self.tool, self.master, self.operator, self.dt = tool, master, operator, float(dt_s)
         self.feedback, self.guard, self.hooks = feedback, guard, list(hooks)
         self.heart = HeartbeatState(heartbeat_s)

@@ -28,6 +28,7 @@ from __future__ import annotations
 from collections.abc import Sequence
 from dataclasses import replace
 from time import perf_counter_ns
+from typing import Any
 
 import numpy as np
 
@@ -56,7 +57,7 @@ class SlaveState:
 
     __slots__ = ("p_t", "R_t", "p", "R", "v", "w", "tip", "contact_P", "status", "ticks")
 
-    def __init__(self):
+    def __init__(self) -> None:
         self.p_t = self.p = self.tip = np.zeros(3)
         self.R_t = self.R = np.eye(3)
         self.v = self.w = np.zeros(3)
@@ -71,8 +72,10 @@ class SlaveSide:
     scale); ``guard`` the passivity guard's slave port (None: unguarded); ``heartbeat_s`` the
     silence (s) after which the master is lost; ``hooks`` see this side around each tick."""
 
-    def __init__(self, arm: SlaveArm, registration: Registration, tissue=None, tip_B=(0.0, 0.0, 0.0),
-                 guard: SlaveGuard | None = None, heartbeat_s: float = HEARTBEAT_S, hooks: Sequence[Hook] = ()):
+    def __init__(self, arm: SlaveArm, registration: Registration, tissue: Any = None,
+                 tip_B: Sequence[float] = (0.0, 0.0, 0.0),
+                 guard: SlaveGuard | None = None, heartbeat_s: float = HEARTBEAT_S,
+                 hooks: Sequence[Hook] = ()) -> None:
         self.arm, self.reg, self.tissue = arm, registration, tissue
         self.tip_B = np.asarray(tip_B, dtype=float)
         self.guard, self.hooks = guard, list(hooks)
@@ -84,12 +87,12 @@ class SlaveSide:
         self.statuses: dict[str, int] = {}  # ticks per status
         self._rows = arm.qp.rows  # the fixture's rows (RowStack), the same the master evaluates
         self.state = SlaveState()
-        self._target = None
+        self._target: tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray] | None = None
         self._seq = 0
         self._stopped = False  # held at a joint limit that cost the fixture, until the clutch opens
         self._resting = np.zeros(arm.nv, dtype=bool)  # joints the start pose put on a stop (set by reset)
 
-    def reset(self, p_M, R_M) -> str:
+    def reset(self, p_M: np.ndarray, R_M: np.ndarray) -> str:
         """Place the arm at the mapped master pose (inverse kinematics); returns its status."""
         p, R, _, _ = self.reg.target(p_M, R_M, np.zeros(3), np.zeros(3))
         status = self.arm.reset((p, R))
@@ -159,7 +162,8 @@ class SlaveSide:
             out["passivity_slave"] = self.guard.summary()
         return out
 
-    def project(self, p, R, v, w):
+    def project(self, p: np.ndarray, R: np.ndarray, v: np.ndarray,
+                w: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
         """The target moved onto the patient-frame fixture
         (:func:`teleop.slave.projection.project_onto_fixture`)."""
         return project_onto_fixture(self._rows, p, R, v, w)
@@ -215,7 +219,7 @@ class SlaveSide:
         return ContactFeedback(self._seq, t_s, at_origin, s.status, -1 if cmd is None else cmd.seq,
                                damping_P=damping, twist_P=twist)
 
-    def _wrench_at_origin(self, tip, R, d, V) -> np.ndarray:
+    def _wrench_at_origin(self, tip: np.ndarray, R: np.ndarray, d: np.ndarray, V: np.ndarray) -> np.ndarray:
         """The tissue's wrench (N, N*m, P) at the tool frame origin for the origin twist V (6,)."""
         v, w = V[:3], V[3:]
         W = self.tissue.wrench(tip, R, v + cross(w, d), w).copy()

@@ -34,7 +34,7 @@ SLAVE_FIXTURE_TOLERANCES = {"cut_depth_error_max_m": 1e-3, "rcm_error_max_m": 2e
 
 
 def verdict(master_status: str, steps: int, slave_counts: dict | None = None, metrics: dict | None = None,
-            nan: bool = False, exempt=(), master_link_lost: int = 0) -> tuple[str, str]:
+            nan: bool = False, exempt: Iterable[str] = (), master_link_lost: int = 0) -> tuple[str, str]:
     """The run's one-word status and a one-line reason, first match wins: "interrupted" (Ctrl-C),
     "no_ticks", the master side's fault, "nan", "link_lost" (either side lost the link and held),
     "slave_<status>" (the worst slave fault, see SLAVE_FAULTS), "fixture_violated" (the master side past FIXTURE_TOLERANCES),
