@@ -71,7 +71,8 @@ def issue(ca_key_pem: bytes, ca_cert_pem: bytes, cn: str, hosts: tuple[str, ...]
             .add_extension(x509.ExtendedKeyUsage([ExtendedKeyUsageOID.SERVER_AUTH, ExtendedKeyUsageOID.CLIENT_AUTH]),
                            critical=False)
             .add_extension(x509.SubjectAlternativeName([_san(h) for h in hosts]), critical=False)
-            .add_extension(x509.AuthorityKeyIdentifier.from_issuer_public_key(ca_key.public_key()), critical=False)
+            .add_extension(x509.AuthorityKeyIdentifier.from_issuer_subject_key_identifier(
+                ca_cert.extensions.get_extension_for_class(x509.SubjectKeyIdentifier).value), critical=False)
             .sign(ca_key, hashes.SHA256()))
     return _key_pem(key), cert.public_bytes(serialization.Encoding.PEM)
 
@@ -97,10 +98,10 @@ def check_pair(ca_path: Path, cert_path: Path, key_path: Path) -> str:
     same public key, not readable by others); returns the certificate's common name."""
     ca, cert = _cert(ca_path, "CA certificate"), _cert(cert_path, "certificate")
     try:
-        ca.public_key().verify(cert.signature, cert.tbs_certificate_bytes, ec.ECDSA(cert.signature_hash_algorithm))
-    except (InvalidSignature, TypeError, AttributeError):
+        cert.verify_directly_issued_by(ca)
+    except (InvalidSignature, ValueError, TypeError):
         raise KeyFileError(f"{cert_path}: not issued by the CA in {ca_path}") from None
-    now = datetime.datetime.now(datetime.timezone.utc)
+    now = datetime.datetime.now(datetime.UTC)
     for c, p in ((ca, ca_path), (cert, cert_path)):
         if not c.not_valid_before_utc <= now <= c.not_valid_after_utc:
             raise KeyFileError(f"{p}: not valid now (valid {c.not_valid_before_utc:%Y-%m-%d} to "

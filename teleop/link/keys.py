@@ -178,7 +178,7 @@ def make_keys(folder: str | Path, hosts: tuple[str, ...] | list[str] = DEFAULT_H
     out = {PAIRING_FILE: folder / PAIRING_FILE}
     write_pairing_key(out[PAIRING_FILE])
     if tls:
-        now = datetime.datetime.now(datetime.timezone.utc)
+        now = datetime.datetime.now(datetime.UTC)
         ca_key, ca_cert = certs.make_ca(now, days)
         out.update(_write_pair(folder, "ca", ca_key, ca_cert))
         for role in ROLES:

@@ -5,7 +5,7 @@ One frame, all little-endian::
     offset size  field
     0      4     magic      b"TLNK"
     4      1     version    u8, WIRE_VERSION (bumped on any layout change, incl. SLAVE_STATUSES)
-    5      1     type       u8, 1 ToolCommand, 2 ContactFeedback, 16-18 pairing (teleop.link.pairing)
+    5      1     type       u8, 1 ToolCommand, 2 ContactFeedback, 16-20 pairing (teleop.link.pairing)
     6      2     length     u16, payload bytes
     8      8     session    u64, the pairing's session id (0 in pairing frames)
     16     8     counter    u64, the sender's frame number in the session, from 1 (0 in pairing frames)
@@ -48,7 +48,7 @@ MAGIC = b"TLNK"
 WIRE_VERSION = 4
 TYPE_COMMAND = 1
 TYPE_FEEDBACK = 2
-TYPE_HELLO, TYPE_WELCOME, TYPE_REFUSE = 16, 17, 18
+TYPE_HELLO, TYPE_WELCOME, TYPE_REFUSE, TYPE_CONFIRM, TYPE_ACCEPT = 16, 17, 18, 19, 20
 TAG_SIZE = 32
 MAX_SEQ = 2**63
 
@@ -59,7 +59,7 @@ _FEEDBACK = struct.Struct("<7dBq33d")
 _UPPER = np.triu_indices(6)
 _PAYLOAD = {TYPE_COMMAND: _COMMAND, TYPE_FEEDBACK: _FEEDBACK}
 #: payload sizes of the pairing frames (teleop.link.pairing packs them)
-PAIRING_SIZES = {TYPE_HELLO: 96, TYPE_WELCOME: 200, TYPE_REFUSE: 200}
+PAIRING_SIZES = {TYPE_HELLO: 96, TYPE_WELCOME: 200, TYPE_REFUSE: 200, TYPE_CONFIRM: 0, TYPE_ACCEPT: 0}
 _SIZES = {**{k: v.size for k, v in _PAYLOAD.items()}, **PAIRING_SIZES}
 
 #: frame sizes in bytes (header + payload + tag)

@@ -1,81 +1,108 @@
 """The link over Eclipse Zenoh: master and slave as two processes (or two hosts).
 
 One side listens (by default the slave, on ``tcp/127.0.0.1:7447``, loopback only), the other
-connects; multicast scouting is off, so a session talks only to the endpoint it is given. Frames
-are the :mod:`teleop.link.wire` bytes, put on two key expressions::
+connects; multicast scouting and gossip are off, so a session talks only to the endpoint it is
+given. Frames are the :mod:`teleop.link.wire` bytes, put on two key expressions::
 
-    teleop/<session>/cmd   master -> slave (ToolCommand)
-    teleop/<session>/fb    slave -> master (ContactFeedback)
+    teleop/<session>/cmd   master -> slave (ToolCommand; HELLO, CONFIRM)
+    teleop/<session>/fb    slave -> master (ContactFeedback; WELCOME, ACCEPT, REFUSE)
 
 published with congestion control DROP, priority REAL_TIME and express (no batching): a late
-message is worth less than the next one, so nothing queues behind it. The subscriber hands the
-frames to a ring of the newest ``RING`` (a Zenoh ``RingChannel``, in Rust); the control loop's own
-thread drains it (:meth:`ZenohLink.poll`, called by ``receive_*``, ``last_receive_s`` and
-``stats``), decodes each frame and puts it in a :class:`Mailbox`. No Python code runs on Zenoh's
+message is worth less than the next one, so nothing queues behind it.
+
+**Trust.** Every frame is authenticated (:mod:`teleop.link.auth`): the two sides pair
+(:mod:`teleop.link.pairing`, a handshake under the pre-shared pairing key of
+:mod:`teleop.link.keys`, run by :meth:`ZenohLink.poll` on its own, or waited for with
+:meth:`ZenohLink.pair`), and a side takes only fresh frames of its session whose HMAC-SHA256
+verifies; everything else is counted by reason in ``stats()["refused"]`` and dropped. A second
+master is refused and told so (:attr:`ZenohLink.refusal`, :class:`PairingRefused`). Off loopback
+the transport is TLS with mutual authentication (:mod:`teleop.link.endpoints`; plain ``tcp/``
+off loopback is refused unless ``allow_plaintext_network=True``).
+
+**Polling.** The subscriber hands the frames to a ring of the newest ``RING`` (a Zenoh
+``RingChannel``, in Rust); the control loop's own thread drains it (:meth:`ZenohLink.poll`,
+called by ``receive_*``, ``peek``, ``last_receive_s`` and ``stats``), at most ``RING`` frames a
+call, checks each and puts the messages in a :class:`Mailbox`. No Python code runs on Zenoh's
 threads: a Python callback there would wake a Python thread for every frame and make it and the
-control loop take turns at the GIL (measured: ticks of 5-6 ms, the interpreter's switch interval;
-see the README, "Two processes over Zenoh"). ``receive_*`` never blocks
-and returns the newest in-order message (or None). A frame that fails to decode is counted
-(``bad_frames``) and dropped. ``last_receive_s`` feeds the heartbeat (``alive(now_s,
-timeout_s=0.02)``): the clock's time of the poll *before* the one that found the last valid frame
-(even one not newer), a time the frame certainly arrived after, so the silence the heartbeat sees
-is never shorter than the real one.
+control loop take turns at the GIL (measured: ticks of 5-6 ms, see the README, "Two processes
+over Zenoh"). A poll that finds the ring full counts one ``flood`` (the ring then kept only the
+newest ``RING`` frames: those it dropped are not seen, so not counted by reason; the peer's own
+lost frames show in ``missed``). ``receive_*`` never blocks and returns the newest in-order
+message (or None). ``last_receive_s`` feeds the heartbeat (``alive(now_s, timeout_s=0.02)``):
+the clock's time of the poll *before* the one that found the last fresh authentic frame (even
+one not newer), a time the frame certainly arrived after, so the silence the heartbeat sees is
+never shorter than the real one; a replayed, forged or foreign frame never moves it.
 
-Two hosts, TLS with mutual authentication (zenoh 1.x configuration keys; certificates from your
-own CA). On the slave host, listening on its address::
+Two hosts (keys from :func:`teleop.link.keys.make_keys` with the slave's address among the
+hosts, copied to both)::
 
-    link = ZenohLink("slave", listen="tls/10.0.0.2:7447", config_json5={
-        "transport/link/tls/root_ca_certificate": '"/etc/teleop/ca.pem"',
-        "transport/link/tls/listen_certificate": '"/etc/teleop/slave.pem"',
-        "transport/link/tls/listen_private_key": '"/etc/teleop/slave.key"',
-        "transport/link/tls/enable_mtls": "true",
-    })
+    keys = load_keys("keys", "slave")
+    link = ZenohLink("slave", listen="tls/10.0.0.2:7447", keys=keys)     # on 10.0.0.2
+    keys = load_keys("keys", "master")
+    link = ZenohLink("master", connect="tls/10.0.0.2:7447", keys=keys, connect_timeout_s=5)
 
-and on the master host::
-
-    link = ZenohLink("master", connect="tls/10.0.0.2:7447", config_json5={
-        "transport/link/tls/root_ca_certificate": '"/etc/teleop/ca.pem"',
-        "transport/link/tls/connect_certificate": '"/etc/teleop/master.pem"',
-        "transport/link/tls/connect_private_key": '"/etc/teleop/master.key"',
-        "transport/link/tls/enable_mtls": "true",
-        "transport/link/tls/verify_name_on_connect": "true",
-    })
-
-The slave certificate's subject alternative name must carry the address or name connected to.
-Keep the TCP endpoint off anything but loopback; open only the TLS port between the hosts.
+A peer whose certificate is not from the same CA never gets a Zenoh session: with
+``connect_timeout_s`` the connecting side's constructor raises :class:`ConnectRefused`; the
+listening side sees nothing.
 """
 
 from __future__ import annotations
 
 import json
+import socket
 import time
 from collections.abc import Callable
 
-from teleop.util.errors import ConfigError, TeleopError
-from teleop.link import wire
+from teleop.link.auth import WINDOW, LinkAuth
 from teleop.link.base import Link, Mailbox
-from teleop.tick.messages import ContactFeedback, MessageError, ToolCommand
+from teleop.link.endpoints import check_endpoint, split_endpoint, tls_settings
+from teleop.link.keys import LinkKeys
+from teleop.tick.messages import ContactFeedback, ToolCommand
+from teleop.util.errors import ConfigError, TeleopError
 
 DEFAULT_ENDPOINT = "tcp/127.0.0.1:7447"
-RING = 64  # frames kept between two polls (the newest; 64 ms at 1 kHz)
+RING = 64  # frames kept between two polls, and the most one poll takes (64 ms at 1 kHz)
 ROLES = ("master", "slave")
+_ENDPOINT_KEYS = ("listen/endpoints", "connect/endpoints", "listen", "connect")
 
 
 class LinkError(TeleopError):
     """The link cannot be opened or is used from the wrong side."""
 
 
-def make_config(listen: str | None = None, connect: str | None = None, config_json5: dict | None = None):
-    """A zenoh.Config: peer mode, multicast scouting off, the given endpoints, then any extra
-    ``{"path/to/key": "json5 value"}`` entries (e.g. TLS)."""
+class ConnectRefused(LinkError):
+    """The peer's port answers but Zenoh could not open a session over TLS: the certificates
+    do not match (another CA, a name not in the certificate, none)."""
+
+
+class PairingRefused(LinkError):
+    """The slave refused this master: it is paired with another (the message says which)."""
+
+
+def make_config(listen: str | None = None, connect: str | None = None, config_json5: dict | None = None,
+                keys: LinkKeys | None = None, allow_plaintext_network: bool = False,
+                connect_timeout_s: float | None = None):
+    """A zenoh.Config: peer mode, multicast scouting and gossip off, the given endpoints (checked,
+    :func:`teleop.link.endpoints.check_endpoint`), mutual TLS for ``tls/`` ones from ``keys``,
+    then any extra ``{"path/to/key": "json5 value"}`` entries (endpoints not among them).
+    ``connect_timeout_s`` (s): open fails when ``connect`` is not reached within it (None: open
+    at once and keep trying in the background)."""
     import zenoh
 
+    for ep in (listen, connect):
+        if ep is not None:
+            check_endpoint(ep, allow_plaintext_network)
+    for key in config_json5 or {}:
+        if key.strip("/") in _ENDPOINT_KEYS:
+            raise ConfigError(f"ZenohLink config: {key}: pass the endpoints as listen=/connect= (they are checked)")
     c = zenoh.Config()
-    c.insert_json5("mode", '"peer"')
-    c.insert_json5("scouting/multicast/enabled", "false")
-    c.insert_json5("listen/endpoints", json.dumps([listen] if listen else []))
-    c.insert_json5("connect/endpoints", json.dumps([connect] if connect else []))
-    for key, value in (config_json5 or {}).items():
+    settings = {"mode": '"peer"', "scouting/multicast/enabled": "false", "scouting/gossip/enabled": "false",
+                "listen/endpoints": json.dumps([listen] if listen else []),
+                "connect/endpoints": json.dumps([connect] if connect else []),
+                **tls_settings(keys, listen, connect)}
+    if connect and connect_timeout_s is not None:
+        settings.update({"connect/exit_on_failure": "true", "connect/timeout_ms": str(int(connect_timeout_s * 1e3))})
+    for key, value in {**settings, **(config_json5 or {})}.items():
         try:
             c.insert_json5(key, value)
         except Exception as e:  # zenoh raises ZError
@@ -83,91 +110,170 @@ def make_config(listen: str | None = None, connect: str | None = None, config_js
     return c
 
 
+def _port_answers(endpoint: str) -> bool:
+    """True when a TCP connection to the endpoint's host and port succeeds (within 1 s)."""
+    try:
+        _, host, port = split_endpoint(endpoint)
+        with socket.create_connection((host, int(port)), timeout=1.0):
+            return True
+    except (OSError, ValueError, ConfigError):
+        return False
+
+
 class ZenohLink(Link):
     """One side of the link over Zenoh.
 
     role: "master" (sends commands, receives feedback) or "slave" (the other way).
-    session: the key expressions' middle part, so several pairs can share a network.
+    session: the key expressions' middle part, so several pairs can share a network (bound into
+        every key: a frame of another link name never verifies).
     listen / connect: Zenoh endpoints; with neither given the slave listens on
         DEFAULT_ENDPOINT and the master connects to it.
-    config_json5: extra configuration entries (see the module docstring for TLS).
+    config_json5: extra configuration entries (not the endpoints).
     clock: a monotonic clock in s (``time.monotonic``), for ``last_receive_s``.
+    keys: this side's key material (:class:`~teleop.link.keys.LinkKeys`, e.g. from
+        :func:`~teleop.link.keys.load_keys`), or the 32-byte pairing key itself (the side's name
+        is then its role). Required: the link never runs unauthenticated.
+    window: how far (frames) a peer's counter may jump ahead (:mod:`teleop.link.auth`).
+    allow_plaintext_network: let a plain ``tcp/``/``udp/`` endpoint off loopback through.
+    connect_timeout_s: with ``connect``, fail (LinkError; ConnectRefused when the port answers
+        but TLS fails) if no session is up within it (s); None: keep trying in the background.
     """
 
     def __init__(self, role: str, session: str = "default", listen: str | None = None,
                  connect: str | None = None, config_json5: dict | None = None,
-                 clock: Callable[[], float] = time.monotonic):
+                 clock: Callable[[], float] = time.monotonic, *, keys: LinkKeys | bytes,
+                 window: int = WINDOW, allow_plaintext_network: bool = False,
+                 connect_timeout_s: float | None = None):
         import zenoh
 
         if role not in ROLES:
             raise ConfigError(f"ZenohLink.role: expected one of {ROLES}, got {role!r}")
         if not session or any(ch in session for ch in "/*$?#"):
             raise ConfigError(f"ZenohLink.session: a plain non-empty name, got {session!r}")
+        keys = LinkKeys(keys, role) if isinstance(keys, bytes) else keys
+        if not isinstance(keys, LinkKeys):
+            raise ConfigError(f"ZenohLink.keys: LinkKeys or a 32-byte pairing key, got {type(keys).__name__}")
         if listen is None and connect is None:
             listen, connect = (DEFAULT_ENDPOINT, None) if role == "slave" else (None, DEFAULT_ENDPOINT)
         self.role, self.session_name, self._now = role, session, clock
         self.listen, self.connect = listen, connect
+        self._auth = LinkAuth(role, keys, session, window)
         self._box = Mailbox()
         self._heard_s: float | None = None  # see last_receive_s
         self._polled_s = clock()  # the clock's time of the last poll
-        self.received = self.bad_frames = self.sent = 0
+        self.received = self.sent = self.flood = 0
         self._closed = False
+        config = make_config(listen, connect, config_json5, keys, allow_plaintext_network, connect_timeout_s)
         try:
-            self._session = zenoh.open(make_config(listen, connect, config_json5))
+            self._session = zenoh.open(config)
         except Exception as e:
+            if connect and split_endpoint(connect)[0] == "tls" and _port_answers(connect):
+                raise ConnectRefused(f"ZenohLink({role}): {connect} answers but refused the TLS session "
+                                     f"(a certificate from another CA, or a name not in it?)") from e
             raise LinkError(f"ZenohLink({role}): cannot open a session (listen={listen}, "
                             f"connect={connect}): {e}") from e
         out_key, in_key = (("cmd", "fb") if role == "master" else ("fb", "cmd"))
         self._pub = self._session.declare_publisher(
             f"teleop/{session}/{out_key}", congestion_control=zenoh.CongestionControl.DROP,
             priority=zenoh.Priority.REAL_TIME, express=True)
-        self._in_type = ContactFeedback if role == "master" else ToolCommand
         self._sub = self._session.declare_subscriber(f"teleop/{session}/{in_key}", zenoh.handlers.RingChannel(RING))
+        self._put(self._auth.handshake_due(self._polled_s))
 
+    # -- pairing -------------------------------------------------------------------------------
+    @property
+    def peer(self) -> str | None:
+        """The name of the side this one is paired with (the slave: the master that drives it),
+        or None before pairing."""
+        return self._auth.peer
+
+    @property
+    def session_id(self) -> int | None:
+        """The paired session's id (u64), or None."""
+        s = self._auth.session
+        return None if s is None else s.id
+
+    @property
+    def paired(self) -> bool:
+        """True once paired for good (master: accepted by the slave; slave: a master taken)."""
+        return self._auth.confirmed
+
+    @property
+    def refusal(self) -> str | None:
+        """(master) The slave's refusal as one line, once it refused this master; else None."""
+        return self._auth.refusal
+
+    def pair(self, timeout_s: float = 10.0, poll_s: float = 1e-3) -> str:
+        """Wait (polling every ``poll_s`` s) until paired; returns the peer's name. Raises
+        PairingRefused (a second master; the message is one line) or LinkError (no peer within
+        ``timeout_s`` s)."""
+        end = time.monotonic() + timeout_s
+        while True:
+            self.poll()
+            if self.refusal is not None:
+                raise PairingRefused(self.refusal)
+            if self.paired:
+                return str(self.peer)
+            if time.monotonic() > end:
+                raise LinkError(f"ZenohLink({self.role}): no {'slave' if self.role == 'master' else 'master'} "
+                                f"paired within {timeout_s:g} s (listen={self.listen}, connect={self.connect})")
+            time.sleep(poll_s)
+
+    # -- receiving -----------------------------------------------------------------------------
     def poll(self) -> int:
-        """Drain the frames Zenoh has received since the last poll into the mailbox (on the
-        caller's thread); returns how many were valid. Frames found now arrived after the last
-        poll, so ``last_receive_s`` becomes that poll's time."""
+        """Check the frames Zenoh has received since the last poll (at most RING, on the
+        caller's thread), send the handshake frames due; returns how many messages were fresh
+        and authentic. Frames found now arrived after the last poll, so ``last_receive_s``
+        becomes that poll's time."""
         before, self._polled_s = self._polled_s, self.clock()
         if self._closed:
             return 0
         valid = 0
-        while True:
+        for _ in range(RING):
             try:
                 sample = self._sub.try_recv()
             except Exception:  # the subscriber is gone (session closed): nothing more to take
-                return valid
+                break
             if sample is None:
-                return valid
-            try:
-                msg = wire.decode(sample.payload.to_bytes())
-                if not isinstance(msg, self._in_type):
-                    raise MessageError(f"wire: a {type(msg).__name__} on the {self._in_type.__name__} key")
-            except MessageError:
-                self.bad_frames += 1
-                continue
-            valid += 1
-            self.received += 1
-            self._heard_s = before
-            self._box.put(msg)
+                break
+            msg = self._auth.open(sample.payload.to_bytes(), self._polled_s)
+            if msg is not None:
+                valid += 1
+                self._heard_s = before
+                self._box.put(msg)
+        else:
+            self.flood += 1
+        self.received += valid
+        self._put(self._auth.handshake_due(self._polled_s))
+        out = self._auth.outbox
+        while out:
+            self._put(out.pop(0))
+        return valid
 
     @property
     def last_receive_s(self) -> float | None:
-        """The clock's time (s) the last valid frame had certainly arrived after (the poll before
-        the one that found it; polled now); None before the first frame."""
+        """The clock's time (s) the last fresh authentic frame had certainly arrived after (the
+        poll before the one that found it; polled now); None before the first frame."""
         self.poll()
         return self._heard_s
+
+    def _put(self, frame: bytes | None) -> bool:
+        if frame is None or self._closed:
+            return False
+        try:
+            self._pub.put(frame)
+            return True
+        except Exception:  # a lost peer never raises into the loop
+            return False
 
     def _send(self, msg, role: str) -> None:
         if self.role != role:
             raise LinkError(f"ZenohLink: the {self.role} side cannot send a {type(msg).__name__}")
         if self._closed:
             return
-        try:
-            self._pub.put(wire.encode(msg))
+        if self._auth.session is None:
+            self.poll()  # the handshake moves on (a sender that never receives pairs too)
+        if self._put(self._auth.seal(msg)):
             self.sent += 1
-        except Exception:  # a lost peer never raises into the loop
-            pass
 
     def _take(self, role: str):
         if self.role != role:
@@ -181,6 +287,7 @@ class ZenohLink(Link):
         return self._box.pending
 
     def send_command(self, msg: ToolCommand) -> None:
+        """Master: send ``msg`` (dropped, counted ``unsent``, before pairing)."""
         self._send(msg, "master")
 
     def receive_command(self, t_s: float = 0.0) -> ToolCommand | None:
@@ -188,6 +295,7 @@ class ZenohLink(Link):
         return self._take("slave")
 
     def send_feedback(self, msg: ContactFeedback) -> None:
+        """Slave: send ``msg`` (dropped, counted ``unsent``, before pairing)."""
         self._send(msg, "slave")
 
     def receive_feedback(self, t_s: float = 0.0) -> ContactFeedback | None:
@@ -203,17 +311,25 @@ class ZenohLink(Link):
         return self.last_receive_s
 
     def alive(self, now_s: float | None = None, timeout_s: float = 0.02) -> bool:
-        """True if a frame came within ``timeout_s`` (s) before ``now_s`` (the clock's time,
-        default now); False before the first frame."""
+        """True if a fresh authentic frame came within ``timeout_s`` (s) before ``now_s`` (the
+        clock's time, default now); False before the first frame."""
         last = self.last_receive_s
         if last is None:
             return False
         return (self.clock() if now_s is None else now_s) - last <= timeout_s
 
     def stats(self) -> dict:
+        """Counters (frames unless said): ``sent``; ``received`` fresh authentic messages;
+        ``delivered`` / ``dropped_old`` by the mailbox; ``refused`` by reason
+        (:mod:`teleop.link.auth`) and ``bad_frames`` their sum; ``missed`` the peer's frames
+        that never arrived; ``unsent`` messages not sent before pairing; ``flood`` polls that
+        found the ring full; ``peer`` and ``session`` (hex) once paired."""
         self.poll()
+        c = self._auth.counts()
+        sid = self.session_id
         return {"sent": self.sent, "received": self.received, "delivered": self._box.delivered,
-                "dropped_old": self._box.dropped_old, "bad_frames": self.bad_frames}
+                "dropped_old": self._box.dropped_old, "bad_frames": sum(c["refused"].values()), **c,
+                "flood": self.flood, "peer": self.peer, "session": None if sid is None else f"{sid:016x}"}
 
     def close(self) -> None:
         """Undeclare and close the session; safe to call twice."""

@@ -7,6 +7,7 @@ import pytest
 
 from teleop.util.errors import ConfigError
 from teleop.link import ChannelSpec, ContactFeedback, LockstepLink, SimulatedChannel, ToolCommand
+from teleop.link.wire import COMMAND_SIZE
 
 DT = 1e-3
 
@@ -88,8 +89,8 @@ def test_jitter_reorders_but_never_out_of_order():
 
 
 def test_bandwidth_queues_messages():
-    # a 233-byte command each ms at 116.5 kB/s: two ticks of wire each, the queue grows
-    size = 233
+    # a command (wire.COMMAND_SIZE bytes) each ms at two ticks of wire each: the queue grows
+    size = COMMAND_SIZE
     spec = ChannelSpec(bandwidth_Bps=size / (2 * DT), queue_limit=10)
     ch = SimulatedChannel(spec, np.random.default_rng(7))
     got = run(ch, 100)

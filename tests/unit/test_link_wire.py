@@ -1,4 +1,5 @@
-"""The binary wire format: round trip, sizes, the CRC against crccheck, corrupted frames refused."""
+"""The binary wire format: round trip, sizes, the tag (HMAC-SHA256) under its key only, corrupted
+frames refused; the project's CRC (the CAN frames') against crccheck."""
 
 import struct
 
@@ -11,6 +12,7 @@ from scipy.spatial.transform import Rotation
 
 from teleop.link import wire
 from teleop.tick.messages import SLAVE_STATUSES, ContactFeedback, MessageError, ToolCommand
+from teleop.util.crc32 import crc32
 
 finite = st.floats(-1e6, 1e6, allow_nan=False, allow_infinity=False)
 energy = st.floats(0.0, 1e6, allow_nan=False, allow_infinity=False)
@@ -57,7 +59,19 @@ def test_round_trip_is_exact(msg):
 @settings(max_examples=100, deadline=None)
 @given(st.binary(min_size=0, max_size=300))
 def test_crc_is_crccheck_crc32(data):
-    assert wire.crc32(data) == Crc32.calc(data)
+    assert crc32(data) == Crc32.calc(data)
+
+
+@settings(max_examples=50, deadline=None)
+@given(st.one_of(commands(), feedbacks()), st.integers(0, 2**64 - 1), st.integers(0, 2**64 - 1))
+def test_a_frame_verifies_under_its_key_only(msg, session, counter):
+    key, other = wire.Mac(bytes(range(32))), wire.Mac(bytes(range(1, 33)))
+    data = wire.encode(msg, key, session, counter)
+    assert wire.parse(data) == (wire.pack_message(msg)[0], session, counter, msg.seq)
+    _same(wire.decode(data, key), msg)
+    for mac in (other, wire.PLAIN):
+        with pytest.raises(MessageError, match="bad MAC"):
+            wire.decode(data, mac)
 
 
 def _cmd():
@@ -65,9 +79,9 @@ def _cmd():
 
 
 def _refit(data: bytes) -> bytes:
-    """Recompute the CRC so a deliberately malformed frame passes the CRC check."""
-    body = data[:-4]
-    return body + struct.pack("<I", wire.crc32(body))
+    """Recompute the tag so a deliberately malformed frame passes the MAC check."""
+    body = data[:-wire.TAG_SIZE]
+    return body + wire.PLAIN.tag(body)
 
 
 @settings(max_examples=200, deadline=None)
@@ -87,9 +101,10 @@ def test_any_flipped_bit_is_refused(data):
     (lambda f: f[:-1], "length"),
     (lambda f: f + b"\0", "length"),
     (lambda f: _refit(f[:5] + bytes([2]) + f[6:]), "length"),
-    (lambda f: f[:-4] + bytes(4), "CRC"),
-    (lambda f: _refit(f[:16] + struct.pack("<d", float("nan")) + f[24:]), "non-finite"),
-    (lambda f: _refit(f[:24] + struct.pack("<d", float("inf")) + f[32:]), "non-finite"),
+    (lambda f: f[:-4] + bytes(4), "MAC"),
+    (lambda f: _refit(f[:32] + struct.pack("<d", float("nan")) + f[40:]), "non-finite"),
+    (lambda f: _refit(f[:40] + struct.pack("<d", float("inf")) + f[48:]), "non-finite"),
+    (lambda f: _refit(f[:24] + struct.pack("<Q", 2**63) + f[32:]), "sequence"),
     (lambda f: b"", "short"),
 ])
 def test_corrupted_frames_name_the_reason(mangle, reason):

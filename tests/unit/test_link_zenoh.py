@@ -1,5 +1,5 @@
-"""ZenohLink: two sessions on a free loopback port exchange 100 messages each way, in order;
-the heartbeat; wrong-side use; bad frames counted; close twice."""
+"""ZenohLink: two sessions on a free loopback port pair and exchange 100 messages each way, in
+order; the heartbeat; wrong-side use; bad frames counted; close twice."""
 
 import socket
 import time
@@ -9,9 +9,12 @@ import pytest
 
 pytest.importorskip("zenoh")
 
-from teleop.util.errors import ConfigError  # noqa: E402
-from teleop.link import ContactFeedback, ToolCommand  # noqa: E402
-from teleop.link.zenoh_link import LinkError, ZenohLink  # noqa: E402
+from teleop.link import ContactFeedback, ToolCommand
+from teleop.link.keys import random_secret
+from teleop.link.zenoh_link import LinkError, ZenohLink
+from teleop.util.errors import ConfigError
+
+KEY = random_secret()
 
 
 def free_port() -> int:
@@ -40,8 +43,8 @@ def wait_for(pred, timeout_s=5.0):
 @pytest.fixture
 def pair():
     ep = f"tcp/127.0.0.1:{free_port()}"
-    slave = ZenohLink("slave", session="t", listen=ep)
-    master = ZenohLink("master", session="t", connect=ep)
+    slave = ZenohLink("slave", session="t", listen=ep, keys=KEY)
+    master = ZenohLink("master", session="t", connect=ep, keys=KEY)
     try:
         def up():  # until the route is up both ways
             master.send_command(cmd(0))
@@ -102,24 +105,28 @@ def test_heartbeat(pair):
 def test_bad_frames_are_counted(pair):
     master, slave = pair
     master._pub.put(b"garbage")
-    master._pub.put(b"TLNK" + bytes(40))
+    master._pub.put(b"TLNK" + bytes(80))
     assert wait_for(lambda: slave.stats()["bad_frames"] == 2)
+    assert slave.stats()["refused"]["malformed"] == 2
     assert slave.receive_command() is None
 
 
 def test_wrong_side_and_config():
     with pytest.raises(ConfigError):
-        ZenohLink("boss")
+        ZenohLink("boss", keys=KEY)
     with pytest.raises(ConfigError):
-        ZenohLink("master", session="a/b")
-    link = ZenohLink("master", session="solo", connect=f"tcp/127.0.0.1:{free_port()}")
+        ZenohLink("master", session="a/b", keys=KEY)
+    with pytest.raises(TypeError):
+        ZenohLink("master", session="nokey")  # never unauthenticated
+    link = ZenohLink("master", session="solo", connect=f"tcp/127.0.0.1:{free_port()}", keys=KEY)
     try:
         assert not link.alive()
         with pytest.raises(LinkError):
             link.send_feedback(fb(1))
         with pytest.raises(LinkError):
             link.receive_command()
-        link.send_command(cmd(1))  # no peer: never raises
+        link.send_command(cmd(1))  # no peer: never raises (not paired: not sent, counted)
+        assert link.stats()["unsent"] == 1 and link.peer is None
         assert link.receive_feedback() is None
     finally:
         link.close()
@@ -128,6 +135,6 @@ def test_wrong_side_and_config():
 
 
 def test_context_manager_closes():
-    with ZenohLink("slave", session="cm", listen=f"tcp/127.0.0.1:{free_port()}") as link:
+    with ZenohLink("slave", session="cm", listen=f"tcp/127.0.0.1:{free_port()}", keys=KEY) as link:
         assert link.receive_command() is None
     assert link._closed
