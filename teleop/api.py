@@ -2,6 +2,10 @@
 
     from teleop.api import ReferenceTool, RigidBody, IdealMaster, SlaveArm, SlaveSide, Session, ...
 
+The two sides of the tick (:class:`MasterSide`, :class:`SlaveSide`) are what every runner
+composes: :class:`BilateralLoop` in one process, :mod:`teleop.app.netrun` in two;
+:func:`build_master` / :func:`build_slave` make them from a scene.
+
 See the README's "Python API" section for a whole run with a constraint and a fixture type of the
 user's own. Everything here is also importable from its own module; this module only gathers them.
 """
@@ -17,7 +21,11 @@ from teleop.dynamics.registry import FrameMap, register_fixture
 from teleop.dynamics.tool import ReferenceTool
 from teleop.link.base import LockstepLink
 from teleop.tick.messages import ContactFeedback, ToolCommand
-from teleop.tick.loop import BilateralLoop, Hook
+from teleop.tick.loop import BilateralLoop
+from teleop.tick.master_side import MasterSide, SetWrench
+from teleop.tick.ports import Hook, ToolState
+from teleop.tick.verdict import run_summary, verdict
+from teleop.app.assembly import build_master, build_slave
 from teleop.master.base import Master
 from teleop.master.ideal import IdealMaster
 from teleop.app.runtime import run_scene
@@ -28,6 +36,7 @@ from teleop.slave import SlaveArm, SlaveConfig
 from teleop.tick.slave_side import SlaveSide
 
 __all__ = [
+    "MasterSide", "SetWrench", "ToolState", "build_master", "build_slave", "run_summary", "verdict",
     "AngularDamper", "BilateralLoop", "Constraint", "ContactFeedback", "FeedbackPath", "Fixture", "FrameMap",
     "Gravity", "Hook", "IdealMaster", "LinearDamper", "LockstepLink", "Master", "Operator", "ReferenceTool",
     "Registration", "RigidBody", "RunResult", "Session", "SlaveArm", "SlaveConfig", "SlaveSide", "Spring",

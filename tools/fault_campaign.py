@@ -187,11 +187,12 @@ class Injector:
     def _hold_after_fault(self, loop, t_s: float) -> None:
         """The master latched a fault: run the link at zero velocity (the master's hold) and the
         slave on lost commands (it holds its last pose) until both are at rest."""
-        m, slave, dt = loop.master, loop.slave, loop.dt
+        m, slave, dt = loop.master, loop.slave_side, loop.dt
         zero = np.zeros(6)
+        i0 = round(t_s / dt)
         for k in range(1, POST_CYCLES + 1):
-            m.sense(zero)
-            slave.follow(None, t_s + k * dt)
+            m.sense(zero)  # the device runs on; the master side has stopped: no command comes
+            slave.tick(i0 + k, t_s + k * dt, loop.link)
             speed = self._watch(loop)
             rate = np.abs(m.sim.plant.qd)
             if np.all(rate < SAFE_RATE) and speed < SAFE_TIP_M_S:

@@ -62,7 +62,15 @@ def refuse_over_zenoh(args) -> None:
 
 
 def cmd_side(args) -> int:
-    """``teleop master`` / ``teleop slave``: one side in this process, its own summary."""
+    """``teleop master`` / ``teleop slave``: one side in this process, its own summary. Ctrl-C or
+    SIGTERM from the start ends the side between steps with status "interrupted", written."""
+    from teleop.app.session import _stop_requests
+
+    with _stop_requests() as stop:
+        return _side(args, stop)
+
+
+def _side(args, stop) -> int:
     from teleop.app.args import scene_for
     from teleop.app.netrun import run_master, run_slave, save_side, side_result
     from teleop.app.outputs import RunFolder, check_json_target, write_json
@@ -78,9 +86,9 @@ def cmd_side(args) -> int:
 
             scene = with_capture(scene, folder, capture)
         run = (run_slave(scene, listen=args.endpoint, session=args.session, timeout_s=args.timeout, config_json5=extra,
-                         pin=args.pin) if args.role == "slave" else
+                         pin=args.pin, stop=stop) if args.role == "slave" else
                run_master(scene, connect=args.endpoint, session=args.session, timeout_s=args.timeout,
-                          config_json5=extra, pin=args.pin))
+                          config_json5=extra, pin=args.pin, stop=stop))
         if args.part:
             save_side(*run, args.part)
         result = side_result(scene, *run)
@@ -110,31 +118,38 @@ def cmd_run_zenoh(scene, quiet: bool = False):
         slave = subprocess.Popen(py + ["slave", str(path), "--listen", ep] + common)
         master = subprocess.Popen(py + ["master", str(path), "--connect", ep] + common)
         codes = _wait_pair(master, slave, scene.duration_s + PAIR_MARGIN_S)
-        why = ", ".join(f"{k} process exit {c}" for k, c in codes.items() if c not in (0, 1))
-        result = merge(scene, load_side(tmp, "master"), load_side(tmp, "slave"), why)
+        sides = {k: load_side(tmp, k) for k in codes}
+        why = ", ".join(f"{k} process exit {c}" for k, c in codes.items()
+                        if c not in (0, 1) or (c != 0 and sides[k] is None))
+        interrupted = any(c in (130, -signal.SIGINT) for c in codes.values())
+        result = merge(scene, sides["master"], sides["slave"], why, interrupted)
     result.summary["endpoint"] = ep
     return result
 
 
 def _wait_pair(master, slave, timeout_s: float) -> dict:
-    """Wait for both children; Ctrl-C (or SIGTERM) is passed on to them as SIGINT, so each ends
-    its run between ticks and writes what it ran; a child past ``timeout_s`` is killed."""
+    """Wait for both children. Ctrl-C or SIGTERM here does not end the parent: it is passed on to
+    the children that still run (as SIGINT), which end their runs between ticks and write what
+    they ran, and the parent merges and writes the result as usual (a Ctrl-C after both had
+    finished loses nothing). A child past ``timeout_s`` is stopped the same way, then killed."""
+    import time
+
+    from teleop.app.session import _stop_requests
+
     procs = {"master": master, "slave": slave}
-    try:
-        for p in procs.values():
-            p.wait(timeout=timeout_s)
-    except (KeyboardInterrupt, subprocess.TimeoutExpired):
-        pass
-    finally:
-        for p in procs.values():
-            if p.poll() is None:
-                p.send_signal(signal.SIGINT)
-        for p in procs.values():
-            try:
-                p.wait(timeout=30)
-            except subprocess.TimeoutExpired:
-                p.kill()
-                p.wait()
+    end, forwarded = time.monotonic() + timeout_s, False
+    with _stop_requests() as stop:
+        while any(p.poll() is None for p in procs.values()):
+            if (stop or time.monotonic() > end) and not forwarded:
+                for p in procs.values():
+                    if p.poll() is None:
+                        p.send_signal(signal.SIGINT)
+                forwarded, end = True, time.monotonic() + 30.0
+            elif forwarded and time.monotonic() > end:
+                for p in procs.values():
+                    if p.poll() is None:
+                        p.kill()
+            time.sleep(0.02)
     return {k: p.returncode for k, p in procs.items()}
 
 

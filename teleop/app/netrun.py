@@ -95,27 +95,28 @@ def _open_link(role: str, session: str, listen, connect, timeout_s: float, confi
             time.sleep(0.2)
 
 
-def _hello(side, link, timeout_s: float) -> bool:
-    """Master: hello commands until the slave answers (True), or ``timeout_s`` passes (False)."""
+def _hello(side, link, timeout_s: float, stop=()) -> bool:
+    """Master: hello commands until the slave answers (True), or ``timeout_s`` passes or ``stop``
+    is set (False)."""
     end = time.monotonic() + timeout_s
     s = side.state
     while link.last_receive_s is None:
-        if time.monotonic() > end:
+        if time.monotonic() > end or stop:
             return False
         link.send_command(ToolCommand(0, -1.0, s.p, s.R, _Z3, _Z3, False))
         time.sleep(0.005)
     return True
 
 
-def _answer_hellos(link, timeout_s: float) -> bool:
+def _answer_hellos(link, timeout_s: float, stop=()) -> bool:
     """Slave: answer hello commands until the first real one is waiting (True; left for the first
-    tick to take), or ``timeout_s`` passes (False)."""
+    tick to take), or ``timeout_s`` passes or ``stop`` is set (False)."""
     end = time.monotonic() + timeout_s
     while True:
         cmd = link.peek()
         if cmd is not None and cmd.t_s >= 0:
             return True
-        if time.monotonic() > end:
+        if time.monotonic() > end or stop:
             return False
         if cmd is not None:
             link.receive_command(0.0)  # a hello, taken
@@ -173,10 +174,19 @@ def _start_pose(scene: Scene):
 
 
 def run_master(scene: Scene, connect: str | None, listen: str | None = None, session: str = "default",
-               timeout_s: float = CONNECT_TIMEOUT_S, config_json5: dict | None = None, pin: bool = True) -> tuple[SideRun, dict]:
+               timeout_s: float = CONNECT_TIMEOUT_S, config_json5: dict | None = None, pin: bool = True,
+               stop=None) -> tuple[SideRun, dict]:
     """The master process: its side ticked on the wall clock over Zenoh. Returns its run and its
     metrics. ``config_json5``: extra Zenoh settings (TLS, see :mod:`teleop.link.zenoh_link`);
-    ``pin``: :func:`claim_core`."""
+    ``pin``: :func:`claim_core`. Ctrl-C or SIGTERM at any point (warm-up, connection, ticks) ends
+    it with status "interrupted" and what it ran."""
+    if stop is not None:  # the caller's flag (set by its own Ctrl-C handler)
+        return _run_master(scene, connect, listen, session, timeout_s, config_json5, pin, stop)
+    with _stop_requests() as stop:
+        return _run_master(scene, connect, listen, session, timeout_s, config_json5, pin, stop)
+
+
+def _run_master(scene, connect, listen, session, timeout_s, config_json5, pin, stop) -> tuple[SideRun, dict]:
     n = tick_count(scene.duration_s, scene.dt_s)
     core = claim_core("master") if pin else None
     spin_s = math.inf if core is not None else PACE_SPIN_S
@@ -187,12 +197,12 @@ def run_master(scene: Scene, connect: str | None, listen: str | None = None, ses
     status, late, steps, behind = "ok", 0, 0, 0.0
     ticks = np.zeros(n)
     wall0 = time.perf_counter()
-    with link, side.master, _stop_requests() as stop:
+    with link, side.master:
         status = side.master.status
-        if status == "ok" and not _hello(side, link, timeout_s):
-            status = "link_lost"
+        if status == "ok" and not _hello(side, link, timeout_s, stop):
+            status = "interrupted" if stop else "link_lost"
             print(f"master: no answer from the slave within {timeout_s:g} s (is 'teleop slave' running on "
-                  f"{link.connect}?)", flush=True)
+                  f"{link.connect}?)" if status == "link_lost" else "master: interrupted", flush=True)
         elif status == "ok":
             print("master: running", flush=True)
         wall0 = time.perf_counter()
@@ -218,11 +228,20 @@ def run_master(scene: Scene, connect: str | None, listen: str | None = None, ses
 
 
 def run_slave(scene: Scene, listen: str | None, connect: str | None = None, session: str = "default",
-              timeout_s: float = CONNECT_TIMEOUT_S, config_json5: dict | None = None, pin: bool = True) -> tuple[SideRun, dict]:
+              timeout_s: float = CONNECT_TIMEOUT_S, config_json5: dict | None = None, pin: bool = True,
+              stop=None) -> tuple[SideRun, dict]:
     """The slave process: its side ticked as the master's commands come. Returns its run and its
-    metrics; ``pin``: :func:`claim_core`."""
+    metrics; ``pin``: :func:`claim_core`. Ctrl-C or SIGTERM at any point ends it with status
+    "interrupted" and what it ran."""
     if scene.slave is None:
         raise TeleopError(f"{scene.path}: slave: the scene has no [slave] table: nothing to run on this side")
+    if stop is not None:  # the caller's flag (set by its own Ctrl-C handler)
+        return _run_slave(scene, listen, connect, session, timeout_s, config_json5, pin, stop)
+    with _stop_requests() as stop:
+        return _run_slave(scene, listen, connect, session, timeout_s, config_json5, pin, stop)
+
+
+def _run_slave(scene, listen, connect, session, timeout_s, config_json5, pin, stop) -> tuple[SideRun, dict]:
     core = claim_core("slave") if pin else None
     poll_s = 0.0 if core is not None else POLL_S
     n = tick_count(scene.duration_s, scene.dt_s)
@@ -234,10 +253,11 @@ def run_slave(scene: Scene, listen: str | None, connect: str | None = None, sess
     status, late, steps, behind = "ok", 0, 0, 0.0
     ticks = np.zeros(cap)
     wall0 = time.perf_counter()
-    with link, _stop_requests() as stop:
-        if not _answer_hellos(link, timeout_s):
-            status = "link_lost"
-            print(f"slave: no command from a master within {timeout_s:g} s", flush=True)
+    with link:
+        if not _answer_hellos(link, timeout_s, stop):
+            status = "interrupted" if stop else "link_lost"
+            print(f"slave: no command from a master within {timeout_s:g} s" if status == "link_lost"
+                  else "slave: interrupted", flush=True)
         else:
             print("slave: running", flush=True)
         _fine_timer_slack()
@@ -275,15 +295,19 @@ def scene_summary(scene: Scene, result: RunResult) -> RunResult:
 
 
 def merge(scene: Scene, master: tuple[SideRun, dict] | None, slave: tuple[SideRun, dict] | None,
-          why: str = "") -> RunResult:
+          why: str = "", interrupted: bool = False) -> RunResult:
     """The two processes' runs as one run (the in-process run's summary shape and verdict);
     a side that left no run (its process died) is judged by the other (``why`` says what
     happened to it)."""
     m, s = (master or (None, {}))[0], (slave or (None, {}))[0]
-    if m is None and s is None:
-        raise TeleopError(f"teleop run --link zenoh: neither side left a summary ({why})")
+    if m is None and s is None:  # both died before their first tick: a run of none, said so
+        status = "interrupted" if interrupted else "link_lost"
+        result = side_result(scene, SideRun(status, 0, scene.dt_s, None, None, False, {}, {}), {})
+        result.summary["status_reason"] = f"neither side left a run ({why or 'no reason given'})"
+        result.summary["processes"] = why
+        return result
     steps = m.steps if m is not None else s.steps
-    status = m.status if m is not None else "link_lost"
+    status = m.status if m is not None else "interrupted" if interrupted else "link_lost"
     if m is not None and s is not None and s.status == "interrupted":
         status = "interrupted"
     runner: dict = {"link": {}, "clock": {}}
