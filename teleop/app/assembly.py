@@ -29,6 +29,7 @@ from teleop.scenario.schema import FixtureSpec, Scene
 from teleop.tick.feedback import FeedbackPath
 from teleop.tick.guard import MasterGuard, SlaveGuard, tdpa_params
 from teleop.tick.master_side import MasterSide
+from teleop.tick.plausible import CommandLimits
 from teleop.tick.slave_side import SlaveSide
 from teleop.util.errors import ConfigError, SceneError
 
@@ -67,7 +68,25 @@ def make_slave(scene: Scene, registration, constraints_P, guard: SlaveGuard | No
     except ConfigError as e:
         key, _, reason = str(e).partition(": ")
         raise SceneError(scene.path, key, reason) from None
-    return SlaveSide(arm, registration, tissue, scene.fixture.tip_m, guard=guard, heartbeat_s=scene.link.heartbeat_ms * 1e-3)
+    return SlaveSide(arm, registration, tissue, scene.fixture.tip_m, guard=guard, heartbeat_s=scene.link.heartbeat_ms * 1e-3,
+                     limits=CommandLimits(*arm_reach(arm)))
+
+
+def arm_reach(arm: SlaveArm) -> tuple[tuple[float, float, float], float]:
+    """The sphere no target of the arm's tool can leave: its first joint's origin (m, in the arm's
+    world, the patient frame) and the sum of the link offsets along the chain to the tool frame
+    (m), an upper bound on the reach, 5 % over."""
+    m = arm.model
+    frame = m.frames[arm.frame_E]
+    chain, j = [], frame.parentJoint
+    while j > 0:
+        chain.append(j)
+        j = m.parents[j]
+    chain.reverse()
+    center = m.jointPlacements[chain[0]].translation
+    reach = sum(float(np.linalg.norm(m.jointPlacements[k].translation)) for k in chain[1:])
+    reach += float(np.linalg.norm(frame.placement.translation))
+    return (float(center[0]), float(center[1]), float(center[2])), 1.05 * reach
 
 
 def channel_spec(scene: Scene) -> ChannelSpec:

@@ -36,6 +36,7 @@ from teleop.tick.feedback import FeedbackPath
 from teleop.tick.guard import MasterGuard
 from teleop.tick.heartbeat import HeartbeatState
 from teleop.tick.messages import ContactFeedback, MessageError, ToolCommand
+from teleop.tick.plausible import ReplyCheck, ReplyLimits
 from teleop.tick.ports import Hook, MasterEnd, Operator, ToolState
 
 #: the heartbeat's timeout when none is given (s): ``[link] heartbeat_ms``'s default
@@ -51,7 +52,9 @@ class MasterSide:
     :class:`~teleop.master.base.Master` (ideal or the cobot), ``operator`` the hand; ``dt_s`` the
     period (s); ``feedback`` the path of the slave's force (None: no slave, nothing felt);
     ``guard`` the passivity guard's master port (None: unguarded); ``heartbeat_s`` the silence
-    (s) after which the slave is lost; ``hooks`` see this side around each tick.
+    (s) after which the slave is lost; ``hooks`` see this side around each tick; ``limits`` what a
+    real slave can send (:class:`~teleop.tick.plausible.ReplyLimits`): a reply past them is
+    refused and counted, the tool is held and the side's status is ``implausible_feedback``.
 
     Read-outs for hooks: ``hand_W`` the hand's wrench this tick, ``felt_W`` the slave's wrench the
     tool stepped under, ``feedback_W`` the channel's force for the next step (after the guard),
@@ -59,7 +62,7 @@ class MasterSide:
 
     def __init__(self, tool: Any, master: Any, operator: Operator, dt_s: float, feedback: FeedbackPath | None = None,
                  guard: MasterGuard | None = None, heartbeat_s: float = HEARTBEAT_S,
-                 hooks: Sequence[Hook] = ()) -> None:
+                 hooks: Sequence[Hook] = (), limits: ReplyLimits | None = None) -> None:
         self.tool, self.master, self.operator, self.dt = tool, master, operator, float(dt_s)
         self.feedback, self.guard, self.hooks = feedback, guard, list(hooks)
         self.heart = HeartbeatState(heartbeat_s)
@@ -76,6 +79,8 @@ class MasterSide:
         self._ramp = self.dt / RAMP_S
         self._holding = False
         self._held_felt = _Z6          # the felt wrench at full gain when the hold began
+        self.check = ReplyCheck(limits if limits is not None else ReplyLimits(), self.dt)
+        self._refusing: str | None = None  # why a reply was refused: the side holds and says so
         self.state = self._read()
 
     def _read(self) -> ToolState:
@@ -96,6 +101,10 @@ class MasterSide:
         lost = False
         if link is not None:
             msg = link.receive_feedback(t_s - self.dt) if i > 0 else None  # what came in the last period
+            if msg is not None and msg.t_s >= 0 and self._refusing is None:
+                self._refusing = self.check.reason(msg)  # no real slave sends it: hold, end the run
+            if self._refusing is not None:
+                msg = None
             self._heard(i, msg)
             lost = self.heart.update(link.clock(t_s), link.last_heard_s("master"), self.peer_lost)
             if not lost and i > 0:
@@ -104,8 +113,8 @@ class MasterSide:
         master.set_clutch(self.operator.clutch_engaged)
         f_v = master.sense(self.hand_W)                               # bus in, load cell, eq. 4
         state = self.state if self._fresh() else self._read()
-        if lost:
-            st, st_m = "ok", self.hold(state)
+        if lost or self._refusing is not None:
+            st, st_m = ("ok" if lost else "implausible_feedback"), self.hold(state)
         else:
             st, st_m = self._step(state, f_v)
         self.state = self._read()
@@ -189,6 +198,7 @@ class MasterSide:
         """This side's part of a run's summary (:func:`teleop.tick.verdict.run_summary`)."""
         out = {"heartbeat": self.heart.summary(), "slave_statuses_heard": dict(self.slave_statuses),
                "reply_lag_ticks": dict(sorted(self.reply_lag.items())), "command_errors": self.command_errors,
+               "replies_refused": dict(self.check.refused),
                "engine": {"rank_min": int(self.tool.rank), "recharts": self.tool.recharts}}
         if self.feedback is not None:
             out["feedback_damping_refused"] = self.feedback.refused

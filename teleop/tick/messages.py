@@ -32,7 +32,7 @@ class MessageError(TeleopError):
 
 #: slave statuses a ContactFeedback may carry (the slave's own plus the link's safe states)
 SLAVE_STATUSES = ("ok", "saturated", "tracking_error", "fixtures_relaxed", "infeasible_fallback",
-                  "invalid_target", "hold", "link_lost", "joint_limit")
+                  "invalid_target", "hold", "link_lost", "joint_limit", "implausible_command")
 
 
 _ZERO36, _ZERO6 = np.zeros(36), np.zeros(6)

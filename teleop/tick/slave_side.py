@@ -40,6 +40,7 @@ from teleop.slave.qp import SlaveArm
 from teleop.tick.guard import SlaveGuard
 from teleop.tick.heartbeat import HeartbeatState
 from teleop.tick.messages import ContactFeedback, ToolCommand
+from teleop.tick.plausible import CommandCheck, CommandLimits
 from teleop.tick.ports import Hook, SlaveEnd
 
 #: the heartbeat's timeout when none is given (s): ``[link] heartbeat_ms``'s default
@@ -70,12 +71,15 @@ class SlaveSide:
     """``arm`` the follower, ``registration`` master -> patient, ``tissue`` (or None) with a
     ``wrench(tip, R, v_tip, w)`` method, ``tip_B`` the blade tip in the tool frame (m, slave
     scale); ``guard`` the passivity guard's slave port (None: unguarded); ``heartbeat_s`` the
-    silence (s) after which the master is lost; ``hooks`` see this side around each tick."""
+    silence (s) after which the master is lost; ``hooks`` see this side around each tick;
+    ``limits`` what a real master can ask (:class:`~teleop.tick.plausible.CommandLimits`): a
+    command past them is refused and counted, and the arm holds (status ``implausible_command``)
+    until a command comes with the clutch open."""
 
     def __init__(self, arm: SlaveArm, registration: Registration, tissue: Any = None,
                  tip_B: Sequence[float] = (0.0, 0.0, 0.0),
                  guard: SlaveGuard | None = None, heartbeat_s: float = HEARTBEAT_S,
-                 hooks: Sequence[Hook] = ()) -> None:
+                 hooks: Sequence[Hook] = (), limits: CommandLimits | None = None) -> None:
         self.arm, self.reg, self.tissue = arm, registration, tissue
         self.tip_B = np.asarray(tip_B, dtype=float)
         self.guard, self.hooks = guard, list(hooks)
@@ -85,6 +89,8 @@ class SlaveSide:
         self.skipped = 0               # commands never followed (a newer one came first)
         self.tick_ns = 0               # the last tick's CPU time, hooks excluded (ns)
         self.statuses: dict[str, int] = {}  # ticks per status
+        self.check = CommandCheck(limits if limits is not None else CommandLimits(), arm.dt)
+        self._refusing: str | None = None  # why the last command was refused: held until the clutch opens
         self._rows = arm.qp.rows  # the fixture's rows (RowStack), the same the master evaluates
         self.state = SlaveState()
         self._target: tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray] | None = None
@@ -115,6 +121,9 @@ class SlaveSide:
         cmd = link.receive_command(t_s)
         if cmd is not None and cmd.t_s < 0:
             cmd = None  # a hello (the two-process handshake): nothing to follow
+        why = self.check.energy_reason(cmd) if cmd is not None else None
+        if why is not None:  # not a real master's: neither the guard nor the follower sees it
+            self._refusing, cmd = why, None
         lost = self.heart.update(link.clock(t_s), link.last_heard_s("slave"))
         if cmd is not None and not lost:
             self.skipped += max(0, cmd.seq - self.last_seq - 1)
@@ -157,7 +166,7 @@ class SlaveSide:
         """This side's part of a run's summary (:func:`teleop.tick.verdict.run_summary`)."""
         out = {"slave_statuses": dict(self.statuses), "heartbeat": self.heart.summary(),
                "last_command_seq": self.last_seq, "ticks_without_command": self.without_command,
-               "commands_skipped": self.skipped, **self.stats()}
+               "commands_skipped": self.skipped, "commands_refused": dict(self.check.refused), **self.stats()}
         if self.guard is not None:
             out["passivity_slave"] = self.guard.summary()
         return out
@@ -175,8 +184,14 @@ class SlaveSide:
         if hold:
             p, R = self.arm.tool_pose()
             self._target = (p, R, np.zeros(3), np.zeros(3))
-        elif cmd is not None and cmd.clutch:
-            self._target = self.project(*self.reg.target(cmd.p_m, cmd.R, cmd.v_m_s, cmd.w_rad_s))
+        elif cmd is not None and cmd.clutch and self._refusing is None:
+            target = self.reg.target(cmd.p_m, cmd.R, cmd.v_m_s, cmd.w_rad_s)
+            self._refusing = self.check.pose_reason(cmd, target[0], target[1])
+            if self._refusing is None:
+                self._target = self.project(*target)
+            else:  # no real master asks this: hold where the arm is
+                p, R = self.arm.tool_pose()
+                self._target = (p, R, np.zeros(3), np.zeros(3))
         elif cmd is not None or self._target is None:  # clutch out, or nothing yet: hold still
             p, R = self.arm.tool_pose()
             self._target = (p, R, np.zeros(3), np.zeros(3))
@@ -186,9 +201,12 @@ class SlaveSide:
         F = s.contact_P if s.ticks else None
         if cmd is not None and not cmd.clutch:
             self._stopped = False  # the operator let go: follow again
-        if hold or self._stopped:
+            self._refusing = None
+            self.check.forget()
+        if hold or self._stopped or self._refusing is not None:
             status = self.arm.hold(F)
-            status = "joint_limit" if self._stopped and not hold else status
+            if not hold:
+                status = "implausible_command" if self._refusing is not None else "joint_limit"
         else:
             status = self.arm.step(p_t, R_t, v_t, w_t, F)
             at = self.arm.limits.at_limit(self.arm.q, self.arm.dt)

@@ -16,7 +16,7 @@ from collections.abc import Iterable
 #: (DEGRADED: "fixtures_relaxed") fail the run only on more than RELAXED_SHARE_MAX of its ticks (the
 #: fixture tolerances still hold the result); any other fault fails it on one tick.
 SLAVE_FAULTS = ("hold", "link_lost", "tracking_error", "fixtures_relaxed", "joint_limit", "infeasible_fallback",
-                "invalid_target")
+                "invalid_target", "implausible_command")
 DEGRADED = ("fixtures_relaxed",)
 #: the share of ticks the slave may spend with its fixtures relaxed (DEGRADED) in an "ok" run
 RELAXED_SHARE_MAX = 0.01
