@@ -28,19 +28,23 @@ KIND_KNIFE_EDGE = 7  # point_B d (0:3), side_B s (3:6)
 KIND_REMOTE_CENTER = 8  # centre c (0:3), point_B d (3:6), body normals n1 (6:9), n2 (9:12)
 
 
-# -- small scalar helpers -------------------------------------------------------------------------
+# -- small scalar helpers: 3-vectors as tuples (no array allocated, no slice assigned) -------------
 @njit(cache=True, inline="always")
-def _rv(R, x0, x1, x2, out):
-    """out = R @ (x0, x1, x2)."""
-    for i in range(3):
-        out[i] = R[i, 0] * x0 + R[i, 1] * x1 + R[i, 2] * x2
+def _rv(R, x0, x1, x2):
+    """R @ (x0, x1, x2)."""
+    return (R[0, 0] * x0 + R[0, 1] * x1 + R[0, 2] * x2, R[1, 0] * x0 + R[1, 1] * x1 + R[1, 2] * x2,
+            R[2, 0] * x0 + R[2, 1] * x1 + R[2, 2] * x2)
 
 
 @njit(cache=True, inline="always")
-def _cross(a, b, out):
-    out[0] = a[1] * b[2] - a[2] * b[1]
-    out[1] = a[2] * b[0] - a[0] * b[2]
-    out[2] = a[0] * b[1] - a[1] * b[0]
+def _v3(x, o):
+    """x[o:o + 3] as a 3-tuple."""
+    return (x[o], x[o + 1], x[o + 2])
+
+
+@njit(cache=True, inline="always")
+def _cross(a, b):
+    return (a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0])
 
 
 @njit(cache=True, inline="always")
@@ -49,120 +53,97 @@ def _dot(a, b):
 
 
 @njit(cache=True, inline="always")
-def _wwx(w, a, out):
-    """out = w x (w x a): the centripetal term of a body vector a turning at w."""
+def _wwx(w, a):
+    """w x (w x a): the centripetal term of a body vector a turning at w."""
     wa = _dot(w, a)
     ww = _dot(w, w)
+    return (wa * w[0] - ww * a[0], wa * w[1] - ww * a[1], wa * w[2] - ww * a[2])
+
+
+@njit(cache=True, inline="always")
+def _set_row(G, r, x, y):
+    """G[r] = (x, y), two 3-tuples."""
     for i in range(3):
-        out[i] = wa * w[i] - ww * a[i]
+        G[r, i] = x[i]
+        G[r, 3 + i] = y[i]
 
 
 @njit(cache=True, inline="always")
 def _point_row(n, a, w, G, b, r):
     """Row r of a body point at offset a (world) moving along the fixed unit n: G = [n, a x n],
     b = n . w x (w x a)."""
-    t = np.empty(3)
-    G[r, 0:3] = n
-    _cross(a, n, t)
-    G[r, 3:6] = t
-    _wwx(w, a, t)
-    b[r] = _dot(n, t)
+    _set_row(G, r, n, _cross(a, n))
+    b[r] = _dot(n, _wwx(w, a))
 
 
 @njit(cache=True, inline="always")
 def _axis_row(n, a, w, G, b, h, r):
     """Row r of a body axis a (world) held perpendicular to the fixed unit n: h = n . a,
     G = [0, a x n], b = n . w x (w x a)."""
-    _point_row(n, a, w, G, b, r)
-    G[r, 0:3] = 0.0
+    _set_row(G, r, (0.0, 0.0, 0.0), _cross(a, n))
+    b[r] = _dot(n, _wwx(w, a))
     h[r] = _dot(n, a)
 
 
 # -- the constraint rows --------------------------------------------------------------------------
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def constraint_rows(kind, par, p, R, v, w, G, b, h, r0):
     """Fill G[r0:r0+rows] (rows, 6), b and h [r0:r0+rows] for one constraint of ``kind``."""
-    a = np.empty(3)
-    s = np.empty(3)
-    t = np.empty(3)
     if kind == KIND_PLANE_HEIGHT:
-        G[r0, :] = 0.0
-        G[r0, 0:3] = par[3:6]
+        n = _v3(par, 3)
+        _set_row(G, r0, n, (0.0, 0.0, 0.0))
         b[r0] = 0.0
-        h[r0] = _dot(par[3:6], p) - _dot(par[3:6], par[0:3]) - par[6]
+        h[r0] = _dot(n, p) - _dot(n, _v3(par, 0)) - par[6]
     elif kind == KIND_AXIS_IN_PLANE:
-        _rv(R, par[0], par[1], par[2], a)
-        _axis_row(par[3:6], a, w, G, b, h, r0)
+        _axis_row(_v3(par, 3), _rv(R, par[0], par[1], par[2]), w, G, b, h, r0)
     elif kind == KIND_ROLLING:  # contact point p - r n: rows [t_i, -r (n x t_i)] (eqs. 14-15)
         r = par[9]
         for k in range(2):
-            tk = par[3 * k : 3 * k + 3]
-            G[r0 + k, 0:3] = tk
-            _cross(par[6:9], tk, s)
-            for i in range(3):
-                G[r0 + k, 3 + i] = -r * s[i]
+            tk = _v3(par, 3 * k)
+            s = _cross(_v3(par, 6), tk)
+            _set_row(G, r0 + k, tk, (-r * s[0], -r * s[1], -r * s[2]))
             b[r0 + k] = 0.0
             h[r0 + k] = 0.0
     elif kind == KIND_SPHERE:  # h = p - c - r R n_B; d/dt(-r R n_B) = r [R n_B]x w
         r = par[3]
-        _rv(R, par[4], par[5], par[6], a)
-        G[r0 : r0 + 3, :] = 0.0
-        G[r0, 0] = G[r0 + 1, 1] = G[r0 + 2, 2] = 1.0
-        G[r0, 4], G[r0, 5] = -r * a[2], r * a[1]
-        G[r0 + 1, 3], G[r0 + 1, 5] = r * a[2], -r * a[0]
-        G[r0 + 2, 3], G[r0 + 2, 4] = -r * a[1], r * a[0]
-        _wwx(w, a, s)
+        a = _rv(R, par[4], par[5], par[6])
+        _set_row(G, r0, (1.0, 0.0, 0.0), (0.0, -r * a[2], r * a[1]))
+        _set_row(G, r0 + 1, (0.0, 1.0, 0.0), (r * a[2], 0.0, -r * a[0]))
+        _set_row(G, r0 + 2, (0.0, 0.0, 1.0), (-r * a[1], r * a[0], 0.0))
+        s = _wwx(w, a)
         for i in range(3):
             b[r0 + i] = -r * s[i]  # r (w x a) x w = -r w x (w x a)
             h[r0 + i] = p[i] - par[i] - r * a[i]
     elif kind == KIND_POINT_DEPTH:  # h = n . (p + R d - o) + depth
-        n = par[3:6]
-        _rv(R, par[7], par[8], par[9], a)
+        n = _v3(par, 3)
+        a = _rv(R, par[7], par[8], par[9])
         _point_row(n, a, w, G, b, r0)
-        for i in range(3):
-            s[i] = p[i] + a[i] - par[i]
-        h[r0] = _dot(n, s) + par[6]
+        h[r0] = _dot(n, (p[0] + a[0] - par[0], p[1] + a[1] - par[1], p[2] + a[2] - par[2])) + par[6]
     elif kind == KIND_AXIS_ALONG:  # h_k = t_k . (R a_B)
-        _rv(R, par[0], par[1], par[2], a)
+        a = _rv(R, par[0], par[1], par[2])
         for k in range(2):
-            _axis_row(par[3 + 3 * k : 6 + 3 * k], a, w, G, b, h, r0 + k)
+            _axis_row(_v3(par, 3 + 3 * k), a, w, G, b, h, r0 + k)
     elif kind == KIND_KNIFE_EDGE:  # s . (v + w x R d) = 0, s = R side_B
-        _rv(R, par[0], par[1], par[2], a)
-        _rv(R, par[3], par[4], par[5], s)
-        G[r0, 0:3] = s
-        _cross(a, s, t)
-        G[r0, 3:6] = t
-        vp = np.empty(3)
-        _cross(w, a, vp)
-        for i in range(3):
-            vp[i] += v[i]
-        _cross(w, s, t)
-        bb = _dot(t, vp)
-        _wwx(w, a, t)
-        b[r0] = bb + _dot(s, t)
+        a = _rv(R, par[0], par[1], par[2])
+        s = _rv(R, par[3], par[4], par[5])
+        _set_row(G, r0, s, _cross(a, s))
+        wa = _cross(w, a)
+        bb = _dot(_cross(w, s), (wa[0] + v[0], wa[1] + v[1], wa[2] + v[2]))
+        b[r0] = bb + _dot(s, _wwx(w, a))
         h[r0] = 0.0
     elif kind == KIND_REMOTE_CENTER:
         # the shaft's material point at the trocar, r = c - p, moves at v + w x r (rdot = -v)
-        rr = np.empty(3)
-        off = np.empty(3)
-        _rv(R, par[3], par[4], par[5], a)
-        for i in range(3):
-            rr[i] = par[i] - p[i]
-            off[i] = p[i] + a[i] - par[i]
-        vr = np.empty(3)
-        _cross(w, rr, vr)
-        for i in range(3):
-            vr[i] += v[i]
-        wv = np.empty(3)
-        _cross(w, v, wv)
+        a = _rv(R, par[3], par[4], par[5])
+        rr = (par[0] - p[0], par[1] - p[1], par[2] - p[2])
+        off = (p[0] + a[0] - par[0], p[1] + a[1] - par[1], p[2] + a[2] - par[2])
+        wr = _cross(w, rr)
+        vr = (wr[0] + v[0], wr[1] + v[1], wr[2] + v[2])
+        wv = _cross(w, v)
         for k in range(2):
             o = 6 + 3 * k
-            _rv(R, par[o], par[o + 1], par[o + 2], a)
-            G[r0 + k, 0:3] = a
-            _cross(rr, a, t)
-            G[r0 + k, 3:6] = t
-            _cross(w, a, t)
-            b[r0 + k] = _dot(t, vr) - _dot(a, wv)
+            a = _rv(R, par[o], par[o + 1], par[o + 2])
+            _set_row(G, r0 + k, a, _cross(rr, a))
+            b[r0 + k] = _dot(_cross(w, a), vr) - _dot(a, wv)
             h[r0 + k] = _dot(a, off)  # offset of the shaft from the trocar along normal k
 
 
