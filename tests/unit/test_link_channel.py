@@ -5,9 +5,9 @@ import math
 import numpy as np
 import pytest
 
-from teleop.util.errors import ConfigError
 from teleop.link import ChannelSpec, ContactFeedback, LockstepLink, SimulatedChannel, ToolCommand
 from teleop.link.wire import COMMAND_SIZE
+from teleop.util.errors import ConfigError
 
 DT = 1e-3
 
