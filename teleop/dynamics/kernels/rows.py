@@ -30,10 +30,16 @@ KIND_REMOTE_CENTER = 8  # centre c (0:3), point_B d (3:6), body normals n1 (6:9)
 
 # -- small scalar helpers: 3-vectors as tuples (no array allocated, no slice assigned) -------------
 @njit(cache=True, inline="always")
-def _rv(R, x0, x1, x2):
-    """R @ (x0, x1, x2)."""
+def _rv3(R, x0, x1, x2):
+    """R @ (x0, x1, x2), a 3-tuple."""
     return (R[0, 0] * x0 + R[0, 1] * x1 + R[0, 2] * x2, R[1, 0] * x0 + R[1, 1] * x1 + R[1, 2] * x2,
             R[2, 0] * x0 + R[2, 1] * x1 + R[2, 2] * x2)
+
+
+@njit(cache=True, inline="always")
+def _rv(R, x0, x1, x2, out):
+    """out = R @ (x0, x1, x2) (:func:`_rv3` into an array; the other kernels' form)."""
+    out[0], out[1], out[2] = _rv3(R, x0, x1, x2)
 
 
 @njit(cache=True, inline="always")
@@ -43,8 +49,15 @@ def _v3(x, o):
 
 
 @njit(cache=True, inline="always")
-def _cross(a, b):
+def _cross3(a, b):
+    """a x b, a 3-tuple."""
     return (a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0])
+
+
+@njit(cache=True, inline="always")
+def _cross(a, b, out):
+    """out = a x b (:func:`_cross3` into an array; the other kernels' form)."""
+    out[0], out[1], out[2] = _cross3(a, b)
 
 
 @njit(cache=True, inline="always")
@@ -72,7 +85,7 @@ def _set_row(G, r, x, y):
 def _point_row(n, a, w, G, b, r):
     """Row r of a body point at offset a (world) moving along the fixed unit n: G = [n, a x n],
     b = n . w x (w x a)."""
-    _set_row(G, r, n, _cross(a, n))
+    _set_row(G, r, n, _cross3(a, n))
     b[r] = _dot(n, _wwx(w, a))
 
 
@@ -80,7 +93,7 @@ def _point_row(n, a, w, G, b, r):
 def _axis_row(n, a, w, G, b, h, r):
     """Row r of a body axis a (world) held perpendicular to the fixed unit n: h = n . a,
     G = [0, a x n], b = n . w x (w x a)."""
-    _set_row(G, r, (0.0, 0.0, 0.0), _cross(a, n))
+    _set_row(G, r, (0.0, 0.0, 0.0), _cross3(a, n))
     b[r] = _dot(n, _wwx(w, a))
     h[r] = _dot(n, a)
 
@@ -95,18 +108,18 @@ def constraint_rows(kind, par, p, R, v, w, G, b, h, r0):
         b[r0] = 0.0
         h[r0] = _dot(n, p) - _dot(n, _v3(par, 0)) - par[6]
     elif kind == KIND_AXIS_IN_PLANE:
-        _axis_row(_v3(par, 3), _rv(R, par[0], par[1], par[2]), w, G, b, h, r0)
+        _axis_row(_v3(par, 3), _rv3(R, par[0], par[1], par[2]), w, G, b, h, r0)
     elif kind == KIND_ROLLING:  # contact point p - r n: rows [t_i, -r (n x t_i)] (eqs. 14-15)
         r = par[9]
         for k in range(2):
             tk = _v3(par, 3 * k)
-            s = _cross(_v3(par, 6), tk)
+            s = _cross3(_v3(par, 6), tk)
             _set_row(G, r0 + k, tk, (-r * s[0], -r * s[1], -r * s[2]))
             b[r0 + k] = 0.0
             h[r0 + k] = 0.0
     elif kind == KIND_SPHERE:  # h = p - c - r R n_B; d/dt(-r R n_B) = r [R n_B]x w
         r = par[3]
-        a = _rv(R, par[4], par[5], par[6])
+        a = _rv3(R, par[4], par[5], par[6])
         _set_row(G, r0, (1.0, 0.0, 0.0), (0.0, -r * a[2], r * a[1]))
         _set_row(G, r0 + 1, (0.0, 1.0, 0.0), (r * a[2], 0.0, -r * a[0]))
         _set_row(G, r0 + 2, (0.0, 0.0, 1.0), (-r * a[1], r * a[0], 0.0))
@@ -116,34 +129,34 @@ def constraint_rows(kind, par, p, R, v, w, G, b, h, r0):
             h[r0 + i] = p[i] - par[i] - r * a[i]
     elif kind == KIND_POINT_DEPTH:  # h = n . (p + R d - o) + depth
         n = _v3(par, 3)
-        a = _rv(R, par[7], par[8], par[9])
+        a = _rv3(R, par[7], par[8], par[9])
         _point_row(n, a, w, G, b, r0)
         h[r0] = _dot(n, (p[0] + a[0] - par[0], p[1] + a[1] - par[1], p[2] + a[2] - par[2])) + par[6]
     elif kind == KIND_AXIS_ALONG:  # h_k = t_k . (R a_B)
-        a = _rv(R, par[0], par[1], par[2])
+        a = _rv3(R, par[0], par[1], par[2])
         for k in range(2):
             _axis_row(_v3(par, 3 + 3 * k), a, w, G, b, h, r0 + k)
     elif kind == KIND_KNIFE_EDGE:  # s . (v + w x R d) = 0, s = R side_B
-        a = _rv(R, par[0], par[1], par[2])
-        s = _rv(R, par[3], par[4], par[5])
-        _set_row(G, r0, s, _cross(a, s))
-        wa = _cross(w, a)
-        bb = _dot(_cross(w, s), (wa[0] + v[0], wa[1] + v[1], wa[2] + v[2]))
+        a = _rv3(R, par[0], par[1], par[2])
+        s = _rv3(R, par[3], par[4], par[5])
+        _set_row(G, r0, s, _cross3(a, s))
+        wa = _cross3(w, a)
+        bb = _dot(_cross3(w, s), (wa[0] + v[0], wa[1] + v[1], wa[2] + v[2]))
         b[r0] = bb + _dot(s, _wwx(w, a))
         h[r0] = 0.0
     elif kind == KIND_REMOTE_CENTER:
         # the shaft's material point at the trocar, r = c - p, moves at v + w x r (rdot = -v)
-        a = _rv(R, par[3], par[4], par[5])
+        a = _rv3(R, par[3], par[4], par[5])
         rr = (par[0] - p[0], par[1] - p[1], par[2] - p[2])
         off = (p[0] + a[0] - par[0], p[1] + a[1] - par[1], p[2] + a[2] - par[2])
-        wr = _cross(w, rr)
+        wr = _cross3(w, rr)
         vr = (wr[0] + v[0], wr[1] + v[1], wr[2] + v[2])
-        wv = _cross(w, v)
+        wv = _cross3(w, v)
         for k in range(2):
             o = 6 + 3 * k
-            a = _rv(R, par[o], par[o + 1], par[o + 2])
-            _set_row(G, r0 + k, a, _cross(rr, a))
-            b[r0 + k] = _dot(_cross(w, a), vr) - _dot(a, wv)
+            a = _rv3(R, par[o], par[o + 1], par[o + 2])
+            _set_row(G, r0 + k, a, _cross3(rr, a))
+            b[r0 + k] = _dot(_cross3(w, a), vr) - _dot(a, wv)
             h[r0 + k] = _dot(a, off)  # offset of the shaft from the trocar along normal k
 
 
