@@ -12,7 +12,14 @@ zenoh = pytest.importorskip("zenoh")
 
 from teleop.link import wire
 from teleop.link.keys import LinkKeys, load_keys, make_keys, random_secret
-from teleop.link.zenoh_link import RING, ConnectRefused, PairingRefused, ZenohLink, make_config
+from teleop.link.zenoh_link import (
+    RING,
+    ConnectRefused,
+    LinkError,
+    PairingRefused,
+    ZenohLink,
+    make_config,
+)
 from teleop.tick.messages import ContactFeedback, ToolCommand
 
 pytestmark = pytest.mark.long
@@ -120,7 +127,9 @@ def test_flood_of_10000_garbage_frames_counted_and_bounded_per_poll():
             pub.put(bytes([i % 256]) * 250)
             if i % 20 == 0:
                 poll()
-        wait_for(lambda: poll() is None and slave.stats()["refused"]["malformed"] >= 10_000, 5.0)
+        for _ in range(50):  # the rest as it comes in
+            time.sleep(0.01)
+            poll()
         s = slave.stats()
         assert max(per_poll) <= RING  # bounded work a poll
         # every frame is counted, unless Zenoh's ring overflowed between two polls: then said so
@@ -175,13 +184,16 @@ def test_second_master_is_refused_and_told():
     ep, master, slave = open_pair()
     other = ZenohLink("master", session="atk", connect=ep, keys=LinkKeys(KEY, "second"))
     try:
-        with pytest.raises(PairingRefused) as e:
-            end = time.monotonic() + 10
-            while time.monotonic() < end:
-                slave.poll()
+        line, end = None, time.monotonic() + 10
+        while line is None and time.monotonic() < end:
+            slave.poll()  # the slave's loop, as it runs
+            try:
                 other.pair(0.01)
-        line = str(e.value)
-        assert "\n" not in line and "'second'" in line and "'M'" in line, line
+            except PairingRefused as e:
+                line = str(e)
+            except LinkError:  # not yet answered
+                continue
+        assert line is not None and "\n" not in line and "'second'" in line and "'M'" in line, line
         assert slave.peer == "M" and slave.stats()["refused"]["second_master"] >= 1
     finally:
         for link in (other, master, slave):
