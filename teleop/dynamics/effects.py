@@ -8,10 +8,12 @@ from __future__ import annotations
 
 from abc import ABC, abstractmethod
 from dataclasses import dataclass, field
+from functools import lru_cache
 
 import numpy as np
 import pinocchio as pin
 
+from teleop.dynamics.kernels.wrench import compiled_wrench
 from teleop.util.errors import ConfigError
 
 
@@ -124,11 +126,27 @@ class Spring(Effect):
 
 
 def total_wrench(effects, p, R, v, w, t: float, operator_W=None) -> np.ndarray:
-    """Sum of the operator wrench (6,) and every effect's wrench, world frame at the body origin."""
+    """Sum of the operator wrench (6,) and every effect's wrench, world frame at the body origin
+    (N, N*m; pose p m, R, twist v m/s, w rad/s, time t s). Effects the kernels apply (dampers,
+    gravity) alone: one compiled call (:func:`teleop.dynamics.kernels.wrench.compiled_wrench`,
+    the engine's own sum)."""
+    try:
+        fx, rest = _split(tuple(effects))
+    except TypeError:  # an effect that cannot be hashed: each its own way
+        fx, rest = None, effects
+    F = np.zeros(6) if operator_W is None else np.asarray(operator_W, dtype=float)
+    if not rest and F.shape == (6,):
+        return compiled_wrench(F, fx, np.asarray(v, dtype=float), np.asarray(w, dtype=float))
     out = np.zeros(6) if operator_W is None else np.array(operator_W, dtype=float)
     for e in effects:
         e.add_wrench(p, R, v, w, t, out)
     return out
+
+
+@lru_cache(maxsize=64)
+def _split(effects: tuple) -> tuple[np.ndarray, tuple]:
+    """:func:`effect_params` of a tuple of effects, kept (effects are immutable)."""
+    return effect_params(effects)
 
 
 def effect_params(effects) -> tuple[np.ndarray, tuple]:

@@ -24,6 +24,7 @@ from numba import njit
 
 from teleop.dynamics.kernels.rows import _cross, _dot, _rv
 from teleop.dynamics.kernels.small import cholesky
+from teleop.dynamics.kernels.wrench import add_compiled_effects
 
 @njit(cache=True, inline="always")
 def _matmul3(A, B):
@@ -275,9 +276,7 @@ def newton_euler(R, J, J_inv, inv_m, coriolis, G, b, v, w, F_in, fx, rtol):
     applied wrench F (6,) and the constraint wrench G^T lam (6,).
     """
     F = np.empty(6)
-    for i in range(3):
-        F[i] = F_in[i] - fx[0] * v[i] + fx[2 + i]
-        F[3 + i] = F_in[3 + i] - fx[1] * w[i]
+    add_compiled_effects(F_in, fx, v, w, F)
     free = np.empty(6)
     for i in range(3):
         free[i] = F[i] * inv_m
