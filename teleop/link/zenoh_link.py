@@ -48,7 +48,9 @@ listening side sees nothing.
 
 from __future__ import annotations
 
+import dataclasses
 import json
+import os
 import socket
 import time
 from collections.abc import Callable
@@ -110,6 +112,14 @@ def make_config(listen: str | None = None, connect: str | None = None, config_js
     return c
 
 
+def process_name(name: str) -> str:
+    """``name@host:pid``, at most 64 bytes: the name this process pairs under, so a refusal or
+    :attr:`ZenohLink.peer` tells two processes with the same key or certificate apart."""
+    tail = f":{os.getpid()}"
+    host = socket.gethostname().encode()[: max(0, 63 - len(name.encode()) - len(tail))].decode("utf-8", "ignore")
+    return f"{name}@{host}{tail}"[:64] if len(name.encode()) < 48 else name
+
+
 def _port_answers(endpoint: str) -> bool:
     """True when a TCP connection to the endpoint's host and port succeeds (within 1 s)."""
     try:
@@ -132,7 +142,8 @@ class ZenohLink(Link):
     clock: a monotonic clock in s (``time.monotonic``), for ``last_receive_s``.
     keys: this side's key material (:class:`~teleop.link.keys.LinkKeys`, e.g. from
         :func:`~teleop.link.keys.load_keys`), or the 32-byte pairing key itself (the side's name
-        is then its role). Required: the link never runs unauthenticated.
+        is then its role). Required: the link never runs unauthenticated. The side pairs as
+        ``name@host:pid`` (:func:`process_name`).
     window: how far (frames) a peer's counter may jump ahead (:mod:`teleop.link.auth`).
     allow_plaintext_network: let a plain ``tcp/``/``udp/`` endpoint off loopback through.
     connect_timeout_s: with ``connect``, fail (LinkError; ConnectRefused when the port answers
@@ -153,6 +164,7 @@ class ZenohLink(Link):
         keys = LinkKeys(keys, role) if isinstance(keys, bytes) else keys
         if not isinstance(keys, LinkKeys):
             raise ConfigError(f"ZenohLink.keys: LinkKeys or a 32-byte pairing key, got {type(keys).__name__}")
+        keys = dataclasses.replace(keys, name=process_name(keys.name))
         if listen is None and connect is None:
             listen, connect = (DEFAULT_ENDPOINT, None) if role == "slave" else (None, DEFAULT_ENDPOINT)
         self.role, self.session_name, self._now = role, session, clock

@@ -13,7 +13,7 @@ zenoh = pytest.importorskip("zenoh")
 
 from teleop.link import wire
 from teleop.link.keys import LinkKeys, random_secret
-from teleop.link.zenoh_link import RING, PairingRefused, ZenohLink
+from teleop.link.zenoh_link import RING, PairingRefused, ZenohLink, process_name
 from teleop.tick.messages import ContactFeedback, ToolCommand
 
 KEY = random_secret()
@@ -88,12 +88,13 @@ def pair_up(name="M"):
 
 def test_pair_and_exchange(bus):
     master, slave = pair_up()
-    assert master.pair(1.0) == "S" and slave.pair(1.0) == "M" and slave.peer == "M"
+    me = process_name("")  # "@host:pid": each side pairs as name@host:pid
+    assert master.pair(1.0) == "S" + me and slave.pair(1.0) == "M" + me and slave.peer == "M" + me
     master.send_command(cmd(1))
     slave.send_feedback(fb(1))
     assert slave.receive_command().seq == 1 and master.receive_feedback().seq == 1
     s = slave.stats()
-    assert s["bad_frames"] == 0 and s["peer"] == "M" and s["session"] == f"{master.session_id:016x}"
+    assert s["bad_frames"] == 0 and s["peer"] == "M" + me and s["session"] == f"{master.session_id:016x}"
 
 
 def test_flood_of_garbage_is_counted_and_bounded_per_poll(bus):
@@ -143,8 +144,8 @@ def test_a_second_master_is_refused_and_told(bus):
         for _ in range(10):
             slave.poll()
             other.pair(0.02)
-    assert "\n" not in str(e.value) and "'intruder'" in str(e.value) and "'M'" in str(e.value)
-    assert slave.peer == "M" and slave.stats()["refused"]["second_master"] >= 1
+    assert "\n" not in str(e.value) and "'intruder@" in str(e.value) and "'M@" in str(e.value)
+    assert slave.peer.startswith("M@") and slave.stats()["refused"]["second_master"] >= 1
     other.send_command(cmd(99))
     master.send_command(cmd(1))
     assert slave.receive_command().seq == 1 and other.stats()["unsent"] == 1
