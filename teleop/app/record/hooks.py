@@ -1,0 +1,252 @@
+"""The recorder's hooks: each side's tick copied into its ring, for the writer's thread to write.
+
+    writer = RecordWriter(folder / "record.mcap", metadata={"scene": scene.name})
+    master.side.add_hooks(MasterRecorderMcap(writer))    # a master-side hook
+    slave.side.add_hooks(SlaveRecorderMcap(writer))      # a slave-side hook
+    ... run ...
+    writer.close()
+
+or, on the in-process loop, one loop hook for both: ``run_scene(scene, hooks=[LoopRecorderMcap(writer)])``.
+
+A hook's ``after_tick`` costs one ``np.concatenate`` of the side's arrays into a preallocated row
+of memory shared with the writer process (a few us a side; ``tools/record_bench.py`` measures it);
+it reads, it never changes the physics. The channels (frames: ``patient``
+is the slave's world, ``master`` the master's workspace, placed in ``patient`` on ``/tf_static`` by
+the registration's rotation and offset; its scale, master:slave, is not a transform and is left out):
+
+=========================  ==============================  ============================================
+topic                      schema                          what
+=========================  ==============================  ============================================
+/master/tool_pose          geometry_msgs/msg/PoseStamped   the reference tool (``master``)
+/master/hand_wrench        geometry_msgs/msg/WrenchStamped the operator's hand on it (``reference_tool_M``)
+/master/felt_wrench        geometry_msgs/msg/WrenchStamped the slave's wrench it stepped under
+/master/joints             sensor_msgs/msg/JointState      a device's joints (the cobot; m x3, rad x3)
+/master/tf                 tf2_msgs/msg/TFMessage          reference_tool, reference_tool_M, device
+/master/state              JSON teleop.MasterTick          status, gain, heartbeat, guard, tick CPU time,
+                                                           twist, the channel's force for the next step
+/master/can                JSON teleop.CanFrame            the cobot's CAN frames (simulated bus)
+/slave/tool_pose           geometry_msgs/msg/PoseStamped   the slave tool (``patient``)
+/slave/target_pose         geometry_msgs/msg/PoseStamped   its target, on the fixture
+/slave/contact             geometry_msgs/msg/WrenchStamped the tissue's wrench at the tip (``blade_tip``)
+/slave/joints              sensor_msgs/msg/JointState      the arm's joints (position, velocity)
+/slave/tf                  tf2_msgs/msg/TFMessage          slave_tool, slave_target, blade_tip
+/slave/state               JSON teleop.SlaveTick           status, heartbeat, commands, tracking errors,
+                                                           twist, guard
+/tf_static                 tf2_msgs/msg/TFMessage          patient -> master (the registration)
+/link/events               JSON teleop.LinkEvent           what :meth:`RecordWriter.link_event` was given
+=========================  ==============================  ============================================
+
+``reference_tool_M`` and ``blade_tip`` are frames at the tool's position and the blade tip with
+the ``master`` and ``patient`` axes: the wrenches are expressed in those axes and drawn there.
+"""
+
+from __future__ import annotations
+
+import time
+from typing import Any
+
+import numpy as np
+
+from teleop.app.record.emit import Columns
+from teleop.app.record.writer import RecordWriter, Source
+from teleop.tick.ports import Hook
+
+
+def _names(model: Any, n: int, prefix: str) -> list[str]:
+    names = [str(x) for x in list(getattr(model, "names", ()))[1:]] if model is not None else []
+    return names if len(names) == n else [f"{prefix}{k}" for k in range(n)]
+
+
+class _CanTee:
+    """Stands in for the simulated bus's capture: every frame to the record, and to the capture it
+    replaces (if any). In the tick (the bus runs there): one tuple appended, no more."""
+
+    def __init__(self, prev: Any, source: Source) -> None:
+        self.prev, self.frames = prev, source.can_frames
+
+    def write(self, msg: Any, t_s: float, is_rx: bool = True) -> None:
+        data = bytes(msg.data)
+        self.frames.append((t_s, msg.arbitration_id, is_rx, msg.is_fd, msg.is_error_frame, msg.dlc, len(data), data))
+        if self.prev is not None:
+            self.prev.write(msg, t_s, is_rx)
+
+    def close(self) -> None:
+        if self.prev is not None:
+            self.prev.close()
+
+
+def _master_source(writer: RecordWriter, side: Any, prefix: str, can_t0: float | None) -> Source:
+    c = Columns()
+    for k in ("i", "t", "wall", "status", "gain", "lost", "peer_lost", "tick_ns", "cmd_err"):
+        c.add(k)
+    for k, n in (("p", 3), ("R", 9), ("V", 6), ("hand", 6), ("felt", 6), ("fb", 6)):
+        c.add(k, n)
+    joints = side.master.joints()
+    nj = 0 if joints is None else len(joints)
+    if nj:
+        c.add("joints", nj)
+        c.add("dev_p", 3)
+        c.add("dev_R", 9)
+    guarded = side.guard is not None
+    if guarded:
+        for k in ("gW", "gE", "gA"):
+            c.add(k, 6)
+    reg = getattr(side.feedback, "reg", None)
+    meta = {"prefix": prefix, "nj": nj, "guarded": guarded, "can_t0": can_t0,
+            "joint_names": _names(getattr(getattr(side.master, "model", None), "model", None), nj, "joint"),
+            "registration": None if reg is None else (np.array(reg.X_PM_p, float), np.array(reg.X_PM_R, float))}
+    return Source(writer, "master", c, meta, can=can_t0 is not None)
+
+
+class MasterRecorderMcap(Hook):
+    """A master-side hook recording the :class:`~teleop.tick.master_side.MasterSide` into
+    ``writer`` under ``prefix`` (see the module docstring for the channels). The side sets its
+    status after its hooks, so tick i's row is handed to the writer at the start of tick i + 1
+    (or at ``writer.close()``), with the status tick i ended in. ``can``: on a simulated cobot,
+    record the bus's frames (the simulated device's capture point is teed while recording)."""
+
+    def __init__(self, writer: RecordWriter, prefix: str = "/master", can: bool = True) -> None:
+        self.writer, self.prefix, self.can = writer, prefix, can
+        self.source: Source | None = None
+        self._side: Any = None
+        self._held = False
+        self._tee: tuple[Any, _CanTee] | None = None
+        self._status = 0
+
+    @property
+    def dropped(self) -> int:
+        return 0 if self.source is None else self.source.dropped
+
+    def _start(self, i: int, t_s: float, side: Any, before: bool) -> Source:
+        sim = getattr(side.master, "sim", None)
+        tap = self.can and sim is not None and hasattr(sim, "capture") and hasattr(side.master, "t")
+        # the bus's clock when tick i starts (before) or ends (after), less the run's: the offset
+        can_t0 = float(side.master.t) - t_s - (0.0 if before else side.dt) if tap else None
+        src = self.source = _master_source(self.writer, side, self.prefix, can_t0)
+        self._status = src.cols.col("status")
+        src.finalize = self.finalize  # type: ignore[method-assign]
+        self._side = side
+        if tap and sim is not None:
+            tee = _CanTee(sim.capture, src)
+            sim.capture = tee
+            self._tee = (sim, tee)
+        return src
+
+    def before_tick(self, i: int, t_s: float, side: Any) -> None:
+        if self._held:
+            self.commit(side.status)
+        elif self.source is None:
+            self._start(i, t_s, side, before=True)
+
+    def after_tick(self, i: int, t_s: float, side: Any) -> None:
+        src = self.source or self._start(i, t_s, side, before=False)
+        if self._held:  # no before_tick since the last one (a side driven without its hooks' pair)
+            self.commit(side.status)
+        if not src.live:
+            return
+        row = src.slot()
+        if row is None:
+            return
+        st = side.state
+        parts = [(i, t_s, time.time(), 0.0, side.gain, side.heart.lost, side.peer_lost, side.tick_ns,
+                  side.command_errors), st.p, st.R.reshape(9), st.V, side.hand_W, side.felt_W, side.feedback_W]
+        if src.cols.at.get("joints"):
+            m = side.master
+            pv, Rv = m.virtual_pose()
+            parts += (m.joints(), pv, np.reshape(Rv, 9))
+        if side.guard is not None:
+            port = side.guard.port
+            parts += (port.W, port.E_diss, port.action)
+        np.concatenate(parts, out=row)
+        self._held = True
+
+    def commit(self, status: str) -> None:
+        """Hand the held row to the writer with the status its tick ended in."""
+        src = self.source
+        if not self._held or src is None:
+            return
+        self._held = False
+        src._rows[src.w % src.cap][self._status] = src.code(status)
+        src.publish()
+
+    def finalize(self) -> None:
+        """The last row (its status as the side holds it now); the bus's capture given back."""
+        if self._held and self._side is not None:
+            self.commit(self._side.status)
+        if self._tee is not None:
+            sim, tee = self._tee
+            if sim.capture is tee:
+                sim.capture = tee.prev
+            self._tee = None
+
+
+def _slave_source(writer: RecordWriter, side: Any, prefix: str) -> Source:
+    c = Columns()
+    for k in ("i", "t", "wall", "status", "lost", "tick_ns", "last_seq", "without", "skipped"):
+        c.add(k)
+    nv = len(side.arm.q)
+    for k, n in (("p_t", 3), ("R_t", 9), ("p", 3), ("R", 9), ("v", 3), ("w", 3), ("tip", 3), ("contact", 6),
+                 ("q", nv), ("qd", nv)):
+        c.add(k, n)
+    guarded = side.guard is not None
+    if guarded:
+        for k in ("gW", "gE", "gD"):
+            c.add(k, 6)
+    reg = side.reg
+    meta = {"prefix": prefix, "guarded": guarded, "joint_names": _names(getattr(side.arm, "model", None), nv, "joint"),
+            "registration": (np.array(reg.X_PM_p, float), np.array(reg.X_PM_R, float))}
+    return Source(writer, "slave", c, meta)
+
+
+class SlaveRecorderMcap(Hook):
+    """A slave-side hook recording the :class:`~teleop.tick.slave_side.SlaveSide` into
+    ``writer`` under ``prefix`` (see the module docstring for the channels)."""
+
+    def __init__(self, writer: RecordWriter, prefix: str = "/slave") -> None:
+        self.writer, self.prefix = writer, prefix
+        self.source: Source | None = None
+
+    @property
+    def dropped(self) -> int:
+        return 0 if self.source is None else self.source.dropped
+
+    def after_tick(self, i: int, t_s: float, side: Any) -> None:
+        src = self.source
+        if src is None:
+            src = self.source = _slave_source(self.writer, side, self.prefix)
+        if not src.live:
+            return
+        row = src.slot()
+        if row is None:
+            return
+        s, arm = side.state, side.arm
+        parts = [(i, t_s, time.time(), src.code(s.status), side.heart.lost, side.tick_ns, side.last_seq,
+                  side.without_command, side.skipped), s.p_t, s.R_t.reshape(9), s.p, s.R.reshape(9), s.v, s.w,
+                 s.tip, s.contact_P, arm.q, arm.qd]
+        if side.guard is not None:
+            port = side.guard.port
+            parts += (port.W, port.E_diss, port.offset)
+        np.concatenate(parts, out=row)
+        src.publish()
+
+
+class LoopRecorderMcap(Hook):
+    """A loop hook for the in-process :class:`~teleop.tick.loop.BilateralLoop`: both sides into
+    one ``writer`` (the master's row handed over at once: the loop's hooks run after the side has
+    set its status)."""
+
+    def __init__(self, writer: RecordWriter, can: bool = True) -> None:
+        self.writer = writer
+        self.master = MasterRecorderMcap(writer, can=can)
+        self.slave = SlaveRecorderMcap(writer)
+
+    def before_tick(self, i: int, t_s: float, loop: Any) -> None:
+        if self.master.source is None:
+            self.master._start(i, t_s, loop.master_side, before=True)
+
+    def after_tick(self, i: int, t_s: float, loop: Any) -> None:
+        ms = loop.master_side
+        self.master.after_tick(i, t_s, ms)
+        self.master.commit(ms.status)
+        if loop.slave_side is not None:
+            self.slave.after_tick(i, t_s, loop.slave_side)

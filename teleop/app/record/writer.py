@@ -1,0 +1,340 @@
+"""The record's writer: an MCAP file written by a process of its own, fed by bounded rings.
+
+The tick never serialises or writes. A side's hook (:mod:`teleop.app.record.hooks`) copies the
+few numbers it records into the next row of a preallocated ring (:class:`Source`, one per side)
+in memory shared with the writer process (:mod:`teleop.app.record.serve`), and publishes the row
+by advancing a counter there; the writer process takes the published rows in batches, lays out
+their messages with numpy and adds them to the file through the ``mcap`` package's writer
+(:mod:`teleop.app.record.emit`). The writer's work (about 50 us a tick a side, most of it inside
+``mcap``'s own Python) runs on another core, not under the tick's GIL: a thread would have
+shared the tick's interpreter lock and stalled ticks that run faster than real time.
+
+Rings: each is single-producer single-consumer, its counters ``w`` (rows published, the tick's)
+and ``r`` (rows taken, the writer's) int64s in the shared memory; a row is written before ``w``
+is advanced past it (x86's store order makes that enough; no lock). A ring that holds
+``high_water`` unwritten ticks makes its hook wait (sleeping) until the writer is back under
+``low_water``, at most ``block_s``; one that fills all the same drops the ticks it has no room
+for, and counts them. Status strings, the sides' static facts and link events go over the
+writer's stdin as pickles (rare: once per new status).
+
+Crash safety: the writer process lives in its own session, outside the run's process group (a
+Ctrl-C or a group signal does not reach it), and watches its stdin: when the run's process ends,
+however it ends (SIGKILL included), the writer takes every row the run published and finishes
+the file, summary and all. When the writer itself is killed, the file keeps every chunk it
+closed: a chunk is closed and flushed to the operating system whenever it holds ``flush_s`` of
+the run's time or has been open ``flush_s`` of the wall clock (0.05 s), and
+:func:`teleop.app.record.reader.read_record` reads such a file to its last whole chunk.
+
+Timestamps: each message's log time (and publish time, and a ROS 2 header's stamp) is the run's
+simulated time ``t_s`` of its tick, in ns from the run's start (tick 0 at 0); the wall clock of
+the recording host is in the JSON records (``wall_time_s``, Unix time).
+"""
+
+from __future__ import annotations
+
+import atexit
+import json
+import mmap
+import os
+import pickle
+import struct
+import subprocess
+import sys
+import tempfile
+import threading
+import time
+from pathlib import Path
+from typing import Any, Self
+
+import numpy as np
+
+from teleop.app.record.emit import CAN_ROW, Columns
+
+#: the chunk in progress is closed and flushed once it holds this much of the run's time, or has
+#: been open this long on the wall clock (s)
+FLUSH_S = 0.05
+#: a chunk also closes when it reaches this many bytes (uncompressed)
+CHUNK_BYTES = 1024 * 1024
+#: ticks a side's ring holds; CAN frames the bus's ring holds
+CAPACITY = 4096
+CAN_CAPACITY = 16384
+#: unwritten ticks in a ring at which its hook waits for the writer, and down to which it waits
+HIGH_WATER, LOW_WATER = 2048, 512
+#: the longest a hook waits for the writer at once (s)
+BLOCK_S = 1.0
+#: the memory shared with the writer (bytes; pages are only used as the rings fill them)
+REGION_BYTES = 64 * 1024 * 1024
+#: the writer process's niceness: where it shares a core, the tick comes first
+WRITER_NICE = 5
+#: how long close() waits for the writer to finish the file (s)
+CLOSE_TIMEOUT_S = 120.0
+_HEADER = 128  # a ring's header: w at byte 0, r at byte 64 (their own cache lines)
+_LEN = struct.Struct("<I")
+
+
+class RecordError(RuntimeError):
+    """The record could not be written (the writer process failed or could not start)."""
+
+
+def _shared_fd(size: int) -> int:
+    """A file descriptor of ``size`` bytes of memory with no name (memfd; else an unlinked temporary
+    file, in /dev/shm where there is one)."""
+    if hasattr(os, "memfd_create"):
+        fd = os.memfd_create("teleop-record", 0)
+    else:  # pragma: no cover - not Linux
+        f = tempfile.TemporaryFile(dir="/dev/shm" if os.path.isdir("/dev/shm") else None)  # noqa: SIM115
+        fd = os.dup(f.fileno())
+        f.close()
+    os.ftruncate(fd, size)
+    return fd
+
+
+class _Ring:
+    """A ring's place in the shared memory: ``hdr[0]`` is w, ``hdr[8]`` is r."""
+
+    def __init__(self, writer: RecordWriter, row_bytes: int, capacity: int) -> None:
+        self.writer, self.cap, self.row_bytes = writer, int(capacity), int(row_bytes)
+        self.offset = writer._alloc(_HEADER + self.row_bytes * self.cap)
+        self.hdr = np.frombuffer(writer._region, np.int64, count=_HEADER // 8, offset=self.offset)
+        self.data = self.offset + _HEADER
+        self.w = 0
+        self.dropped = 0
+
+
+class Source:
+    """One side's ring: ``capacity`` rows of ``cols.width`` float64s, written by the tick's thread
+    (:meth:`slot`, then :meth:`publish`), read by the writer process. ``kind`` names the writer's
+    emitter ("master", "slave"); ``meta`` (picklable) is what the emitter needs to know."""
+
+    def __init__(self, writer: RecordWriter, kind: str, cols: Columns, meta: dict, can: bool = False) -> None:
+        self.writer, self.cols, self.kind = writer, cols, kind
+        cap = writer.capacity
+        self.ring = _Ring(writer, 8 * cols.width, cap)
+        self.buf = np.frombuffer(writer._region, np.float64, count=cap * cols.width,
+                                 offset=self.ring.data).reshape(cap, cols.width)
+        self._rows = [self.buf[k] for k in range(cap)]
+        self.cap, self.hdr = cap, self.ring.hdr
+        self.high, self.low = writer.high_water, writer.low_water
+        self.waits = 0
+        self.waited_s = 0.0
+        self._stalled = False
+        self._codes: dict[str, int] = {}
+        self.live = writer.live
+        self.can = _Ring(writer, CAN_ROW.size, CAN_CAPACITY) if can else None
+        self.can_frames: list[tuple] = []
+        self.sid = writer._add(self)
+        writer._send(("source", self.sid, kind, self.ring.offset, cap, cols.width, dict(meta, cols=cols.at),
+                      None if self.can is None else self.can.offset))
+
+    @property
+    def w(self) -> int:
+        return self.ring.w
+
+    @property
+    def dropped(self) -> int:
+        return self.ring.dropped
+
+    def code(self, s: str) -> int:
+        """The status string's code (a new one is told to the writer first)."""
+        c = self._codes.get(s)
+        if c is None:
+            c = self._codes[s] = len(self._codes)
+            self.writer._send(("name", self.sid, c, s))
+        return c
+
+    def slot(self) -> np.ndarray | None:
+        """The next row to fill, or None (the ring is full: the tick is dropped and counted)."""
+        ring = self.ring
+        if ring.w - int(self.hdr[8]) >= self.cap:
+            ring.dropped += 1
+            return None
+        return self._rows[ring.w % self.cap]
+
+    def publish(self) -> None:
+        """The row from :meth:`slot` is filled: hand it to the writer."""
+        ring = self.ring
+        ring.w += 1
+        self.hdr[0] = ring.w
+        if self.can_frames:
+            self._publish_can()
+        if ring.w - int(self.hdr[8]) >= self.high:
+            self._wait()
+
+    def _publish_can(self) -> None:
+        ring, region, pack, size = self.can, self.writer._region, CAN_ROW.pack, CAN_ROW.size
+        assert ring is not None
+        r = int(ring.hdr[8])
+        for fr in self.can_frames:
+            if ring.w - r >= ring.cap:
+                ring.dropped += 1
+                continue
+            at = ring.data + (ring.w % ring.cap) * size
+            region[at:at + size] = pack(*fr)
+            ring.w += 1
+        ring.hdr[0] = ring.w
+        self.can_frames.clear()
+
+    def _wait(self) -> None:
+        if self._stalled:  # the last wait timed out: no more waiting until the writer catches up
+            if self.ring.w - int(self.hdr[8]) <= self.low:
+                self._stalled = False
+            return
+        wr = self.writer
+        t0 = time.perf_counter()
+        end = t0 + wr.block_s
+        while self.ring.w - int(self.hdr[8]) > self.low:
+            if wr._proc.poll() is not None:  # the writer is gone: stop recording
+                wr._dead()
+                break
+            if time.perf_counter() > end:
+                self._stalled = True
+                break
+            time.sleep(1e-4)
+        self.waits += 1
+        self.waited_s += time.perf_counter() - t0
+
+    def finalize(self) -> None:
+        """Called once by :meth:`RecordWriter.close`, before the writer is told to finish."""
+
+
+class RecordWriter:
+    """An MCAP record at ``path`` (its folder made), written by a process started here; see the
+    module docstring. ``metadata`` (str -> str) goes in the file's "teleop" metadata record.
+    ``close()`` (or leaving a ``with`` block, or the interpreter's exit) has the writer write
+    what is left and the summary section, and waits for it. Sides attach with
+    :class:`~teleop.app.record.hooks.MasterRecorderMcap` and
+    :class:`~teleop.app.record.hooks.SlaveRecorderMcap` (or the in-process loop's
+    :class:`~teleop.app.record.hooks.LoopRecorderMcap`); link events come through
+    :meth:`link_event`."""
+
+    def __init__(self, path: str | Path, metadata: dict | None = None, flush_s: float = FLUSH_S,
+                 chunk_bytes: int = CHUNK_BYTES, compression: str = "zstd", capacity: int = CAPACITY,
+                 high_water: int = HIGH_WATER, low_water: int = LOW_WATER, block_s: float = BLOCK_S,
+                 region_bytes: int = REGION_BYTES) -> None:
+        self.path = Path(path)
+        self.path.parent.mkdir(parents=True, exist_ok=True)
+        self.capacity, self.block_s = int(capacity), float(block_s)
+        self.high_water, self.low_water = int(high_water), int(low_water)
+        if not 0 < self.low_water < self.high_water <= self.capacity:
+            raise ValueError(f"record: need 0 < low_water < high_water <= capacity, got {self.low_water}, "
+                             f"{self.high_water}, {self.capacity}")
+        if compression not in ("zstd", "lz4", "none"):
+            raise ValueError(f"record: compression must be zstd, lz4 or none, got {compression!r}")
+        self.live = True
+        self.closed = False
+        self.result: dict = {}
+        self._sources: list[Source] = []
+        self._size, self._used = int(region_bytes), 0
+        self._lock = threading.Lock()
+        fd = _shared_fd(self._size)
+        try:
+            self._region = mmap.mmap(fd, self._size)
+            self._proc = subprocess.Popen(
+                [sys.executable, "-m", "teleop.app.record.serve", str(fd), str(self._size), str(os.getpid())],
+                stdin=subprocess.PIPE, stdout=subprocess.PIPE, pass_fds=(fd,), start_new_session=True,
+                env=_child_env())
+        finally:
+            os.close(fd)
+        self._send(("open", str(self.path), {"log_time": "the run's simulated time, ns from tick 0 (t_s = i * dt)",
+                                             "wall_time": "JSON wall_time_s: Unix time on the recording host",
+                                             **{str(k): str(v) for k, v in (metadata or {}).items()}},
+                    {"flush_s": float(flush_s), "chunk_bytes": int(chunk_bytes), "compression": compression}))
+        atexit.register(self.close)
+
+    @property
+    def pid(self) -> int:
+        """The writer process's id."""
+        return self._proc.pid
+
+    @property
+    def dropped(self) -> int:
+        return sum(s.dropped for s in self._sources)
+
+    def stats(self) -> dict:
+        """The hooks' side of the record: ticks dropped (a full ring), times they waited for the
+        writer; after close() also the writer's (``messages``, ``chunks``)."""
+        out = {"path": str(self.path), "ticks_dropped": self.dropped,
+               "can_frames_dropped": sum(s.can.dropped for s in self._sources if s.can is not None),
+               "hook_waits": sum(s.waits for s in self._sources),
+               "hook_waited_s": round(sum(s.waited_s for s in self._sources), 6)}
+        out.update({k: v for k, v in self.result.items() if k not in out})
+        return out
+
+    def link_event(self, t_s: float, side: str, kind: str, seq: int | None = None, detail: Any = None) -> None:
+        """A link event (sent, delivered, lost, refused, ...) at the run's time ``t_s`` (s), seen by
+        ``side``; written to ``/link/events`` (JSON). A pickle down a pipe (a few us): meant for
+        events, not for every message of every tick."""
+        self._send(("event", float(t_s), time.time(), str(side), str(kind), seq, detail))
+
+    def close(self) -> None:
+        """Have the writer write what is left and the summary section, and wait for it
+        (idempotent). Raises :class:`RecordError` if the writer failed."""
+        if self.closed:
+            return
+        self.closed = True
+        atexit.unregister(self.close)
+        for s in list(self._sources):
+            s.finalize()
+        self._send(("close", {k: v for k, v in self.stats().items() if k != "path"}))
+        try:
+            out, _ = self._proc.communicate(timeout=CLOSE_TIMEOUT_S)  # closes its stdin too
+        except subprocess.TimeoutExpired:
+            self._proc.kill()
+            out, _ = self._proc.communicate()
+            raise RecordError(f"record {self.path}: the writer did not finish within {CLOSE_TIMEOUT_S:g} s") from None
+        finally:
+            self.live = False
+            for s in self._sources:
+                s.live = False
+        lines = out.decode(errors="replace").strip().splitlines() if out else []
+        if self._proc.returncode != 0 or not lines:
+            raise RecordError(f"record {self.path}: the writer failed (exit {self._proc.returncode}; its "
+                              f"error is on stderr)")
+        self.result = json.loads(lines[-1])
+
+    def __enter__(self) -> Self:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+    # -- the sides' ------------------------------------------------------------------------------
+    def _alloc(self, nbytes: int) -> int:
+        at = (self._used + 63) // 64 * 64
+        if at + nbytes > self._size:
+            raise RecordError(f"record: the shared memory ({self._size} bytes) is full: raise region_bytes")
+        self._used = at + nbytes
+        return at
+
+    def _add(self, source: Source) -> int:
+        self._sources.append(source)
+        return len(self._sources) - 1
+
+    def _send(self, msg: tuple) -> None:
+        if not self.live and msg[0] != "close":
+            return
+        data = pickle.dumps(msg, protocol=pickle.HIGHEST_PROTOCOL)
+        try:
+            with self._lock:
+                stdin = self._proc.stdin
+                assert stdin is not None
+                stdin.write(_LEN.pack(len(data)) + data)
+                stdin.flush()
+        except (OSError, ValueError):  # the writer is gone (close() says why)
+            self._dead()
+
+    def _dead(self) -> None:
+        self.live = False
+        for s in self._sources:
+            s.live = False
+
+
+def _child_env() -> dict:
+    """The writer's environment: this process's, with the folder this ``teleop`` was imported from
+    first on its path (a checkout that is not installed works too)."""
+    import teleop
+
+    env = dict(os.environ)
+    root = str(Path(teleop.__file__).resolve().parent.parent)
+    env["PYTHONPATH"] = root + (os.pathsep + env["PYTHONPATH"] if env.get("PYTHONPATH") else "")
+    return env
