@@ -1,5 +1,8 @@
 """Random but valid scenes, for fuzzing the runtime: other masses, radii, loads, effects, periods.
 
+Valid means physically plausible too (:mod:`teleop.scenario.plausibility`): the inertias are a real
+body's (the triangle inequality, a radius of gyration under 1 m) and every value is in its range.
+
 ``random_scene(rng)`` returns a scene *dict* in the file format (so it also exercises the loader);
 ``parse_scene`` turns it into a :class:`Scene`. Everything is drawn from the given generator.
 """
@@ -11,6 +14,7 @@ import math
 import numpy as np
 
 from teleop.dynamics.integrators import INTEGRATORS
+from teleop.scenario.tables import MAX_FORCE_N, MAX_STIFFNESS_N_PER_M, MAX_TORQUE_NM
 
 ENGINE_EFFECTS = ("coriolis", "damping", "gravity", "springs")
 
@@ -22,9 +26,12 @@ def _log_uniform(rng, lo: float, hi: float) -> float:
 def random_scene(rng: np.random.Generator, duration_s: float = 0.2) -> dict:
     fixture = str(rng.choice(["free", "rolling_disk", "sphere", "scalpel"]))
     mass = _log_uniform(rng, 1e-3, 10.0)
-    # principal inertias with ratios up to 1e3, scaled to the mass
-    base = mass * _log_uniform(rng, 1e-5, 1e-2)
-    inertia = [base * _log_uniform(rng, 1.0, 1e3) for _ in range(3)]
+    # a real body's principal inertias, from its mass distribution's second moments S (kg*m^2) about
+    # the principal axes: J_x = S_y + S_z etc., so J1 + J2 >= J3 always; S up to 1e3 apart (from a
+    # ball to a thin rod or a lamina), J / m at most 0.1 m^2 (and J <= 1 kg*m^2 at 10 kg)
+    base = mass * _log_uniform(rng, 1e-6, 5e-5)
+    s = [base * _log_uniform(rng, 1.0, 1e3) for _ in range(3)]
+    inertia = [s[1] + s[2], s[0] + s[2], s[0] + s[1]]
     radius = _log_uniform(rng, 0.005, 0.2)
     effects = [e for e in ENGINE_EFFECTS if rng.random() < 0.5]
     integrator = str(rng.choice(sorted(INTEGRATORS)))
@@ -55,7 +62,9 @@ def random_scene(rng: np.random.Generator, duration_s: float = 0.2) -> dict:
         end = t + float(rng.uniform(0.02, duration_s))
         phases.append({
             "start_s": t, "end_s": end, "frame": str(rng.choice(["world", "tool", "task"])),
-            "force_N": (rng.normal(size=3) * load).tolist(), "torque_Nm": (rng.normal(size=3) * torque).tolist(),
+            # clipped to what a hand can push and twist (teleop.scenario.tables.MAX_FORCE_N, MAX_TORQUE_NM)
+            "force_N": np.clip(rng.normal(size=3) * load, -MAX_FORCE_N, MAX_FORCE_N).tolist(),
+            "torque_Nm": np.clip(rng.normal(size=3) * torque, -MAX_TORQUE_NM, MAX_TORQUE_NM).tolist(),
             "ramp_s": float(rng.uniform(0, (end - t) / 2)),
         })
         t = end
@@ -72,6 +81,6 @@ def random_scene(rng: np.random.Generator, duration_s: float = 0.2) -> dict:
             "angular_Nms_per_rad": min(inertia) / _log_uniform(rng, 5 * dt, 10.0),
         }
     if "springs" in effects:
-        k = mass * (2 * math.pi / _log_uniform(rng, 20 * dt, 5.0)) ** 2
+        k = min(mass * (2 * math.pi / _log_uniform(rng, 20 * dt, 5.0)) ** 2, MAX_STIFFNESS_N_PER_M)
         scene["springs"] = [{"anchor_m": (rng.normal(size=3) * 0.05).tolist(), "k_N_per_m": k}]
     return scene

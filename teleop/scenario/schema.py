@@ -26,8 +26,8 @@ from teleop.util.resources import robot_dir, scenario_dir
 from teleop.master.config import CobotConfig
 from teleop.scenario.overrides import apply_settings
 from teleop.scenario.tables import (
-    FIXTURE_KEYS, FIXTURES, CustomFixture, FRAMES, DampingSpec, FixtureSpec, GravitySpec, HandSpec, LinkSpec, MappingSpec,
-    OperatorSpec, Phase, SpringSpec, ToolSpec, ViewerSpec,
+    DT_S, FIXTURE_KEYS, FIXTURES, CustomFixture, FRAMES, DampingSpec, FixtureSpec, GravitySpec, HandSpec,
+    LinkSpec, MappingSpec, OperatorSpec, Phase, SpringSpec, ToolSpec, ViewerSpec,
 )
 from teleop.slave.arm import SlaveConfig
 from teleop.dynamics import surface_fixture  # noqa: F401 - registers the built-in 'surface_scalpel' type
@@ -75,8 +75,12 @@ class Scene(Checked):
     name: str = setting("", doc="scene name (default: the file's stem)")
     path: str = setting("<scene>", internal=True)
     description: str = setting("", doc="one line shown by 'teleop list'")
-    duration_s: float = setting(gt=0.0, why="must be positive", doc="simulated time, s")
-    dt_s: float = setting(0.001, gt=0.0, le=0.1, why="must be in (0, 0.1] s", doc="control period, s")
+    duration_s: float = setting(gt=0.0, why="must be positive",
+                                doc="simulated time, s, > 0 (at most 2e6 ticks: teleop.app.session.MAX_TICKS, "
+                                    "checked when a run is built)")
+    dt_s: float = setting(0.001, ge=DT_S[0], le=DT_S[1],
+                          why=f"must be in (0, {DT_S[1]:g}] s and at least {DT_S[0]:g} s (a 100 kHz .. 10 Hz tick)",
+                          doc=f"control period, s, in [{DT_S[0]:g}, {DT_S[1]:g}]")
     seed: int = setting(0, ge=0, why="must be non-negative", doc="seed of the run's random generator")
     integrator: str = setting("energy", choices=tuple(sorted(INTEGRATORS)),
                               why="unknown integrator; choose one of", doc="the reference tool's integrator")
