@@ -1,0 +1,293 @@
+"""The MCAP recorder's parts (teleop.app.record): its ROS 2 bytes against mcap-ros2-support's own
+encoder, its quaternions, its JSON, and the writer process fed by hooks on stand-in sides: values
+and times back as written, a full ring dropping and counting, a file cut short read to its last
+chunk, and a run whose process dies leaving a finished file."""
+
+import json
+import os
+import signal
+import subprocess
+import sys
+import textwrap
+import time
+from types import SimpleNamespace
+
+import numpy as np
+import pytest
+
+pytest.importorskip("mcap")
+pytest.importorskip("mcap_ros2")
+
+from mcap_ros2._dynamic import serialize_dynamic
+
+from teleop.app.record import (
+    MasterRecorderMcap,
+    RecordWriter,
+    SlaveRecorderMcap,
+    cdr,
+    read_record,
+    schemas,
+)
+from teleop.app.record.emit import JsonTemplate
+
+
+def _random_rotations(n, rng):
+    q = rng.normal(size=(n, 4))
+    q /= np.linalg.norm(q, axis=1, keepdims=True)
+    R = cdr.rotation(q)
+    # the quaternion's four branches: near identity and half turns about each axis
+    extra = np.array([np.eye(3), np.diag([1.0, -1.0, -1.0]), np.diag([-1.0, 1.0, -1.0]), np.diag([-1.0, -1.0, 1.0])])
+    return np.concatenate((R, extra))
+
+
+def _encoder(datatype):
+    return serialize_dynamic(datatype, schemas.msgdef(datatype))[datatype]
+
+
+def _header(sec, nsec, frame):
+    return {"stamp": {"sec": int(sec), "nanosec": int(nsec)}, "frame_id": frame}
+
+
+def _vec3(v):
+    return {"x": float(v[0]), "y": float(v[1]), "z": float(v[2])}
+
+
+def _quat(q):
+    return {"x": float(q[0]), "y": float(q[1]), "z": float(q[2]), "w": float(q[3])}
+
+
+def test_cdr_bytes_are_mcap_ros2s():
+    """Each fixed layout gives byte for byte what mcap-ros2-support's encoder gives."""
+    rng = np.random.default_rng(1)
+    n = 4
+    t = np.array([0.0, 0.001, 1.5, 123.456789])
+    _, sec, nsec = cdr.stamp(t)
+    p, v, q = rng.normal(size=(n, 3)), rng.normal(size=(n, 6)), cdr.quat_xyzw(_random_rotations(n, rng)[:n])
+    h = {"sec": sec, "nanosec": nsec}
+    pose = cdr.pose_stamped("master").encode(n, {**h, "p": p, "q": q})
+    twist = cdr.twist_stamped("patient").encode(n, {**h, "v": v[:, :3], "w": v[:, 3:]})
+    wrench = cdr.wrench_stamped("blade_tip").encode(n, {**h, "f": v[:, :3], "tau": v[:, 3:]})
+    names = ["panda_joint1", "j2", "a_long_joint_name_3"]
+    joints = cdr.joint_state(names).encode(n, {**h, "position": v[:, :3], "velocity": v[:, 3:]})
+    joints_p = cdr.joint_state(names[:1], velocity=False).encode(n, {**h, "position": v[:, :1]})
+    tf = cdr.tf_message([("patient", "slave_tool"), ("master", "ref")]).encode(
+        n, {**h, "p0": p, "q0": q, "p1": -p, "q1": q})
+    for k in range(n):
+        def hd(frame, k=k):
+            return _header(sec[k], nsec[k], frame)
+
+        assert pose[k] == _encoder(schemas.POSE)({"header": hd("master"), "pose": {
+            "position": _vec3(p[k]), "orientation": _quat(q[k])}})
+        assert twist[k] == _encoder(schemas.TWIST)({"header": hd("patient"), "twist": {
+            "linear": _vec3(v[k, :3]), "angular": _vec3(v[k, 3:])}})
+        assert wrench[k] == _encoder(schemas.WRENCH)({"header": hd("blade_tip"), "wrench": {
+            "force": _vec3(v[k, :3]), "torque": _vec3(v[k, 3:])}})
+        assert joints[k] == _encoder(schemas.JOINTS)({"header": hd(""), "name": names, "position": list(v[k, :3]),
+                                                      "velocity": list(v[k, 3:]), "effort": []})
+        assert joints_p[k] == _encoder(schemas.JOINTS)({"header": hd(""), "name": names[:1],
+                                                        "position": [float(v[k, 0])], "velocity": [], "effort": []})
+        assert tf[k] == _encoder(schemas.TF)({"transforms": [
+            {"header": hd("patient"), "child_frame_id": "slave_tool",
+             "transform": {"translation": _vec3(p[k]), "rotation": _quat(q[k])}},
+            {"header": hd("master"), "child_frame_id": "ref",
+             "transform": {"translation": _vec3(-p[k]), "rotation": _quat(q[k])}}]})
+
+
+def test_stamps_split_exactly():
+    ns, sec, nsec = cdr.stamp(np.array([0.0, 0.001, 0.999, 2.5, 7.0 - 0.001]))
+    assert ns.tolist() == [0, 1_000_000, 999_000_000, 2_500_000_000, 6_999_000_000]
+    assert (sec.astype(np.int64) * 1_000_000_000 + nsec == ns).all()
+
+
+def test_quaternions_round_trip():
+    R = _random_rotations(500, np.random.default_rng(2))
+    q = cdr.quat_xyzw(R)
+    assert np.allclose(np.linalg.norm(q, axis=1), 1.0, atol=1e-15)
+    assert (q[:, 3] >= 0).all()
+    assert np.abs(cdr.rotation(q) - R).max() < 1e-14
+
+
+def test_json_template_is_json_and_nulls_what_is_not_finite():
+    j = JsonTemplate().open().integer("tick", 0).num("t_s", 1).string("status", 2).boolean("lost", 3)
+    j.open("guard").vec("W_J", slice(4, 6)).close().null("other").close().compile()
+    rows = np.array([[3, 0.003, 0, 1, 0.5, -1e-300], [4, np.nan, 1, 0, np.inf, 2.0]])
+    out = [json.loads(b) for b in j.render(rows, {0: "ok", 1: 'said "no"'})]
+    assert out[0] == {"tick": 3, "t_s": 0.003, "status": "ok", "lost": True, "guard": {"W_J": [0.5, -1e-300]},
+                      "other": None}
+    assert out[1] == {"tick": 4, "t_s": None, "status": 'said "no"', "lost": False, "guard": {"W_J": [None, 2.0]},
+                      "other": None}
+
+
+# -- stand-in sides: only what the hooks read ------------------------------------------------------
+
+def _master_side(i, rng):
+    R = cdr.rotation(cdr.quat_xyzw(_random_rotations(1, rng)[:1]))[0]
+    return SimpleNamespace(
+        master=SimpleNamespace(joints=lambda: None), guard=None, feedback=None, dt=0.001,
+        state=SimpleNamespace(p=rng.normal(size=3), R=R, V=rng.normal(size=6)),
+        hand_W=rng.normal(size=6), felt_W=rng.normal(size=6), feedback_W=rng.normal(size=6),
+        gain=1.0 - 0.01 * (i % 7), heart=SimpleNamespace(lost=i % 5 == 0), peer_lost=False, tick_ns=1000 + i,
+        command_errors=0, status="ok")
+
+
+def _slave_side(i, rng):
+    R = cdr.rotation(cdr.quat_xyzw(_random_rotations(2, rng)[:2]))
+    s = SimpleNamespace(p_t=rng.normal(size=3), R_t=R[0], p=rng.normal(size=3), R=R[1], v=rng.normal(size=3),
+                        w=rng.normal(size=3), tip=rng.normal(size=3), contact_P=rng.normal(size=6),
+                        status=("ok", "saturated", "link_lost")[i % 3])
+    return SimpleNamespace(state=s, arm=SimpleNamespace(q=rng.normal(size=7), qd=rng.normal(size=7), model=None),
+                           guard=None, heart=SimpleNamespace(lost=False), tick_ns=2000 + i, last_seq=i, without_command=0,
+                           skipped=0, reg=SimpleNamespace(X_PM_p=np.array([0.5, 0.0, 0.2]), X_PM_R=np.eye(3)))
+
+
+def _drive(writer, n, seed=3, slave=True):
+    """Ticks 0..n-1 of the stand-in sides through side hooks, as MasterSide/SlaveSide call them
+    (the master's status is set after its hooks). Returns what the sides held."""
+    rng = np.random.default_rng(seed)
+    mh, sh = MasterRecorderMcap(writer), SlaveRecorderMcap(writer)
+    held, status = [], "ok"
+    for i in range(n):
+        t = i * 0.001
+        ms, ss = _master_side(i, rng), _slave_side(i, rng)
+        ms.status = status  # what the side says before tick i: the status tick i - 1 ended in
+        mh.before_tick(i, t, ms)
+        mh.after_tick(i, t, ms)
+        ms.status = status = ("ok", "tracking_error")[i % 2]  # set after the hooks, as MasterSide does
+        if slave:
+            sh.after_tick(i, t, ss)
+        held.append((ms, ss))
+    mh._side = held[-1][0]
+    return held
+
+
+def test_record_reads_back_what_the_sides_held(tmp_path):
+    path = tmp_path / "r.mcap"
+    with RecordWriter(path, metadata={"scene": "stand-in"}) as w:
+        held = _drive(w, 300)
+        w.link_event(0.0125, "master", "lost", seq=12, detail={"why": "test"})
+    assert w.stats()["messages"] > 0 and w.stats()["ticks_dropped"] == 0
+    rec = read_record(path, keep_messages=True)
+    assert rec.complete and rec.error is None
+    assert rec.metadata["teleop"]["scene"] == "stand-in"
+    expect = {"/master/tool_pose": schemas.POSE, "/master/hand_wrench": schemas.WRENCH,
+              "/master/felt_wrench": schemas.WRENCH, "/master/tf": schemas.TF, "/master/state": "teleop.MasterTick",
+              "/slave/tool_pose": schemas.POSE, "/slave/target_pose": schemas.POSE, "/slave/contact": schemas.WRENCH,
+              "/slave/joints": schemas.JOINTS, "/slave/tf": schemas.TF, "/slave/state": "teleop.SlaveTick",
+              "/tf_static": schemas.TF, "/link/events": "teleop.LinkEvent"}
+    assert {k: rec[k].schema for k in rec.topics} == expect
+    ms = [h[0] for h in held]
+    ss = [h[1] for h in held]
+    for topic in expect:
+        if topic not in ("/tf_static", "/link/events"):
+            ch = rec[topic]
+            assert len(ch) == 300
+            assert ch.seq.tolist() == list(range(300))
+            assert ch.t_ns.tolist() == [i * 1_000_000 for i in range(300)]
+    assert np.array_equal(rec["/master/tool_pose"]["p"], [m.state.p for m in ms])
+    assert np.abs(rec["/master/tool_pose"]["R"] - [m.state.R for m in ms]).max() < 1e-14
+    assert np.array_equal(rec["/master/hand_wrench"]["W"], [m.hand_W for m in ms])
+    assert np.array_equal(rec["/master/felt_wrench"]["W"], [m.felt_W for m in ms])
+    st = rec["/master/state"]
+    assert st["status"] == [("ok", "tracking_error")[i % 2] for i in range(300)]  # the status tick i ended in
+    assert np.array_equal(st["gain"], [m.gain for m in ms])
+    assert np.array_equal(st["heartbeat_lost"], [m.heart.lost for m in ms])
+    assert np.array_equal(st["tool_twist"], [m.state.V for m in ms])
+    assert np.array_equal(st["feedback_wrench"], [m.feedback_W for m in ms])
+    assert np.array_equal(st["tick_us"], [m.tick_ns * 1e-3 for m in ms])
+    assert st["guard"] == [None] * 300
+    assert np.allclose(st["wall_time_s"], time.time(), atol=120)
+    assert np.array_equal(rec["/slave/joints"]["position"], [s.arm.q for s in ss])
+    assert np.array_equal(rec["/slave/joints"]["velocity"], [s.arm.qd for s in ss])
+    assert rec["/slave/joints"].names == [f"joint{k}" for k in range(7)]
+    assert np.array_equal(rec["/slave/contact"]["W"], [s.state.contact_P for s in ss])
+    assert np.array_equal(rec["/slave/target_pose"]["p"], [s.state.p_t for s in ss])
+    tf = rec["/slave/tf"].frames
+    assert {k: f["parent"] for k, f in tf.items()} == {"slave_tool": "patient", "slave_target": "patient",
+                                                         "blade_tip": "patient"}
+    assert np.array_equal(tf["blade_tip"]["p"], [s.state.tip for s in ss])
+    sst = rec["/slave/state"]
+    assert sst["status"] == [s.state.status for s in ss]
+    assert np.allclose(sst["tracking_error_m"], [np.linalg.norm(s.state.p - s.state.p_t) for s in ss], rtol=1e-14)
+    assert np.allclose(sst["contact_force_N"], [np.linalg.norm(s.state.contact_P[:3]) for s in ss], rtol=1e-14)
+    assert np.array_equal(sst["last_command_seq"], range(300))
+    assert rec["/tf_static"].frames["master"]["parent"] == "patient"
+    assert rec["/link/events"].messages == [{"t_s": 0.0125, "wall_time_s": pytest.approx(time.time(), abs=120),
+                                            "side": "master", "kind": "lost", "seq": 12, "detail": {"why": "test"}}]
+
+
+def test_a_file_cut_short_reads_to_its_last_whole_chunk(tmp_path):
+    path = tmp_path / "r.mcap"
+    with RecordWriter(path, flush_s=0.01) as w:  # 10 ticks a chunk
+        _drive(w, 400)
+    data = path.read_bytes()
+    full = read_record(path)
+    counts = []
+    for frac in (0.05, 0.3, 0.5, 0.77, 0.95, 0.999):
+        cut = tmp_path / f"cut{frac}.mcap"
+        cut.write_bytes(data[: int(len(data) * frac)])
+        rec = read_record(cut)
+        assert not rec.complete and rec.error is not None
+        n = len(rec["/master/state"]) if "/master/state" in rec else 0
+        counts.append(n)
+        for topic, ch in rec.channels.items():  # a prefix of the whole file's messages
+            assert ch.seq.tolist() == full[topic].seq.tolist()[: len(ch)]
+    assert counts == sorted(counts) and counts[-1] >= 380 and counts[0] < 100
+
+
+def test_a_full_ring_drops_ticks_and_counts_them(tmp_path):
+    path = tmp_path / "r.mcap"
+    w = RecordWriter(path, capacity=64, high_water=32, low_water=8, block_s=0.005)
+    try:
+        _drive(w, 5)  # the writer is up and has taken these
+        time.sleep(0.5)
+        os.kill(w.pid, signal.SIGSTOP)  # a writer that does not keep up
+        t0 = time.perf_counter()
+        _drive(w, 200, seed=4)
+        blocked = time.perf_counter() - t0
+    finally:
+        os.kill(w.pid, signal.SIGCONT)
+        w.close()
+    s = w.stats()
+    assert s["ticks_dropped"] > 0 and s["hook_waits"] >= 1
+    assert blocked < 1.0  # waited once per stall, not once per tick
+    rec = read_record(path)
+    assert len(rec["/master/state"]) + s["ticks_dropped"] // 2 >= 200  # each side drops alike
+    assert len(rec["/slave/state"]) < 205
+
+
+CHILD = textwrap.dedent("""
+    import os, sys, signal
+    sys.path.insert(0, {tests!r})
+    from unit.test_mcap_record import _drive
+    from teleop.app.record import RecordWriter
+    w = RecordWriter(sys.argv[1])
+    _drive(w, 250)
+    print(w.pid, flush=True)
+    os.kill(os.getpid(), signal.SIGKILL)
+""")
+
+
+def _running(pid):
+    try:
+        with open(f"/proc/{pid}/stat") as f:
+            return f.read().split()[2] != "Z"
+    except FileNotFoundError:
+        return False
+
+
+def test_the_writer_finishes_the_file_when_the_run_is_killed(tmp_path):
+    """SIGKILL on the run's process: the writer takes every row published and finishes the file."""
+    path = tmp_path / "r.mcap"
+    tests = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+    p = subprocess.run([sys.executable, "-c", CHILD.format(tests=tests), str(path)], capture_output=True, text=True,
+                       timeout=60, check=False)
+    assert p.returncode == -signal.SIGKILL, p.stderr
+    pid = int(p.stdout.split()[0])
+    end = time.monotonic() + 30
+    while time.monotonic() < end and _running(pid):
+        time.sleep(0.05)
+    rec = read_record(path)
+    assert rec.complete, rec.error
+    assert rec.metadata["teleop.record"]["closed_by"] == "end of the run's process"
+    assert len(rec["/slave/state"]) == 250
+    assert len(rec["/master/state"]) == 249  # the last master row waits for its status, which never came
