@@ -20,11 +20,12 @@ from typing import Literal
 
 from teleop.contact.tissue import TissueBlock
 from teleop.dynamics.integrators import INTEGRATORS
-from teleop.util.errors import ConfigError, SceneError
+from teleop.util.errors import ConfigError, FieldError, SceneError
 from teleop.util.inputs import read_text
 from teleop.util.resources import robot_dir, scenario_dir
 from teleop.master.config import CobotConfig
-from teleop.scenario.overrides import apply_settings
+from teleop.scenario.overrides import apply_settings, parse_setting
+from teleop.scenario.plausibility import annotate_schema, cross_rules, pick_key, range_problems
 from teleop.scenario.tables import (
     DT_S, FIXTURE_KEYS, FIXTURES, CustomFixture, FRAMES, DampingSpec, FixtureSpec, GravitySpec, HandSpec,
     LinkSpec, MappingSpec, OperatorSpec, Phase, SpringSpec, ToolSpec, ViewerSpec,
@@ -70,11 +71,19 @@ def _effects(effects) -> str | None:
 @dataclass(frozen=True, kw_only=True)
 class Scene(Checked):
     """A whole scene. ``path`` is the file it came from; the ``damping_*`` and ``gravity_m_s2``
-    fields are derived from the [damping] and [gravity] tables (zero / -9.81 z when absent)."""
+    fields are derived from the [damping] and [gravity] tables (zero / -9.81 z when absent).
+    ``overridden``: the dotted keys the last ``--set`` / :meth:`with_overrides` changed, in order
+    (a rule on two keys names the one changed).
+
+    Built, a scene is physically plausible: every table's ranges hold, and the rules on several
+    keys and the nested configs' ranges of :mod:`teleop.scenario.plausibility` (the tool's
+    radius of gyration, a cut that fits its tissue, a trocar outside the tissue, bands and
+    cut-offs below the Nyquist rate 1 / (2 dt_s))."""
 
     name: str = setting("", doc="scene name (default: the file's stem)")
     path: str = setting("<scene>", internal=True)
     description: str = setting("", doc="one line shown by 'teleop list'")
+    overridden: tuple[str, ...] = field(default=(), compare=False, repr=False, metadata={"internal": True})
     duration_s: float = setting(gt=0.0, why="must be positive",
                                 doc="simulated time, s, > 0 (at most 2e6 ticks: teleop.app.session.MAX_TICKS, "
                                     "checked when a run is built)")
@@ -113,6 +122,13 @@ class Scene(Checked):
             s(self, "damping_angular_Nms_per_rad", self.damping.angular_Nms_per_rad)
         if self.gravity is not None:
             s(self, "gravity_m_s2", self.gravity.g_m_s2)
+        problem = range_problems(self)
+        if problem is not None:
+            raise FieldError(*problem)
+        broken = next(cross_rules(self), None)  # the first rule broken
+        if broken is not None:
+            keys, reason = broken
+            raise FieldError(pick_key(keys, self.overridden), reason)
 
     def with_overrides(self, sets=(), **kw) -> "Scene":
         """A copy with settings changed and validated again like the file: ``sets`` a list of
@@ -126,7 +142,7 @@ class Scene(Checked):
 
 def scene_schema() -> dict:
     """The JSON Schema of a scene file (for editors: taplo, VS Code's Even Better TOML)."""
-    return json_schema(Scene, "teleop scene")
+    return annotate_schema(json_schema(Scene, "teleop scene"))
 
 
 def find_scene(name_or_path: str) -> Path:
@@ -218,7 +234,8 @@ def parse_scene(data: dict, path: str = "<scene>", sets=(), pairs=()) -> Scene:
     "dotted.key=TOML value" strings, ``pairs`` as (dotted key, value)."""
     if sets or pairs:
         data = apply_settings(copy.deepcopy(data), path, sets, pairs)
-    given = {"path": path}
+    overridden = tuple(parse_setting(s, path)[0] for s in sets or ()) + tuple(k for k, _ in pairs or ())
+    given = {"path": path, "overridden": overridden}
     custom = _custom_fixture(data, path)
     if custom is not None:
         given["fixture"] = custom
