@@ -178,7 +178,8 @@ def pick_key(keys, overridden) -> str:
 
 
 def annotate_schema(schema: dict) -> dict:
-    """``schema`` (the scene's JSON Schema) with RANGES as minimum / maximum of their keys."""
+    """``schema`` (the scene's JSON Schema) with RANGES as minimum / maximum of their keys (of
+    their items for a list) and in their descriptions."""
     for r in RANGES:
         node = schema
         for part in r.key.split("."):
@@ -187,6 +188,7 @@ def annotate_schema(schema: dict) -> dict:
                 break
         if node is None:
             continue
+        node["description"] = f"{node.get('description', r.what)}; plausible: {r.text()}"
         targets = [node] + [a for a in node.get("anyOf", [])]
         for t in targets:
             t = t.get("items", t) if t.get("type") == "array" else t

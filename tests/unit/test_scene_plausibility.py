@@ -228,6 +228,7 @@ def test_the_schema_shows_the_ranges():
     tissue = props["tissue"]["properties"]
     assert tissue["thickness_m"]["exclusiveMinimum"] == 0.0 and tissue["thickness_m"]["maximum"] == 1.0
     assert tissue["stiffness"]["maximum"] == 1e7
+    assert tissue["thickness_m"]["description"].endswith("plausible: (0, 1] m")
     assert tissue["origin_m"]["items"]["minimum"] == -10.0
     assert props["cobot"]["properties"]["offset_m"]["items"]["maximum"] == 10.0
     assert props["slave"]["properties"]["servo_lag_s"]["maximum"] == 1.0
