@@ -155,7 +155,10 @@ def main(argv: list[str]) -> int:
             stats = {**parent_stats, "messages": out.messages, "chunks": out.chunks,
                      "closed_by": "close" if parent_stats else "end of the run's process"}
             out.finish(stats)
-            print(json.dumps(stats), flush=True)
+            try:  # to the run, if it is still there to read it
+                os.write(sys.stdout.fileno(), (json.dumps(stats) + "\n").encode())
+            except OSError:
+                pass
             return 0
         if not busy:
             time.sleep(POLL_S)

@@ -1,0 +1,175 @@
+"""The MCAP record of real runs (teleop.app.record): every tick of both sides, equal to the run's
+own log (log.npz's columns); a cobot's joints and CAN frames; the passivity guard's energies; and
+a run killed with SIGKILL at 3 s whose record still holds at least 2.9 s of ticks."""
+
+import os
+import signal
+import subprocess
+import sys
+import textwrap
+import time
+
+import numpy as np
+import pytest
+
+pytest.importorskip("mcap")
+pytest.importorskip("mcap_ros2")
+
+from mcap.reader import make_reader
+from mcap_ros2.decoder import DecoderFactory
+
+from teleop.app.record import LoopRecorderMcap, RecordWriter, read_record
+from teleop.app.runtime import run_scene
+from teleop.master.cobot.database import FrameDatabase
+from teleop.scenario.schema import load_scene
+
+
+def _record(tmp_path, scene, **kw):
+    path = tmp_path / "record.mcap"
+    with RecordWriter(path, metadata={"scene": scene.name, "seed": scene.seed}) as w:
+        result = run_scene(scene, hooks=[LoopRecorderMcap(w)], **kw)
+    assert w.stats()["ticks_dropped"] == 0
+    return result, read_record(path, keep_messages=True), path
+
+
+def test_straight_cut_record_equals_its_log(tmp_path):
+    scene = load_scene("straight_incision", sets=["duration_s=1.0"])
+    result, rec, path = _record(tmp_path, scene)
+    log, n = result.log, result.summary["steps"]
+    assert n == 1000 and rec.complete
+    schemas = {k: rec[k].schema for k in rec.topics}
+    assert schemas == {
+        "/master/tool_pose": "geometry_msgs/msg/PoseStamped", "/master/hand_wrench": "geometry_msgs/msg/WrenchStamped",
+        "/master/felt_wrench": "geometry_msgs/msg/WrenchStamped", "/master/tf": "tf2_msgs/msg/TFMessage",
+        "/master/state": "teleop.MasterTick", "/slave/tool_pose": "geometry_msgs/msg/PoseStamped",
+        "/slave/target_pose": "geometry_msgs/msg/PoseStamped", "/slave/contact": "geometry_msgs/msg/WrenchStamped",
+        "/slave/joints": "sensor_msgs/msg/JointState", "/slave/tf": "tf2_msgs/msg/TFMessage",
+        "/slave/state": "teleop.SlaveTick", "/tf_static": "tf2_msgs/msg/TFMessage"}
+    for topic, ch in rec.channels.items():
+        if topic != "/tf_static":
+            assert len(ch) == n, topic
+            assert ch.seq.tolist() == list(range(n))
+            assert np.array_equal(ch.t_ns, np.arange(n) * 1_000_000)  # the run's time: tick i at i * dt
+    assert np.array_equal(rec["/master/tool_pose"]["p"], log["p_r"])
+    assert np.abs(rec["/master/tool_pose"]["R"] - log["R_r"]).max() < 1e-14
+    assert np.array_equal(rec["/master/hand_wrench"]["W"], log["operator_W"])
+    assert np.array_equal(rec["/master/felt_wrench"]["W"], log["felt_W"])
+    assert np.array_equal(rec["/master/state"]["tick_us"], log["master_tick_us"])
+    assert np.array_equal(rec["/slave/joints"]["position"], log["slave_q"])
+    assert rec["/slave/joints"].names[0].endswith("joint1")
+    assert np.array_equal(rec["/slave/tf"].frames["blade_tip"]["p"], log["slave_tip"])
+    assert np.array_equal(rec["/slave/state"]["tick_us"], log["slave_tick_us"])
+    assert np.allclose(rec["/slave/state"]["tracking_error_m"], log["slave_track_m"], rtol=1e-12, atol=1e-18)
+    assert np.allclose(rec["/slave/state"]["contact_force_N"], log["slave_contact_N"], rtol=1e-12, atol=1e-18)
+    assert np.abs(np.linalg.norm(rec["/slave/contact"]["force"], axis=1) - log["slave_contact_N"]).max() < 1e-12
+    assert rec["/slave/contact"]["force"][-1, 2] != 0.0  # in the tissue by then
+    assert set(rec["/master/state"]["status"]) == {"ok"} and set(rec["/slave/state"]["status"]) <= {"ok", "saturated"}
+    # a standard reader of a finished file: mcap's seeking reader over its summary, mcap-ros2-support decoding
+    with open(path, "rb") as f:
+        reader = make_reader(f, decoder_factories=[DecoderFactory()])
+        summary = reader.get_summary()
+        assert summary is not None and summary.statistics.message_count == sum(len(c) for c in rec.channels.values())
+        joints = [m.position for _, _, _, m in reader.iter_decoded_messages(topics=["/slave/joints"])]
+    assert np.array_equal(joints, log["slave_q"])
+
+
+def test_cobot_record_has_its_joints_and_can_frames(tmp_path):
+    scene = load_scene("straight_incision", sets=["duration_s=0.3"]).with_overrides(master="cobot")
+    result, rec, _ = _record(tmp_path, scene)
+    n = result.summary["steps"]
+    assert np.array_equal(rec["/master/joints"]["position"], result.log["master_q"])
+    assert len(rec["/master/joints"]) == n
+    assert rec["/master/tf"].frames.keys() == {"reference_tool", "reference_tool_M", "device"}
+    can = rec["/master/can"]
+    assert 3 * n <= len(can) <= 8 * n  # SYNC, command, joints, wrench a period, heartbeats
+    ids = {m.frame_id for m in FrameDatabase().db.messages}
+    assert set(can["id"].astype(int)) <= ids
+    # on the run's clock: tick i's frames in (i dt, (i + 1) dt], and the closing period's after the last tick
+    assert (can.t_s > 0).all() and (can.t_s <= (n + 1) * scene.dt_s + 1e-9).all()
+    assert np.searchsorted(can.t_s, scene.dt_s) >= 3  # the first tick's frames are there
+    assert set(can["rx"]) == {True, False}
+
+
+def test_guarded_record_has_the_guards_energies(tmp_path):
+    scene = load_scene("straight_incision", sets=["duration_s=0.5", "link.round_trip_ms=20"])
+    result, rec, _ = _record(tmp_path, scene)
+    log = result.log
+    assert "tdpa_W_master_J" in log
+    assert np.array_equal(rec["/master/state"]["guard.W_J"], log["tdpa_W_master_J"])
+    assert np.array_equal(rec["/master/state"]["guard.E_diss_J"], log["tdpa_diss_master_J"])
+    assert np.array_equal(rec["/master/state"]["guard.alpha"], log["tdpa_alpha"])
+    assert np.array_equal(rec["/slave/state"]["guard.W_J"], log["tdpa_W_slave_J"])
+    assert np.array_equal(rec["/slave/state"]["guard.drift_M"], log["tdpa_drift_M"])
+
+
+CHILD = textwrap.dedent("""
+    import sys
+    import numpy as np
+    from teleop.app.record import LoopRecorderMcap, RecordWriter
+    from teleop.app.runtime import run_scene
+    from teleop.scenario.schema import load_scene
+    from teleop.tick.ports import Hook
+
+    out, progress = sys.argv[1], sys.argv[2]
+    mm = np.memmap(progress, dtype=np.int64, mode="r+", shape=(2,))
+
+    class Progress(Hook):  # the ticks whose rows the recorder has published
+        def after_tick(self, i, t_s, loop):
+            mm[0] = i + 1
+
+    scene = load_scene("straight_incision", sets=["duration_s=10.0"])
+    w = RecordWriter(out)
+    mm[1] = w.pid
+    run_scene(scene, realtime=True, hooks=[LoopRecorderMcap(w), Progress()])
+    w.close()
+""")
+
+
+def _gone(pid):
+    try:
+        with open(f"/proc/{pid}/stat") as f:
+            return f.read().split()[2] == "Z"
+    except FileNotFoundError:
+        return True
+
+
+@pytest.mark.long
+@pytest.mark.parametrize("killed", ["run", "run_and_writer"])
+def test_a_run_killed_at_3_s_keeps_its_ticks(tmp_path, killed):
+    """A real-time straight cut SIGKILLed once it has ticked 3 s. The run alone: its writer (in a
+    session of its own) takes every row published and finishes the file. The writer too (the
+    worst case): the file, without its summary, still reads to its last chunk, at most 100 ms
+    short of what was published, so at least 2.9 s of ticks."""
+    path, progress = tmp_path / "record.mcap", tmp_path / "progress"
+    progress.write_bytes(bytes(16))
+    mm = np.memmap(progress, dtype=np.int64, mode="r", shape=(2,))
+    child = subprocess.Popen([sys.executable, "-c", CHILD, str(path), str(progress)])
+    try:
+        end = time.monotonic() + 120
+        while mm[0] < 3000 and child.poll() is None and time.monotonic() < end:
+            time.sleep(0.002)
+        assert mm[0] >= 3000, f"the run did not reach 3 s of ticks (exit {child.poll()})"
+        writer = int(mm[1])
+        if killed == "run_and_writer":
+            os.kill(writer, signal.SIGKILL)
+        reached = int(mm[0])
+        child.send_signal(signal.SIGKILL)
+        child.wait(10)
+    finally:
+        if child.poll() is None:
+            child.kill()
+            child.wait()
+    end = time.monotonic() + 60
+    while not _gone(writer) and time.monotonic() < end:
+        time.sleep(0.02)
+    rec = read_record(path)
+    ticks = {k: len(rec[k]) for k in ("/master/state", "/slave/state", "/slave/joints", "/master/tool_pose")}
+    if killed == "run":
+        assert rec.complete, rec.error
+        assert min(ticks.values()) >= reached, (ticks, reached)
+    else:
+        assert not rec.complete and rec.error is not None
+        assert min(ticks.values()) >= reached - 100, (ticks, reached)
+    assert min(ticks.values()) >= 2900
+    st = rec["/slave/state"]
+    assert st.seq.tolist() == list(range(len(st)))  # no gap: every tick up to the last one kept
