@@ -96,27 +96,20 @@ def stamp(t_s: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
 
 
 def quat_xyzw(R: np.ndarray) -> np.ndarray:
-    """Unit quaternions (n, 4: x, y, z, w; w >= 0) of rotation matrices ``R`` (n, 3, 3)."""
+    """Unit quaternions (n, 4: x, y, z, w; w >= 0) of rotation matrices ``R`` (n, 3, 3): for each,
+    the candidate of Shepperd's method with the largest diagonal term (no branch per row)."""
     R = np.asarray(R, dtype=float).reshape(-1, 3, 3)
+    n = len(R)
     m00, m11, m22 = R[:, 0, 0], R[:, 1, 1], R[:, 2, 2]
-    q = np.empty((len(R), 4))
+    a, b, c = R[:, 2, 1] - R[:, 1, 2], R[:, 0, 2] - R[:, 2, 0], R[:, 1, 0] - R[:, 0, 1]
+    d, e, f = R[:, 0, 1] + R[:, 1, 0], R[:, 0, 2] + R[:, 2, 0], R[:, 1, 2] + R[:, 2, 1]
     t = np.stack((1.0 + m00 - m11 - m22, 1.0 - m00 + m11 - m22, 1.0 - m00 - m11 + m22, 1.0 + m00 + m11 + m22), 1)
-    k = np.argmax(t, axis=1)
-    for case in range(4):
-        sel = k == case
-        if not sel.any():
-            continue
-        r, tt = R[sel], t[sel, case]
-        s = 0.5 / np.sqrt(tt)
-        if case == 0:
-            v = (tt, r[:, 0, 1] + r[:, 1, 0], r[:, 0, 2] + r[:, 2, 0], r[:, 2, 1] - r[:, 1, 2])
-        elif case == 1:
-            v = (r[:, 0, 1] + r[:, 1, 0], tt, r[:, 1, 2] + r[:, 2, 1], r[:, 0, 2] - r[:, 2, 0])
-        elif case == 2:
-            v = (r[:, 0, 2] + r[:, 2, 0], r[:, 1, 2] + r[:, 2, 1], tt, r[:, 1, 0] - r[:, 0, 1])
-        else:
-            v = (r[:, 2, 1] - r[:, 1, 2], r[:, 0, 2] - r[:, 2, 0], r[:, 1, 0] - r[:, 0, 1], tt)
-        q[sel] = np.stack(v, 1) * s[:, None]
+    Q = np.empty((n, 4, 4))  # candidate k is 4 q_k q: largest when q_k is
+    Q[:, 0] = np.stack((t[:, 0], d, e, a), 1)
+    Q[:, 1] = np.stack((d, t[:, 1], f, b), 1)
+    Q[:, 2] = np.stack((e, f, t[:, 2], c), 1)
+    Q[:, 3] = np.stack((a, b, c, t[:, 3]), 1)
+    q = Q[np.arange(n), np.argmax(t, axis=1)]
     q /= np.linalg.norm(q, axis=1, keepdims=True)
     q[q[:, 3] < 0] *= -1.0
     return q

@@ -23,7 +23,7 @@ import numpy as np
 
 from teleop.app.record.emit import CAN_ROW, EMITTERS, McapOut
 
-POLL_S = 0.002  # the sleep when nothing is pending (s)
+POLL_S = 0.01  # the sleep when nothing is pending (s): batches of ~10 ticks at 1 kHz
 _HEADER = 128
 _LEN = struct.Struct("<I")
 
