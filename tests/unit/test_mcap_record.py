@@ -291,3 +291,31 @@ def test_the_writer_finishes_the_file_when_the_run_is_killed(tmp_path):
     assert rec.metadata["teleop.record"]["closed_by"] == "end of the run's process"
     assert len(rec["/slave/state"]) == 250
     assert len(rec["/master/state"]) == 249  # the last master row waits for its status, which never came
+
+
+def test_foxglove_layout_names_what_the_record_holds(tmp_path):
+    """Every topic and message path docs/foxglove/teleop_layout.json plots or draws is in a record,
+    and so is every frame it shows (but the cobot's ``device``)."""
+    layout_path = os.path.join(os.path.dirname(__file__), "..", "..", "docs", "foxglove", "teleop_layout.json")
+    with open(layout_path) as f:
+        layout = json.load(f)
+    path = tmp_path / "r.mcap"
+    with RecordWriter(path) as w:
+        _drive(w, 20)
+    rec = read_record(path, keep_messages=True)
+    cfg = layout["configById"]
+    paths = [p["value"] for k, c in cfg.items() if k.startswith("Plot!") for p in c["paths"]]
+    assert paths
+    for p in paths:
+        topic, _, field = p.partition(".")
+        assert topic in rec, p
+        msg = rec[topic].messages[-1]
+        for part in field.split("."):
+            msg = msg[part] if isinstance(msg, dict) else getattr(msg, part)
+        assert isinstance(msg, (int, float)), p
+    scene = cfg["3D!teleop"]
+    assert all(t in rec for t in scene["topics"])
+    frames = {"patient"} | {c for t in ("/master/tf", "/slave/tf", "/tf_static") for c in rec[t].frames}
+    assert {k.removeprefix("frame:") for k in scene["transforms"]} - frames == {"device"}
+    assert scene["followTf"] in frames
+    assert cfg["RawMessages!state"]["topicPath"] in rec
