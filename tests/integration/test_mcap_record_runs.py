@@ -18,10 +18,19 @@ pytest.importorskip("mcap_ros2")
 from mcap.reader import make_reader
 from mcap_ros2.decoder import DecoderFactory
 
-from teleop.app.record import LoopRecorderMcap, RecordWriter, read_record
+from teleop.app.assembly import build_master, build_slave, make_link
+from teleop.app.record import (
+    LoopRecorderMcap,
+    MasterRecorderMcap,
+    RecordWriter,
+    SlaveRecorderMcap,
+    read_record,
+)
 from teleop.app.runtime import run_scene
+from teleop.app.session import Session, tick_count
 from teleop.master.cobot.database import FrameDatabase
 from teleop.scenario.schema import load_scene
+from teleop.tick.loop import BilateralLoop
 
 
 def _record(tmp_path, scene, **kw):
@@ -100,6 +109,33 @@ def test_guarded_record_has_the_guards_energies(tmp_path):
     assert np.array_equal(rec["/master/state"]["guard.alpha"], log["tdpa_alpha"])
     assert np.array_equal(rec["/slave/state"]["guard.W_J"], log["tdpa_W_slave_J"])
     assert np.array_equal(rec["/slave/state"]["guard.drift_M"], log["tdpa_drift_M"])
+
+
+def test_side_hooks_record_what_the_loop_hook_records(tmp_path):
+    """The wiring for every runner: a MasterRecorderMcap on the master side and a SlaveRecorderMcap
+    on the slave side (as build_master / build_slave would add them) record the same run as the
+    in-process loop's hook, value for value (but the wall clock and the CPU times)."""
+    scene = load_scene("straight_incision", sets=["duration_s=0.4", "link.round_trip_ms=10"])
+    _, by_loop, _ = _record(tmp_path, scene)
+    n = tick_count(scene.duration_s, scene.dt_s)
+    rng = np.random.default_rng(scene.seed)
+    mb, sb = build_master(scene, n, rng), build_slave(scene, n)
+    with RecordWriter(tmp_path / "sides.mcap") as w:
+        mb.side.add_hooks(MasterRecorderMcap(w))
+        sb.side.add_hooks(SlaveRecorderMcap(w))
+        run = Session.of(BilateralLoop(mb.side, sb.side, make_link(scene, rng)), scene.duration_s, mb.recorder).run_ticks()
+    assert run.steps == n
+    by_sides = read_record(tmp_path / "sides.mcap")
+    assert by_sides.topics == by_loop.topics
+    for topic, ch in by_loop.channels.items():
+        other = by_sides[topic]
+        assert np.array_equal(ch.t_ns, other.t_ns) and np.array_equal(ch.seq, other.seq), topic
+        for k, v in ch.fields.items():
+            if k not in ("wall_time_s", "tick_us"):
+                assert np.array_equal(v, other.fields[k]) if isinstance(v, np.ndarray) else v == other.fields[k], \
+                    (topic, k)
+        for f, fr in ch.frames.items():
+            assert np.array_equal(fr["p"], other.frames[f]["p"]) and np.array_equal(fr["q"], other.frames[f]["q"])
 
 
 CHILD = textwrap.dedent("""
