@@ -22,20 +22,9 @@ import math
 import numpy as np
 from numba import njit
 
-from teleop.dynamics.kernels.rows import _cross, _dot, _rv
+from teleop.dynamics.kernels.rows import _cross3, _dot, _rv, _rv3
 from teleop.dynamics.kernels.small import cholesky
 from teleop.dynamics.kernels.wrench import add_compiled_effects
-
-@njit(cache=True, inline="always")
-def _matmul3(A, B):
-    """A @ B for 3x3 matrices, in loops: numba's ``@`` calls BLAS, whose call costs about 0.5-0.9 us
-    at this size (measured, against 0.1 us for the loops), several times per step."""
-    C = np.empty((3, 3))
-    for i in range(3):
-        for j in range(3):
-            C[i, j] = A[i, 0] * B[0, j] + A[i, 1] * B[1, j] + A[i, 2] * B[2, j]
-    return C
-
 
 @njit(cache=True, inline="always")
 def _chart_rates(R, Einv, nu, out):
@@ -59,67 +48,68 @@ def _rot_cols(M, k, c, s):
 
 
 @njit(cache=True, inline="always")
-def _rot_vec_T(v, k, c, s, out):
-    """out = R_k(angle)^T @ v."""
+def _rot_vec_T(v, k, c, s):
+    """R_k(angle)^T @ v, a 3-tuple (v a 3-tuple): only the entries (k + 1) % 3 and (k + 2) % 3
+    change."""
     i, j = (k + 1) % 3, (k + 2) % 3
-    out[0], out[1], out[2] = v[0], v[1], v[2]
-    out[i] = c * v[i] + s * v[j]
-    out[j] = c * v[j] - s * v[i]
+    x, y = c * v[i] + s * v[j], c * v[j] - s * v[i]
+    if k == 0:
+        return (v[0], x, y)
+    if k == 1:
+        return (y, v[1], x)
+    return (x, y, v[2])
+
+
+@njit(cache=True, inline="always")
+def _unit(k):
+    """The k-th coordinate axis, a 3-tuple."""
+    return (1.0 if k == 0 else 0.0, 1.0 if k == 1 else 0.0, 1.0 if k == 2 else 0.0)
+
+
+@njit(cache=True)
+def rate_map_into(R0, axes, theta, mats):
+    """:func:`rate_map_terms` into mats (5, 3, 3) = (R, E_B, E_B^-1, dE, E_W)."""
+    a, bx, c = axes[0], axes[1], axes[2]
+    c1, s1 = math.cos(theta[0]), math.sin(theta[0])
+    c2, s2 = math.cos(theta[1]), math.sin(theta[1])
+    c3, s3 = math.cos(theta[2]), math.sin(theta[2])
+    R, E, Einv, dE, EW = mats[0], mats[1], mats[2], mats[3], mats[4]
+    for i in range(3):
+        for j in range(3):
+            R[i, j] = R0[i, j]
+    _rot_cols(R, a, c1, s1)
+    _rot_cols(R, bx, c2, s2)
+    _rot_cols(R, c, c3, s3)
+    eb, ec = _unit(bx), _unit(c)
+    RbT_ea = _rot_vec_T(_unit(a), bx, c2, s2)
+    col1 = _rot_vec_T(RbT_ea, c, c3, s3)
+    col2 = _rot_vec_T(eb, c, c3, s3)
+    r0, r1, r2 = _cross3(col2, ec), _cross3(ec, col1), _cross3(col1, col2)
+    det = _dot(col1, r0)
+    inv = 1.0 / det if det != 0.0 else math.inf
+    u = _rot_vec_T(_cross3(eb, RbT_ea), c, c3, s3)
+    d2 = _cross3(ec, col2)
+    for i in range(3):
+        E[i, 0], E[i, 1], E[i, 2] = col1[i], col2[i], ec[i]
+        Einv[0, i], Einv[1, i], Einv[2, i] = r0[i] * inv, r1[i] * inv, r2[i] * inv
+        dE[0, i], dE[1, i], dE[2, i] = r1[i], u[i], d2[i]
+    for i in range(3):
+        for j in range(3):
+            EW[i, j] = R[i, 0] * E[0, j] + R[i, 1] * E[1, j] + R[i, 2] * E[2, j]
 
 
 @njit(cache=True)
 def rate_map_terms(R0, axes, theta):
     """Pose-only chart terms at Euler angles theta (3,) rad of the chart (R0 (3, 3), axes (3,)).
 
-    Returns R = R_WB (3, 3), E_B (3, 3) (body rate = E_B thetadot), E_B^-1 (3, 3), dE (3, 3)
-    whose rows are (a1, u, a2), with d/dt(E_B) thetadot = -(d1 d3) a1 - (d1 d2) u - (d2 d3) a2 for
-    rates (d1, d2, d3), and E_W = R E_B (3, 3) (world rate = E_W thetadot). Tested against :func:`teleop.dynamics.rotations.rate_map` (axis products).
+    Returns one (5, 3, 3) array of R = R_WB, E_B (body rate = E_B thetadot), E_B^-1, dE whose
+    rows are (a1, u, a2), with d/dt(E_B) thetadot = -(d1 d3) a1 - (d1 d2) u - (d2 d3) a2 for
+    rates (d1, d2, d3), and E_W = R E_B (world rate = E_W thetadot). Tested against
+    :func:`teleop.dynamics.rotations.rate_map` (axis products).
     """
-    a, bx, c = axes[0], axes[1], axes[2]
-    c1, s1 = math.cos(theta[0]), math.sin(theta[0])
-    c2, s2 = math.cos(theta[1]), math.sin(theta[1])
-    c3, s3 = math.cos(theta[2]), math.sin(theta[2])
-    R = R0.copy()
-    _rot_cols(R, a, c1, s1)
-    _rot_cols(R, bx, c2, s2)
-    _rot_cols(R, c, c3, s3)
-    ea = np.zeros(3)
-    ea[a] = 1.0
-    eb = np.zeros(3)
-    eb[bx] = 1.0
-    ec = np.zeros(3)
-    ec[c] = 1.0
-    RbT_ea = np.empty(3)
-    _rot_vec_T(ea, bx, c2, s2, RbT_ea)
-    col1 = np.empty(3)
-    _rot_vec_T(RbT_ea, c, c3, s3, col1)
-    col2 = np.empty(3)
-    _rot_vec_T(eb, c, c3, s3, col2)
-    E = np.empty((3, 3))
-    E[:, 0], E[:, 1], E[:, 2] = col1, col2, ec
-    Einv = np.empty((3, 3))
-    r = np.empty(3)
-    _cross(col2, ec, r)
-    Einv[0] = r
-    _cross(ec, col1, r)
-    Einv[1] = r
-    _cross(col1, col2, r)
-    Einv[2] = r
-    det = _dot(col1, Einv[0])
-    inv = 1.0 / det if det != 0.0 else math.inf
-    for i in range(3):
-        for j in range(3):
-            Einv[i, j] *= inv
-    dE = np.empty((3, 3))
-    _cross(ec, col1, r)
-    dE[0] = r
-    _cross(eb, RbT_ea, r)
-    u = np.empty(3)
-    _rot_vec_T(r, c, c3, s3, u)
-    dE[1] = u
-    _cross(ec, col2, r)
-    dE[2] = r
-    return R, E, Einv, dE, _matmul3(R, E)
+    mats = np.empty((5, 3, 3))
+    rate_map_into(R0, axes, theta, mats)
+    return mats
 
 
 @njit(cache=True)
@@ -127,15 +117,14 @@ def _solve(S, mode, rhs):
     """lam with L L^T lam = rhs for a lower Cholesky factor L = S (``mode`` is 1)."""
     m = rhs.shape[0]
     lam = np.zeros(m)
-    if mode == 1:
-        y = np.empty(m)
+    if mode == 1:  # forward substitution into lam (y), then backward in place
         for i in range(m):
             s = rhs[i]
             for k in range(i):
-                s -= S[i, k] * y[k]
-            y[i] = s / S[i, i]
+                s -= S[i, k] * lam[k]
+            lam[i] = s / S[i, i]
         for i in range(m - 1, -1, -1):
-            s = y[i]
+            s = lam[i]
             for k in range(i + 1, m):
                 s -= S[k, i] * lam[k]
             lam[i] = s / S[i, i]
@@ -234,11 +223,13 @@ def delassus_solve(K, rhs, rtol):
 @njit(cache=True)
 def _inverse_inertia(R, J_inv):
     """I_W^-1 = R J^-1 R^T (3, 3)."""
-    RJ = _matmul3(R, J_inv)
     Iinv = np.empty((3, 3))
     for i in range(3):
+        RJ = (R[i, 0] * J_inv[0, 0] + R[i, 1] * J_inv[1, 0] + R[i, 2] * J_inv[2, 0],
+              R[i, 0] * J_inv[0, 1] + R[i, 1] * J_inv[1, 1] + R[i, 2] * J_inv[2, 1],
+              R[i, 0] * J_inv[0, 2] + R[i, 1] * J_inv[1, 2] + R[i, 2] * J_inv[2, 2])  # row i of R J^-1
         for j in range(3):
-            Iinv[i, j] = RJ[i, 0] * R[j, 0] + RJ[i, 1] * R[j, 1] + RJ[i, 2] * R[j, 2]
+            Iinv[i, j] = RJ[0] * R[j, 0] + RJ[1] * R[j, 1] + RJ[2] * R[j, 2]
     return Iinv
 
 
@@ -280,20 +271,13 @@ def newton_euler(R, J, J_inv, inv_m, coriolis, G, b, v, w, F_in, fx, rtol):
     free = np.empty(6)
     for i in range(3):
         free[i] = F[i] * inv_m
-    tq = np.empty(3)
+    tq = (F[3], F[4], F[5])
     if coriolis:  # w x I_W w = R (w_B x J w_B)
-        wB = np.empty(3)
-        for i in range(3):
-            wB[i] = R[0, i] * w[0] + R[1, i] * w[1] + R[2, i] * w[2]
-        JwB = np.empty(3)
-        _rv(J, wB[0], wB[1], wB[2], JwB)
-        g = np.empty(3)
-        _cross(wB, JwB, g)
-        _rv(R, g[0], g[1], g[2], tq)
-        for i in range(3):
-            tq[i] = F[3 + i] - tq[i]
-    else:
-        tq[:] = F[3:]
+        wB = (R[0, 0] * w[0] + R[1, 0] * w[1] + R[2, 0] * w[2], R[0, 1] * w[0] + R[1, 1] * w[1] + R[2, 1] * w[2],
+              R[0, 2] * w[0] + R[1, 2] * w[1] + R[2, 2] * w[2])
+        g = _cross3(wB, _rv3(J, wB[0], wB[1], wB[2]))
+        Rg = _rv3(R, g[0], g[1], g[2])
+        tq = (F[3] - Rg[0], F[4] - Rg[1], F[5] - Rg[2])
     Iinv = _inverse_inertia(R, J_inv)
     _rv(Iinv, tq[0], tq[1], tq[2], free[3:])
     m = G.shape[0]
@@ -308,7 +292,9 @@ def newton_euler(R, J, J_inv, inv_m, coriolis, G, b, v, w, F_in, fx, rtol):
     for r in range(m):
         for i in range(6):
             Gtl[i] += G[r, i] * lam[r]
-    return free + d, lam, rank, F, Gtl
+    for i in range(6):
+        free[i] += d[i]
+    return free, lam, rank, F, Gtl
 
 
 @njit(cache=True)

@@ -55,12 +55,6 @@ def _cross3(a, b):
 
 
 @njit(cache=True, inline="always")
-def _cross(a, b, out):
-    """out = a x b (:func:`_cross3` into an array; the other kernels' form)."""
-    out[0], out[1], out[2] = _cross3(a, b)
-
-
-@njit(cache=True, inline="always")
 def _dot(a, b):
     return a[0] * b[0] + a[1] * b[1] + a[2] * b[2]
 

@@ -28,7 +28,7 @@ from teleop.dynamics.kernels.motion import (
     flat_advance,
     gravity_potential,
     project_parameter_rates,
-    rate_map_terms,
+    rate_map_into,
     split_end,
     split_twist,
 )
@@ -67,8 +67,7 @@ def end_checks(q, qd, lam, nudot):
 @njit(cache=True)
 def _pose(R0, axes, q, mats):
     """The chart terms of :func:`.motion.rate_map_terms` at q (6,), into mats (5, 3, 3)."""
-    R, E, Einv, dE, EW = rate_map_terms(R0, axes, q[3:])
-    mats[0], mats[1], mats[2], mats[3], mats[4] = R, E, Einv, dE, EW
+    rate_map_into(R0, axes, q[3:], mats)
 
 
 @njit(cache=True)
@@ -88,12 +87,12 @@ def _evaluate_at(R0, axes, table, params, m, body, q, qd, F, mats, out):
     lam) (see :func:`.motion.evaluate`). Returns the rank."""
     _pose(R0, axes, q, mats)
     R, E, EW = mats[0], mats[1], mats[4]
-    v = qd[:3].copy()
+    v = qd[:3]
     w = np.empty(3)
     for i in range(3):
         w[i] = EW[i, 0] * qd[3] + EW[i, 1] * qd[4] + EW[i, 2] * qd[5]
     G, b, _ = _rows(table, params, m, q, R, v, w)
-    J, J_inv = body[0:9].copy().reshape((3, 3)), body[9:18].copy().reshape((3, 3))
+    J, J_inv = body[0:9].reshape((3, 3)), body[9:18].reshape((3, 3))
     qdd, nudot, lam, rank, Fw, Gtl = evaluate(R, E, mats[2], mats[3], J, J_inv, body[18], body[20] != 0.0,
                                               G, b, qd, F, body[22:27], body[21])
     out[0:6], out[6:12], out[12:18], out[18:24], out[24:24 + m] = qdd, nudot, Fw, Gtl, lam
@@ -151,7 +150,7 @@ def flat_parametric_step(R0, axes, table, params, m, body, P, Pinv, q0, q, qd, z
     if project:
         zero = np.zeros(3)
         G, _, _ = _rows(table, params, m, q1, mats[0], zero, zero)
-        J_inv = body[9:18].copy().reshape((3, 3))
+        J_inv = body[9:18].reshape((3, 3))
         zd1, qd1 = project_parameter_rates(mats[0], mats[1], mats[2], J_inv, body[18], G, qd1, P, Pinv, body[21])
     _finish(out, mats, ev, m, k, o, e, q1, qd1, z1, zd1)
     return out, mats
@@ -172,7 +171,7 @@ def flat_split_step(R0, axes, table, params, m, body, P, Pinv, q0, q, qd, z, zd,
     :func:`flat_parametric_step`), length 12 + 2k + 25 + m + 11; mats the pose terms at the end."""
     n, k = P.shape
     out, mats, ev, o, e = _start(R0, axes, table, params, m, body, q, qd, F, k, 11)
-    J, J_inv = body[0:9].copy().reshape((3, 3)), body[9:18].copy().reshape((3, 3))
+    J, J_inv = body[0:9].reshape((3, 3)), body[9:18].reshape((3, 3))
     fx = body[22:27]
     nu, a0, b0 = split_twist(mats[0], mats[4], J_inv, body[18], qd, ev[6:12], ev[18:24], F, fx, h)
     zd_h = zd.copy()
