@@ -30,7 +30,7 @@ from teleop import __version__
 from teleop.util.errors import ConfigError, SceneError, TeleopError
 from teleop.util.inputs import plain
 from teleop.app.args import add_scene_flags, scene_for, with_capture
-from teleop.app.netcli import add_run_flags, add_subcommands, cmd_run_zenoh, record_from_log, refuse_over_zenoh
+from teleop.app.netcli import add_keys_command, add_run_flags, add_subcommands, cmd_run_zenoh, record_from_log, refuse_over_zenoh
 
 #: exit codes: the run's status "ok"; any other status; bad input (nothing run, nothing written);
 #: Ctrl-C (the summary, if a run had started, says "interrupted")
@@ -235,6 +235,7 @@ def build_parser() -> argparse.ArgumentParser:
     add_run_flags(run)
     run.set_defaults(func=cmd_run)
     add_subcommands(sub)
+    add_keys_command(sub)
     ls = sub.add_parser("list", help="list the scenes")
     ls.set_defaults(func=cmd_list)
     rp = sub.add_parser("replay", help="show a recorded run again (Meshcat, or recording.html)")

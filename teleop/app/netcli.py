@@ -6,6 +6,7 @@ those a side in its own process cannot honour."""
 from __future__ import annotations
 
 import json
+import shutil
 import signal
 import subprocess
 import sys
@@ -32,6 +33,13 @@ def add_subcommands(sub) -> None:
         p.add_argument("--timeout", type=float, default=120.0, help="seconds to wait for the other side (default 120)")
         p.add_argument("--zenoh-config", metavar="FILE.json",
                        help='extra Zenoh settings, a JSON object {"path/to/key": "json5 value"} (e.g. TLS)')
+        trust = p.add_mutually_exclusive_group()
+        trust.add_argument("--keys", metavar="DIR", help="the keys folder 'teleop keys DIR' made (pairing key; "
+                                                         "certificates for a tls/ endpoint)")
+        trust.add_argument("--pairing-key", metavar="FILE", help="a pairing key file alone (loopback or tcp/)")
+        p.add_argument("--allow-plaintext-network", action="store_true",
+                       help="DANGEROUS: let a plain tcp/ endpoint off loopback through (frames are "
+                            "authenticated but not encrypted: use a tls/ endpoint instead)")
         p.add_argument("--no-pin", dest="pin", action="store_false",
                        help="do not pin this side to a core of its own (pinned, it spins instead of sleeping)")
         p.add_argument("--part", help=argparse_suppress())
@@ -42,6 +50,44 @@ def argparse_suppress() -> str:
     import argparse
 
     return argparse.SUPPRESS  # --part DIR: where `run --link zenoh` collects the sides' runs (internal)
+
+
+def add_keys_command(sub) -> None:
+    """``teleop keys DIR``: a pairing key and, for two hosts, a local CA and both sides' certificates."""
+    k = sub.add_parser("keys", help="make the keys a master and a slave pair with (a pairing key; a local CA and "
+                                    "certificates for TLS between two hosts)")
+    k.add_argument("folder", help="folder to write them in (created; files are made private)")
+    k.add_argument("--host", action="append", default=[], metavar="ADDR",
+                   help="an address or name the slave is reached at (repeat; default 127.0.0.1 and localhost)")
+    k.add_argument("--no-tls", dest="tls", action="store_false", help="the pairing key only (loopback)")
+    k.add_argument("--days", type=int, default=365, help="certificate validity (default 365)")
+    k.add_argument("--force", action="store_true", help="replace existing key files")
+    k.set_defaults(func=cmd_keys)
+
+
+def cmd_keys(args) -> int:
+    from teleop.link.keys import DEFAULT_HOSTS, make_keys
+
+    written = make_keys(args.folder, tuple(args.host) or DEFAULT_HOSTS, tls=args.tls, days=args.days,
+                        overwrite=args.force)
+    for name, path in written.items():
+        print(f"{name:12s} {path}")
+    print(f"copy the folder to both hosts; each side reads its own files: "
+          f"'teleop slave SCENE --keys {args.folder}' and 'teleop master SCENE --keys {args.folder}'")
+    return 0
+
+
+def side_keys(args, role: str):
+    """The side's key material from ``--keys DIR`` or ``--pairing-key FILE``; ConfigError when
+    neither is given (the link never runs unauthenticated)."""
+    from teleop.link.keys import LinkKeys, load_keys, load_pairing_key
+
+    if args.keys:
+        return load_keys(args.keys, role)
+    if args.pairing_key:
+        return LinkKeys(load_pairing_key(args.pairing_key), role)
+    raise ConfigError(f"teleop {role}: no keys: the link is always authenticated; make them once with "
+                      f"'teleop keys DIR' and pass --keys DIR to both sides")
 
 
 def add_run_flags(run) -> None:
@@ -85,10 +131,13 @@ def _side(args, stop) -> int:
             from teleop.app.args import with_capture
 
             scene = with_capture(scene, folder, capture)
+        if args.role == "slave" and scene.slave is None:
+            raise ConfigError(f"{scene.path}: slave: the scene has no [slave] table: nothing to run on this side")
+        trust = dict(keys=side_keys(args, args.role), allow_plaintext_network=args.allow_plaintext_network)
         run = (run_slave(scene, listen=args.endpoint, session=args.session, timeout_s=args.timeout, config_json5=extra,
-                         pin=args.pin, stop=stop) if args.role == "slave" else
+                         pin=args.pin, stop=stop, **trust) if args.role == "slave" else
                run_master(scene, connect=args.endpoint, session=args.session, timeout_s=args.timeout,
-                          config_json5=extra, pin=args.pin, stop=stop))
+                          config_json5=extra, pin=args.pin, stop=stop, **trust))
         if args.part:
             save_side(*run, args.part)
         result = side_result(scene, *run)
@@ -108,13 +157,15 @@ def cmd_run_zenoh(scene, quiet: bool = False):
     into one (:func:`teleop.app.netrun.merge`). A side whose process dies is judged by the other
     (a lost peer: status ``link_lost``); Ctrl-C stops both between ticks and keeps what they ran."""
     from teleop.app.netrun import free_endpoint, load_side, merge
+    from teleop.link.keys import one_run_keys
     from teleop.app.view_bridge import save_scene_copy
 
     ep = free_endpoint()
+    key_file, _, _ = one_run_keys()  # a key for this run's two children only, in a private folder
     with tempfile.TemporaryDirectory() as tmp:
         path = save_scene_copy(scene, tmp)
         py = [sys.executable, "-m", "teleop"]
-        common = ["--part", tmp, "-q"]  # the parent prints the one summary
+        common = ["--part", tmp, "-q", "--pairing-key", str(key_file)]  # the parent prints the one summary
         slave = subprocess.Popen(py + ["slave", str(path), "--listen", ep] + common)
         master = subprocess.Popen(py + ["master", str(path), "--connect", ep] + common)
         codes = _wait_pair(master, slave, scene.duration_s + PAIR_MARGIN_S)
@@ -123,6 +174,7 @@ def cmd_run_zenoh(scene, quiet: bool = False):
                         if c not in (0, 1) or (c != 0 and sides[k] is None))
         interrupted = any(c in (130, -signal.SIGINT) for c in codes.values())
         result = merge(scene, sides["master"], sides["slave"], why, interrupted)
+    shutil.rmtree(key_file.parent, ignore_errors=True)
     result.summary["endpoint"] = ep
     return result
 

@@ -29,7 +29,7 @@ import math
 import os
 import socket
 import time
-from dataclasses import asdict
+from dataclasses import asdict, replace
 
 import numpy as np
 
@@ -42,6 +42,7 @@ from teleop.util.errors import TeleopError
 
 GRACE_S = 2.0          # the slave's run beyond the scene's duration when the master is gone (s)
 CONNECT_TIMEOUT_S = 120.0  # the first message must come within this (s): a loaded machine is slow
+CONNECT_TRY_S = 5.0    # one connection attempt (s): a TLS port that answers but refuses ends it at once
 WARMUP_TICKS = 5       # ticks a side's twin runs before the clock starts
 _Z6 = np.zeros(6)
 _Z3 = np.zeros(3)
@@ -82,17 +83,54 @@ def _await_command(link, timeout: float, poll_s: float = POLL_S) -> None:
             os.sched_yield()
 
 
-def _open_link(role: str, session: str, listen, connect, timeout_s: float, config_json5=None):
-    from teleop.link.zenoh_link import LinkError, ZenohLink
+def _open_link(role: str, session: str, listen, connect, timeout_s: float, config_json5=None, *, keys,
+               allow_plaintext_network: bool = False, stop=()):
+    """The side's authenticated link, paired with its peer: a :class:`ZenohLink` opened (retried
+    while the other side is not up yet) and paired (:meth:`ZenohLink.pair`). Raises
+    :class:`~teleop.link.zenoh_link.PairingRefused` (the peer is paired with another: one line to
+    say), :class:`~teleop.link.zenoh_link.ConnectRefused` (TLS refused) or LinkError past
+    ``timeout_s``."""
+    from teleop.link.zenoh_link import ConnectRefused, LinkError, ZenohLink
 
     end = time.monotonic() + timeout_s
     while True:
         try:
-            return ZenohLink(role, session=session, listen=listen, connect=connect, config_json5=config_json5)
+            link = ZenohLink(role, session=session, listen=listen, connect=connect, config_json5=config_json5,
+                             keys=keys, allow_plaintext_network=allow_plaintext_network,
+                             connect_timeout_s=CONNECT_TRY_S if connect else None)
+            break
+        except ConnectRefused:
+            raise
         except LinkError:
-            if time.monotonic() > end:
+            if time.monotonic() > end or stop:
                 raise
             time.sleep(0.2)
+    try:
+        link.pair(max(1.0, end - time.monotonic()))
+    except BaseException:
+        link.close()
+        raise
+    print(f"{role}: paired with {link.peer}", flush=True)
+    return link
+
+
+def _linked(role: str, stop, session, listen, connect, timeout_s, config_json5, keys, allow_plaintext_network):
+    """The side's paired link, or, when there is none to run on, the run of no ticks that says why:
+    ``link_refused`` (the peer is paired with another, or TLS refused this side: one line printed),
+    ``link_lost`` (no peer within ``timeout_s``), ``interrupted``."""
+    from teleop.link.zenoh_link import ConnectRefused, LinkError, PairingRefused
+
+    try:
+        return _open_link(role, session, listen, connect, timeout_s, config_json5, keys=keys,
+                          allow_plaintext_network=allow_plaintext_network, stop=stop)
+    except (PairingRefused, ConnectRefused) as e:
+        status, why = "link_refused", str(e).splitlines()[0]
+    except LinkError as e:
+        status, why = ("interrupted" if stop else "link_lost"), str(e).splitlines()[0]
+    print(f"{role}: {why}", flush=True)
+    runner = {"tick_us": tick_stats(np.zeros(0)), "late_ticks": 0, "link": {f"zenoh_{role}": {"not_linked": why}},
+              "clock": {}}
+    return SideRun(status, 0, 0.0, None, None, False, runner, {})
 
 
 def _hello(side, link, timeout_s: float, stop=()) -> bool:
@@ -175,25 +213,30 @@ def _start_pose(scene: Scene):
 
 def run_master(scene: Scene, connect: str | None, listen: str | None = None, session: str = "default",
                timeout_s: float = CONNECT_TIMEOUT_S, config_json5: dict | None = None, pin: bool = True,
-               stop=None) -> tuple[SideRun, dict]:
+               stop=None, *, keys, allow_plaintext_network: bool = False) -> tuple[SideRun, dict]:
     """The master process: its side ticked on the wall clock over Zenoh. Returns its run and its
     metrics. ``config_json5``: extra Zenoh settings (TLS, see :mod:`teleop.link.zenoh_link`);
     ``pin``: :func:`claim_core`. Ctrl-C or SIGTERM at any point (warm-up, connection, ticks) ends
     it with status "interrupted" and what it ran."""
     if stop is not None:  # the caller's flag (set by its own Ctrl-C handler)
-        return _run_master(scene, connect, listen, session, timeout_s, config_json5, pin, stop)
+        return _run_master(scene, connect, listen, session, timeout_s, config_json5, pin, stop, keys,
+                           allow_plaintext_network)
     with _stop_requests() as stop:
-        return _run_master(scene, connect, listen, session, timeout_s, config_json5, pin, stop)
+        return _run_master(scene, connect, listen, session, timeout_s, config_json5, pin, stop, keys,
+                           allow_plaintext_network)
 
 
-def _run_master(scene, connect, listen, session, timeout_s, config_json5, pin, stop) -> tuple[SideRun, dict]:
+def _run_master(scene, connect, listen, session, timeout_s, config_json5, pin, stop, keys,
+                allow_plaintext_network) -> tuple[SideRun, dict]:
     n = tick_count(scene.duration_s, scene.dt_s)
     core = claim_core("master") if pin else None
     spin_s = math.inf if core is not None else PACE_SPIN_S
     warm_up(scene, "master")
-    link = _open_link("master", session, listen, connect, timeout_s, config_json5)
     mb = build_master(scene, n, np.random.default_rng(scene.seed), networked=True)
     side, dt = mb.side, scene.dt_s
+    link = _linked("master", stop, session, listen, connect, timeout_s, config_json5, keys, allow_plaintext_network)
+    if isinstance(link, SideRun):
+        return replace(link, dt_s=dt, master=side.summary()), {}
     status, late, steps, behind = "ok", 0, 0, 0.0
     ticks = np.zeros(n)
     wall0 = time.perf_counter()
@@ -229,27 +272,32 @@ def _run_master(scene, connect, listen, session, timeout_s, config_json5, pin, s
 
 def run_slave(scene: Scene, listen: str | None, connect: str | None = None, session: str = "default",
               timeout_s: float = CONNECT_TIMEOUT_S, config_json5: dict | None = None, pin: bool = True,
-              stop=None) -> tuple[SideRun, dict]:
+              stop=None, *, keys, allow_plaintext_network: bool = False) -> tuple[SideRun, dict]:
     """The slave process: its side ticked as the master's commands come. Returns its run and its
     metrics; ``pin``: :func:`claim_core`. Ctrl-C or SIGTERM at any point ends it with status
     "interrupted" and what it ran."""
     if scene.slave is None:
         raise TeleopError(f"{scene.path}: slave: the scene has no [slave] table: nothing to run on this side")
     if stop is not None:  # the caller's flag (set by its own Ctrl-C handler)
-        return _run_slave(scene, listen, connect, session, timeout_s, config_json5, pin, stop)
+        return _run_slave(scene, listen, connect, session, timeout_s, config_json5, pin, stop, keys,
+                          allow_plaintext_network)
     with _stop_requests() as stop:
-        return _run_slave(scene, listen, connect, session, timeout_s, config_json5, pin, stop)
+        return _run_slave(scene, listen, connect, session, timeout_s, config_json5, pin, stop, keys,
+                          allow_plaintext_network)
 
 
-def _run_slave(scene, listen, connect, session, timeout_s, config_json5, pin, stop) -> tuple[SideRun, dict]:
+def _run_slave(scene, listen, connect, session, timeout_s, config_json5, pin, stop, keys,
+               allow_plaintext_network) -> tuple[SideRun, dict]:
     core = claim_core("slave") if pin else None
     poll_s = 0.0 if core is not None else POLL_S
     n = tick_count(scene.duration_s, scene.dt_s)
     cap = n + int(round(GRACE_S / scene.dt_s)) + 1
     warm_up(scene, "slave")
-    link = _open_link("slave", session, listen, connect, timeout_s, config_json5)
     sb = build_slave(scene, cap, networked=True)
     side, dt = sb.side, scene.dt_s
+    link = _linked("slave", stop, session, listen, connect, timeout_s, config_json5, keys, allow_plaintext_network)
+    if isinstance(link, SideRun):
+        return replace(link, dt_s=dt, slave={**side.summary(), "followed_last_command": False}), {}
     status, late, steps, behind = "ok", 0, 0, 0.0
     ticks = np.zeros(cap)
     wall0 = time.perf_counter()

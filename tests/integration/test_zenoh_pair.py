@@ -62,10 +62,18 @@ def test_two_process_cut_over_zenoh_writes_one_summary(tmp_path):
     assert rc.returncode == 0
 
 
-def _pair(tmp_path, seconds, extra=()):
-    ep = free_endpoint()
+def _keys(tmp_path, name="keys", tls=False):
+    from teleop.link.keys import make_keys
+
+    make_keys(tmp_path / name, ("127.0.0.1", "localhost"), tls=tls)
+    return str(tmp_path / name)
+
+
+def _pair(tmp_path, seconds, extra=(), ep=None, keys=None):
+    ep = ep or free_endpoint()
+    keys = keys or _keys(tmp_path)
     js, jm = tmp_path / "slave.json", tmp_path / "master.json"
-    sets = ["--set", f"duration_s={seconds}", *extra]
+    sets = ["--set", f"duration_s={seconds}", "--keys", keys, *extra]
     slave = subprocess.Popen(PY + ["slave", "straight_incision", "--listen", ep, "--json", str(js), *sets],
                              env=ENV, stdout=subprocess.PIPE, text=True)
     master = subprocess.Popen(PY + ["master", "straight_incision", "--connect", ep, "--json", str(jm), *sets],
@@ -185,6 +193,52 @@ def test_a_slave_killed_mid_run_leaves_the_masters_summary_link_lost_and_exit_1(
     s = json.loads((tmp_path / "k.json").read_text())
     assert s["status"] == "link_lost" and rc == 1, s["status_reason"]
     assert s["heartbeat"]["master"]["lost_at_end"] and "slave process exit -9" in s["processes"]
+
+
+@pytest.mark.long
+def test_a_second_master_is_refused_in_one_line_and_the_first_keeps_control(tmp_path):
+    ep = free_endpoint()
+    slave, master, js, jm = _pair(tmp_path, 4.0, ep=ep, extra=["--set", "link.heartbeat_ms=2000"])
+    try:
+        _wait_line(master, "master: running")
+        second = subprocess.run(PY + ["master", "straight_incision", "--connect", ep, "--keys", str(tmp_path / "keys"),
+                                      "--json", str(tmp_path / "second.json"), "--timeout", "20"],
+                                env=ENV, capture_output=True, text=True, timeout=200)
+    finally:
+        _finish(slave, master)
+    s2 = json.loads((tmp_path / "second.json").read_text())
+    assert second.returncode == 1 and s2["status"] == "link_refused", second.stdout[-2000:]
+    refusals = [ln for ln in second.stdout.splitlines() if ln.startswith("master:") and "refused" in ln]
+    assert len(refusals) == 1 and "already paired" in refusals[0]
+    first = json.loads(jm.read_text())
+    assert first["status"] == "ok" and first["steps"] == 4000, first["status_reason"]
+    assert json.loads(js.read_text())["status"] == "ok"
+
+
+@pytest.mark.long
+def test_a_tls_pair_runs_the_cut_and_a_certificate_of_another_ca_is_refused(tmp_path):
+    """The two-host recipe on loopback: 'teleop keys' certificates, a tls/ endpoint, mutual TLS."""
+    keys = _keys(tmp_path, "keys", tls=True)
+    ep = free_endpoint().replace("tcp/", "tls/")
+    slave, master, js, jm = _pair(tmp_path, 1.0, ep=ep, keys=keys, extra=["--set", "link.heartbeat_ms=2000"])
+    _finish(slave, master)
+    assert json.loads(jm.read_text())["status"] == "ok" and json.loads(js.read_text())["status"] == "ok"
+    other = _keys(tmp_path, "other", tls=True)  # another CA
+    ep = free_endpoint().replace("tcp/", "tls/")
+    slave = subprocess.Popen(PY + ["slave", "straight_incision", "--listen", ep, "--keys", keys, "--timeout", "30",
+                                   "--set", "duration_s=1"], env=ENV, stdout=subprocess.PIPE, text=True)
+    try:
+        time.sleep(3.0)  # the slave listening
+        rc = subprocess.run(PY + ["master", "straight_incision", "--connect", ep, "--keys", other, "--timeout", "15",
+                                  "--json", str(tmp_path / "bad.json")], env=ENV, capture_output=True, text=True,
+                            timeout=200)
+    finally:
+        slave.send_signal(signal.SIGINT)
+        _finish(slave)
+    bad = json.loads((tmp_path / "bad.json").read_text())
+    assert rc.returncode == 1 and bad["status"] in ("link_refused", "link_lost") and bad["steps"] == 0
+    refusals = [ln for ln in rc.stdout.splitlines() if ln.startswith("master:") and "refused" in ln]
+    assert bad["status"] == "link_refused" and len(refusals) == 1, rc.stdout[-1000:]
 
 
 @pytest.mark.long

@@ -69,7 +69,11 @@ def test_last_receive_s_is_never_later_than_the_frame_s_arrival():
         s.bind(("127.0.0.1", 0))
         ep = f"tcp/127.0.0.1:{s.getsockname()[1]}"
     cmd = ToolCommand(1, 0.0, np.zeros(3), np.eye(3), np.zeros(3), np.zeros(3))
-    with ZenohLink("slave", session="lr", listen=ep) as slave, ZenohLink("master", session="lr", connect=ep) as master:
+    from teleop.link.keys import random_secret
+
+    key = random_secret()
+    with ZenohLink("slave", session="lr", listen=ep, keys=key) as slave, \
+            ZenohLink("master", session="lr", connect=ep, keys=key) as master:
         end = time.monotonic() + 20.0
         while slave.last_receive_s is None and time.monotonic() < end:  # until the route is up
             master.send_command(cmd)
