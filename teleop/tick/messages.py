@@ -139,7 +139,7 @@ def _time(x, name: str) -> float:
     return t
 
 
-@dataclass(frozen=True, slots=True)
+@dataclass(frozen=True, slots=True, init=False)
 class ToolCommand:
     """Master -> slave: the virtual tool at master time ``t_s`` (s).
 
@@ -157,11 +157,12 @@ class ToolCommand:
     clutch: bool = True
     energy_J: np.ndarray | None = None
 
-    def __post_init__(self):
-        object.__setattr__(self, "seq", _seq(self.seq, "ToolCommand.seq"))
-        object.__setattr__(self, "t_s", _time(self.t_s, "ToolCommand.t_s"))
-        parts = (self.p_m, self.R, self.v_m_s, self.w_rad_s)
-        f = _fast_flat(parts, self.energy_J, 18, 1, 3)
+    def __init__(self, seq: int, t_s: float, p_m, R, v_m_s, w_rad_s, clutch: bool = True, energy_J=None):
+        """Checked as made (each field written once, with its checked value)."""
+        object.__setattr__(self, "seq", _seq(seq, "ToolCommand.seq"))
+        object.__setattr__(self, "t_s", _time(t_s, "ToolCommand.t_s"))
+        parts = (p_m, R, v_m_s, w_rad_s)
+        f = _fast_flat(parts, energy_J, 18, 1, 3)
         if f is not None:  # well formed (the usual case): checked in one pass
             p, R, v, w = f[0:3], f[3:12], f[12:15], f[15:18]
             energy = _NO_ENERGY if f.size == 18 else f[18:]
@@ -170,16 +171,16 @@ class ToolCommand:
                                  ("ToolCommand.p_m", "ToolCommand.R", "ToolCommand.v_m_s", "ToolCommand.w_rad_s"))
             if abs(_det3(R.tolist()) - 1.0) > 1e-6:
                 raise MessageError("ToolCommand.R: not a rotation (det != 1)")
-            energy = _energy(self.energy_J, "ToolCommand.energy_J")
+            energy = _energy(energy_J, "ToolCommand.energy_J")
         object.__setattr__(self, "p_m", p)
         object.__setattr__(self, "R", R.reshape(3, 3))
         object.__setattr__(self, "v_m_s", v)
         object.__setattr__(self, "w_rad_s", w)
-        object.__setattr__(self, "clutch", bool(self.clutch))
+        object.__setattr__(self, "clutch", bool(clutch))
         object.__setattr__(self, "energy_J", energy)
 
 
-@dataclass(frozen=True, slots=True)
+@dataclass(frozen=True, slots=True, init=False)
 class ContactFeedback:
     """Slave -> master: the contact wrench ``wrench_P`` (6,: N, N*m) at the slave tool frame's
     origin, in the patient frame P, at slave time ``t_s`` (s), with the slave's ``status`` and the
@@ -200,13 +201,15 @@ class ContactFeedback:
     damping_P: np.ndarray | None = None
     twist_P: np.ndarray | None = None
 
-    def __post_init__(self):
-        object.__setattr__(self, "seq", _seq(self.seq, "ContactFeedback.seq"))
-        object.__setattr__(self, "t_s", _time(self.t_s, "ContactFeedback.t_s"))
-        D = _ZERO36 if self.damping_P is None else self.damping_P
-        V = _ZERO6 if self.twist_P is None else self.twist_P
-        parts = (self.wrench_P, D, V)
-        f = _fast_flat(parts, self.energy_J, 48, 2, 6)
+    def __init__(self, seq: int, t_s: float, wrench_P, status: str, command_seq: int = -1, energy_J=None,
+                 damping_P=None, twist_P=None):
+        """Checked as made (each field written once, with its checked value)."""
+        object.__setattr__(self, "seq", _seq(seq, "ContactFeedback.seq"))
+        object.__setattr__(self, "t_s", _time(t_s, "ContactFeedback.t_s"))
+        D = _ZERO36 if damping_P is None else damping_P
+        V = _ZERO6 if twist_P is None else twist_P
+        parts = (wrench_P, D, V)
+        f = _fast_flat(parts, energy_J, 48, 2, 6)
         if f is not None:  # well formed (the usual case): checked in one pass
             W, D, V = f[0:6], f[6:42].reshape(6, 6), f[42:48]
             energy = _NO_ENERGY if f.size == 48 else f[48:]
@@ -220,14 +223,15 @@ class ContactFeedback:
         object.__setattr__(self, "wrench_P", W)
         object.__setattr__(self, "damping_P", D)
         object.__setattr__(self, "twist_P", V)
-        if self.status not in SLAVE_STATUSES:
-            raise MessageError(f"ContactFeedback.status: unknown status {self.status!r}")
-        c = self.command_seq
+        if status not in SLAVE_STATUSES:
+            raise MessageError(f"ContactFeedback.status: unknown status {status!r}")
+        object.__setattr__(self, "status", status)
+        c = command_seq
         if isinstance(c, bool) or not isinstance(c, (int, np.integer)) or not -1 <= int(c) < 2**63:
             raise MessageError(f"ContactFeedback.command_seq: expected an integer >= -1, got {c!r}")
         object.__setattr__(self, "command_seq", int(c))
         if energy is None:
-            energy = _energy(self.energy_J, "ContactFeedback.energy_J")
+            energy = _energy(energy_J, "ContactFeedback.energy_J")
         object.__setattr__(self, "energy_J", energy)
 
     @property
