@@ -49,10 +49,13 @@ def make_master(scene: Scene, tool, rng: np.random.Generator):
     return CobotMaster(cfg, scene.dt_s, rng, p0, R0, tool.body.mass_kg, reference=tool)
 
 
-def make_slave(scene: Scene, registration, constraints_P, guard: SlaveGuard | None = None) -> SlaveSide | None:
+def make_slave(scene: Scene, registration, constraints_P, guard: SlaveGuard | None = None, tool=None,
+               scale: float = 1.0) -> SlaveSide | None:
     """The slave side of a scene with a [slave] table (None without one): the arm under the
     patient-frame fixture ``constraints_P``, the tissue if the scene calls for it, the guard's
-    slave port ``guard`` and the scene's heartbeat."""
+    slave port ``guard`` and the scene's heartbeat. Its commands are held to the arm's reach and,
+    given the master's reference ``tool``, to the tool's own speed limits (a real master's
+    fastest, at the slave's ``scale``)."""
     if scene.slave is None:
         return None
     try:
@@ -69,7 +72,16 @@ def make_slave(scene: Scene, registration, constraints_P, guard: SlaveGuard | No
         key, _, reason = str(e).partition(": ")
         raise SceneError(scene.path, key, reason) from None
     return SlaveSide(arm, registration, tissue, scene.fixture.tip_m, guard=guard, heartbeat_s=scene.link.heartbeat_ms * 1e-3,
-                     limits=CommandLimits(*arm_reach(arm)))
+                     limits=command_limits(arm, tool, scale))
+
+
+def command_limits(arm: SlaveArm, tool=None, scale: float = 1.0) -> CommandLimits:
+    """What a real master can ask of ``arm``: its reach, and the reference ``tool``'s speed limits
+    (a master never sends the tool faster: its step would have diverged) at the slave's ``scale``."""
+    center, reach = arm_reach(arm)
+    if tool is None:
+        return CommandLimits(center, reach)
+    return CommandLimits(center, reach, tool.max_speed_m_s / scale, tool.max_rate_rad_s)
 
 
 def arm_reach(arm: SlaveArm) -> tuple[tuple[float, float, float], float]:
@@ -202,8 +214,9 @@ def build_slave(scene: Scene, n: int, networked: bool = False) -> SlaveBuild | N
     reg = build_registration(scene)
     constraints_P = build_fixture(scene.fixture).constraints  # the fixture where the patient is
     guard = make_guard(scene, reg, n, networked)
-    side = make_slave(scene, reg, constraints_P, guard[1] if guard else None)
-    side.reset(*build_tool(scene).pose())
+    tool = build_tool(scene)
+    side = make_slave(scene, reg, constraints_P, guard[1] if guard else None, tool, reg.scale)
+    side.reset(*tool.pose())
     rcm = [c for c in constraints_P if isinstance(c, RemoteCenter)]
     metrics = SlaveMetrics(scene.fixture, n, side.arm.nv, rcm, constraints_P)
     recorder = SlaveRecorder(n)

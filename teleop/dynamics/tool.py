@@ -78,6 +78,8 @@ class ReferenceTool:
         if not (max_speed_m_s > 0 and max_rate_rad_s > 0):
             raise ConfigError("max_speed_m_s and max_rate_rad_s must be positive")
         self._max_v2, self._max_w2 = max_speed_m_s**2, max_rate_rad_s**2
+        #: the fastest the tool may move (m/s, rad/s): a step past it has diverged (a real master's limit)
+        self.max_speed_m_s, self.max_rate_rad_s = float(max_speed_m_s), float(max_rate_rad_s)
         #: (qd, q, chart, end) of the last fused step: ``end`` (9,) holds the world twist
         #: at that state in [3:9] (:attr:`~teleop.dynamics.model.Evaluation.end`); None: no such step
         self._end = None

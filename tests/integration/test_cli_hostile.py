@@ -50,7 +50,7 @@ def _run_args(tmp_path, scene, *more):
     (["--duration", "nan"], ["--duration", "finite"]),
     (["--seed", "-1"], ["--seed", "non-negative"]),
     (["--dt", "inf"], ["--dt", "finite"]),
-    (["--dt", "1e-300"], ["--dt", "at most 2000000 ticks"]),
+    (["--dt", "1e-300"], ["--dt", "at least 1e-05 s"]),
     (["--duration", "1e-300"], ["--duration", "zero ticks"]),
     (["--duration", "1e12"], ["--duration", "at most 2000000 ticks"]),
     (["--duration", "86400"], ["--duration", "at most 2000000 ticks"]),

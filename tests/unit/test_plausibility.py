@@ -51,7 +51,7 @@ def _cmd(m: ToolCommand, **kw) -> ToolCommand:
 
 @pytest.mark.parametrize("forge, reason", [
     (lambda m: _cmd(m, p_m=m.p_m + [1000.0, 0, 0]), "out_of_reach"),
-    (lambda m: _cmd(m, p_m=m.p_m + [0.05, 0, 0]), "jump_too_far"),  # 50 mm in one tick: 50 m/s
+    (lambda m: _cmd(m, p_m=m.p_m + [0.3, 0, 0]), "jump_too_far"),  # 100 mm at the slave in one tick: 100 m/s
     (lambda m: _cmd(m, R=m.R @ np.array([[1.0, 0.5, 0], [0, 1, 0], [0, 0, 1]])), "not_a_rotation"),  # det 1
     (lambda m: _cmd(m, energy_J=np.full(6, 1e300)), "energy_too_fast"),
     (lambda m: _cmd(m, t_s=m.t_s - 0.1), "time_ran_backwards"),
