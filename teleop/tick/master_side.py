@@ -41,6 +41,8 @@ from teleop.tick.ports import Hook, MasterEnd, Operator, ToolState
 
 #: the heartbeat's timeout when none is given (s): ``[link] heartbeat_ms``'s default
 HEARTBEAT_S = 0.02
+#: the largest wrench a hand applies (N, N*m): a push past it, or not 6 finite numbers, is refused
+PUSH_MAX = (1e4, 1e3)
 #: the time the slave's force takes to fade out when the link is lost, and back in after (s)
 RAMP_S = 0.2
 _Z6 = np.zeros(6)
@@ -73,6 +75,7 @@ class MasterSide:
         self.status = "ok"
         self.peer_lost = False         # the newest reply says the slave hears nothing
         self.command_errors = 0        # ticks whose command could not be made (not finite)
+        self.pushes_refused = 0        # ticks whose hand wrench could not be applied (see PUSH_MAX)
         self.tick_ns = 0               # the last tick's CPU time, hooks excluded (ns)
         self.slave_statuses: dict[str, int] = {}  # replies heard, per status
         self.reply_lag: dict[str, int] = {}  # ticks by how many ticks old the newest reply was ("none")
@@ -110,6 +113,9 @@ class MasterSide:
             if not lost and i > 0:
                 self._feel(msg, t_s - self.dt)
         self.hand_W = self.operator.wrench(t_s, *master.hand_state())
+        if not _applicable(self.hand_W):  # no hand pushes so: not applied, counted, said in the status
+            self.pushes_refused += 1
+            self.hand_W = _Z6
         master.set_clutch(self.operator.clutch_engaged)
         f_v = master.sense(self.hand_W)                               # bus in, load cell, eq. 4
         state = self.state if self._fresh() else self._read()
@@ -198,13 +204,21 @@ class MasterSide:
         """This side's part of a run's summary (:func:`teleop.tick.verdict.run_summary`)."""
         out = {"heartbeat": self.heart.summary(), "slave_statuses_heard": dict(self.slave_statuses),
                "reply_lag_ticks": dict(sorted(self.reply_lag.items())), "command_errors": self.command_errors,
-               "replies_refused": dict(self.check.refused),
+               "replies_refused": dict(self.check.refused), "pushes_refused": self.pushes_refused,
                "engine": {"rank_min": int(self.tool.rank), "recharts": self.tool.recharts}}
         if self.feedback is not None:
             out["feedback_damping_refused"] = self.feedback.refused
         if self.guard is not None:
             out["passivity_master"] = self.guard.summary()
         return out
+
+
+def _applicable(W: object) -> bool:
+    """A hand wrench the tool can step under: 6 finite numbers within PUSH_MAX."""
+    w = np.asarray(W, dtype=float)
+    if w.shape != (6,) or not np.all(np.isfinite(w)):
+        return False
+    return bool(np.abs(w[:3]).max() <= PUSH_MAX[0] and np.abs(w[3:]).max() <= PUSH_MAX[1])
 
 
 class SetWrench:

@@ -36,7 +36,7 @@ SLAVE_FIXTURE_TOLERANCES = {"cut_depth_error_max_m": 1e-3, "rcm_error_max_m": 2e
 def verdict(master_status: str, steps: int, slave_counts: dict | None = None, metrics: dict | None = None,
             nan: bool = False, exempt: Iterable[str] = (), master_link_lost: int = 0) -> tuple[str, str]:
     """The run's one-word status and a one-line reason, first match wins: "interrupted" (Ctrl-C),
-    "no_ticks", the master side's fault, "nan", "link_lost" (either side lost the link and held),
+    the master side's fault (``link_refused`` included), "no_ticks", "nan", "link_lost" (either side lost the link and held),
     "slave_<status>" (the worst slave fault, see SLAVE_FAULTS), "fixture_violated" (the master side past FIXTURE_TOLERANCES),
     "slave_fixture_violated" (SLAVE_FIXTURE_TOLERANCES), "slave_off_target" (the slave's tool
     farther than SLAVE_TARGET_MAX_M from its target), else "ok". ``exempt``: metric names the
@@ -46,10 +46,10 @@ def verdict(master_status: str, steps: int, slave_counts: dict | None = None, me
     counts, metrics = slave_counts or {}, metrics or {}
     if master_status == "interrupted":
         return "interrupted", f"stopped by Ctrl-C or SIGTERM after {steps} ticks: a partial run"
+    if master_status not in ("ok", "stopped_by_operator"):  # its reason, even before a first tick
+        return master_status, f"the master side stopped the run: {master_status}"
     if steps == 0:
         return "no_ticks", "the run ended before its first tick"
-    if master_status not in ("ok", "stopped_by_operator"):
-        return master_status, f"the master side stopped the run: {master_status}"
     if nan:
         return "nan", "the tool's state became NaN"
     total = max(1, sum(counts.values()))
@@ -93,6 +93,9 @@ def run_summary(master_status: str, steps: int, dt_s: float, master: dict | None
     status, reason = verdict(master_status, steps, counts, metrics, nan, tuple(exempt), lost_m)
     if status == "ok" and slave is not None and s.get("heartbeat", {}).get("lost_ticks", 0):
         status, reason = "link_lost", f"the slave lost the link on {s['heartbeat']['lost_ticks']} ticks (held its joints)"
+    if status == "ok" and m.get("pushes_refused"):
+        status, reason = "push_refused", (f"the hand's wrench could not be applied on {m['pushes_refused']} ticks "
+                                          "(not 6 finite numbers, or past a hand's strength)")
     if status == "ok" and s.get("followed_last_command") is False:  # a slave process that ran out of time
         status, reason = "link_lost", (f"the slave followed the master's commands up to {s['last_command_seq']}: "
                                        "the master's last never reached it")

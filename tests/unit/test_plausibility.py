@@ -79,3 +79,22 @@ def test_a_reply_whose_energy_jumps_is_refused_before_the_guard_sees_it():
 def test_a_clean_run_refuses_nothing():
     s, _, _ = _run("none", lambda m: m)
     assert s["status"] == "ok" and s["commands_refused"] == {} and s["replies_refused"] == {}
+
+
+@pytest.mark.parametrize("push", [1e300, np.inf, np.nan, 2e4], ids=["1e300", "inf", "nan", "past a hand"])
+def test_a_push_no_hand_makes_is_not_applied_and_the_run_says_so(push, recwarn):
+    from teleop.api import IdealMaster, ReferenceTool, RigidBody
+    from teleop.dynamics import fixtures
+
+    tool = ReferenceTool(RigidBody(0.25, [0.0025] * 3), fixtures.free(), [], integrator="parametric")
+    tool.reset()
+
+    class Hand:
+        clutch_engaged = True
+
+        def wrench(self, t, p, R, v, w):
+            return np.array([push if t > 0.1 else 1.0, 0, 0, 0, 0, 0])
+
+    s = Session(tool, IdealMaster(tool, 1e-3), Hand(), 1e-3, 0.3).run().summary
+    assert s["status"] == "push_refused" and s["pushes_refused"] == 199 and not s["nan"]
+    assert np.all(np.isfinite(tool.q)) and not [w for w in recwarn if issubclass(w.category, RuntimeWarning)]
