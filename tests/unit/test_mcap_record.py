@@ -319,3 +319,32 @@ def test_foxglove_layout_names_what_the_record_holds(tmp_path):
     assert {k.removeprefix("frame:") for k in scene["transforms"]} - frames == {"device"}
     assert scene["followTf"] in frames
     assert cfg["RawMessages!state"]["topicPath"] in rec
+
+
+def test_arrays_of_any_layout_are_recorded_alike(tmp_path):
+    """A side whose arrays are not C-contiguous float64 (a transposed rotation, float32, a list)
+    takes the slow copy (numpy's casting), with the same values."""
+    path = tmp_path / "r.mcap"
+    rng = np.random.default_rng(5)
+    with RecordWriter(path) as w:
+        mh, sh = MasterRecorderMcap(w), SlaveRecorderMcap(w)
+        sides = []
+        for i in range(30):
+            ms, ss = _master_side(i, rng), _slave_side(i, rng)
+            if i % 2:
+                ms.state.R = np.asfortranarray(ms.state.R)
+                ms.hand_W = list(ms.hand_W)
+                ms.felt_W = ms.felt_W.astype(np.float32)
+                ss.arm.q = list(ss.arm.q)
+                ss.state.R = ss.state.R.T.copy().T
+            mh.before_tick(i, i * 1e-3, ms)
+            mh.after_tick(i, i * 1e-3, ms)
+            sh.after_tick(i, i * 1e-3, ss)
+            sides.append((ms, ss))
+        mh._side = sides[-1][0]
+    rec = read_record(path)
+    assert np.abs(rec["/master/tool_pose"]["R"] - [m.state.R for m, _ in sides]).max() < 1e-14
+    assert np.array_equal(rec["/master/hand_wrench"]["W"], [m.hand_W for m, _ in sides])
+    assert np.array_equal(rec["/master/felt_wrench"]["W"], [np.asarray(m.felt_W, float) for m, _ in sides])
+    assert np.array_equal(rec["/slave/joints"]["position"], [s.arm.q for _, s in sides])
+    assert np.abs(rec["/slave/tool_pose"]["R"] - [s.state.R for _, s in sides]).max() < 1e-14

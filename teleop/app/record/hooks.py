@@ -42,6 +42,7 @@ the ``master`` and ``patient`` axes: the wrenches are expressed in those axes an
 
 from __future__ import annotations
 
+import struct
 import time
 from typing import Any
 
@@ -50,6 +51,17 @@ import numpy as np
 from teleop.app.record.emit import Columns
 from teleop.app.record.writer import RecordWriter, Source
 from teleop.tick.ports import Hook
+
+#: a row's first nine numbers (the side's scalars), and one number
+_HEAD = struct.Struct("<9d")
+_ONE = struct.Struct("<d")
+#: what a mis-sized or non-contiguous array raises when copied into the shared memory (then the
+#: row is filled the slow way, with numpy's casting)
+_COPY_ERRORS = (BufferError, ValueError, TypeError, IndexError, struct.error)
+_MASTER_FIXED = ("i", "t", "wall", "status", "gain", "lost", "peer_lost", "tick_ns", "cmd_err", "p", "R", "V",
+                 "hand", "felt", "fb")
+_SLAVE_FIXED = ("i", "t", "wall", "status", "lost", "tick_ns", "last_seq", "without", "skipped", "p_t", "R_t",
+                "p", "R", "v", "w", "tip", "contact")
 
 
 def _names(model: Any, n: int, prefix: str) -> list[str]:
@@ -111,7 +123,8 @@ class MasterRecorderMcap(Hook):
         self._side: Any = None
         self._held = False
         self._tee: tuple[Any, _CanTee] | None = None
-        self._status = 0
+        self._extra = False
+        self._at = 0
 
     @property
     def dropped(self) -> int:
@@ -123,7 +136,8 @@ class MasterRecorderMcap(Hook):
         # the bus's clock when tick i starts (before) or ends (after), less the run's: the offset
         can_t0 = float(side.master.t) - t_s - (0.0 if before else side.dt) if tap else None
         src = self.source = _master_source(self.writer, side, self.prefix, can_t0)
-        self._status = src.cols.col("status")
+        assert list(src.cols.at)[:len(_MASTER_FIXED)] == list(_MASTER_FIXED) and src.cols.at["fb"][1] == 45
+        self._extra = src.cols.width > 45
         src.finalize = self.finalize  # type: ignore[method-assign]
         self._side = side
         if tap and sim is not None:
@@ -139,26 +153,58 @@ class MasterRecorderMcap(Hook):
             self._start(i, t_s, side, before=True)
 
     def after_tick(self, i: int, t_s: float, side: Any) -> None:
-        src = self.source or self._start(i, t_s, side, before=False)
         if self._held:  # no before_tick since the last one (a side driven without its hooks' pair)
             self.commit(side.status)
+        if self._fill(i, t_s, side, 0.0):
+            self._held = True
+
+    def _fill(self, i: int, t_s: float, side: Any, code: float) -> bool:
+        """Tick i's row (status ``code``); False when it was not recorded."""
+        src = self.source or self._start(i, t_s, side, before=False)
         if not src.live:
-            return
-        row = src.slot()
-        if row is None:
-            return
-        st = side.state
-        parts = [(i, t_s, time.time(), 0.0, side.gain, side.heart.lost, side.peer_lost, side.tick_ns,
-                  side.command_errors), st.p, st.R.reshape(9), st.V, side.hand_W, side.felt_W, side.feedback_W]
-        if src.cols.at.get("joints"):
+            return False
+        o = src.next_row()
+        if o < 0:
+            return False
+        st, region = side.state, src.region
+        try:  # the arrays' bytes straight into the shared row (the offsets are _MASTER_FIXED's)
+            _HEAD.pack_into(region, o, i, t_s, time.time(), code, side.gain, side.heart.lost, side.peer_lost,
+                            side.tick_ns, side.command_errors)
+            region[o + 72:o + 96] = st.p
+            region[o + 96:o + 168] = st.R
+            region[o + 168:o + 216] = st.V
+            region[o + 216:o + 264] = side.hand_W
+            region[o + 264:o + 312] = side.felt_W
+            region[o + 312:o + 360] = side.feedback_W
+            if self._extra:
+                self._fill_extra(region, o + 360, side)
+        except _COPY_ERRORS:
+            self._fill_slow(src.row(src.w), i, t_s, side, code)
+        self._at = o
+        return True
+
+    def _extras(self, side: Any) -> list:
+        out: list = []
+        if self.source is not None and "joints" in self.source.cols.at:
             m = side.master
             pv, Rv = m.virtual_pose()
-            parts += (m.joints(), pv, np.reshape(Rv, 9))
+            out += (m.joints(), pv, Rv)
         if side.guard is not None:
             port = side.guard.port
-            parts += (port.W, port.E_diss, port.action)
-        np.concatenate(parts, out=row)
-        self._held = True
+            out += (port.W, port.E_diss, port.action)
+        return out
+
+    def _fill_extra(self, region: Any, o: int, side: Any) -> None:
+        for a in self._extras(side):
+            n = a.nbytes
+            region[o:o + n] = a
+            o += n
+
+    def _fill_slow(self, row: np.ndarray, i: int, t_s: float, side: Any, code: float) -> None:
+        st = side.state
+        np.concatenate([(i, t_s, time.time(), code, side.gain, side.heart.lost, side.peer_lost, side.tick_ns,
+                         side.command_errors), np.ravel(st.p), np.ravel(st.R), np.ravel(st.V), np.ravel(side.hand_W),
+                        np.ravel(side.felt_W), np.ravel(side.feedback_W), *map(np.ravel, self._extras(side))], out=row)
 
     def commit(self, status: str) -> None:
         """Hand the held row to the writer with the status its tick ended in."""
@@ -166,8 +212,15 @@ class MasterRecorderMcap(Hook):
         if not self._held or src is None:
             return
         self._held = False
-        src._rows[src.w % src.cap][self._status] = src.code(status)
+        _ONE.pack_into(src.region, self._at + 24, src.code(status))
         src.publish()
+
+    def record(self, i: int, t_s: float, side: Any) -> None:
+        """Tick i's row handed over at once with the side's status as it is now (a loop hook, which
+        runs after the side has set its status)."""
+        src = self.source or self._start(i, t_s, side, before=False)
+        if self._fill(i, t_s, side, src.code(side.status)):
+            src.publish()
 
     def finalize(self) -> None:
         """The last row (its status as the side holds it now); the bus's capture given back."""
@@ -214,19 +267,41 @@ class SlaveRecorderMcap(Hook):
         src = self.source
         if src is None:
             src = self.source = _slave_source(self.writer, side, self.prefix)
+            assert list(src.cols.at)[:len(_SLAVE_FIXED)] == list(_SLAVE_FIXED) and src.cols.col("q") == 48
         if not src.live:
             return
-        row = src.slot()
-        if row is None:
+        o = src.next_row()
+        if o < 0:
             return
-        s, arm = side.state, side.arm
-        parts = [(i, t_s, time.time(), src.code(s.status), side.heart.lost, side.tick_ns, side.last_seq,
-                  side.without_command, side.skipped), s.p_t, s.R_t.reshape(9), s.p, s.R.reshape(9), s.v, s.w,
-                 s.tip, s.contact_P, arm.q, arm.qd]
-        if side.guard is not None:
-            port = side.guard.port
-            parts += (port.W, port.E_diss, port.offset)
-        np.concatenate(parts, out=row)
+        s, arm, region = side.state, side.arm, src.region
+        try:  # the arrays' bytes straight into the shared row (the offsets are _SLAVE_FIXED's)
+            _HEAD.pack_into(region, o, i, t_s, time.time(), src.code(s.status), side.heart.lost, side.tick_ns,
+                            side.last_seq, side.without_command, side.skipped)
+            region[o + 72:o + 96] = s.p_t
+            region[o + 96:o + 168] = s.R_t
+            region[o + 168:o + 192] = s.p
+            region[o + 192:o + 264] = s.R
+            region[o + 264:o + 288] = s.v
+            region[o + 288:o + 312] = s.w
+            region[o + 312:o + 336] = s.tip
+            region[o + 336:o + 384] = s.contact_P
+            q = arm.q
+            n = q.nbytes
+            region[o + 384:o + 384 + n] = q
+            region[o + 384 + n:o + 384 + 2 * n] = arm.qd
+            if side.guard is not None:
+                port, at = side.guard.port, o + 384 + 2 * n
+                region[at:at + 48] = port.W
+                region[at + 48:at + 96] = port.E_diss
+                region[at + 96:at + 144] = port.offset
+        except _COPY_ERRORS:
+            parts = [(i, t_s, time.time(), src.code(s.status), side.heart.lost, side.tick_ns, side.last_seq,
+                      side.without_command, side.skipped), s.p_t, s.R_t, s.p, s.R, s.v, s.w, s.tip, s.contact_P,
+                     arm.q, arm.qd]
+            if side.guard is not None:
+                port = side.guard.port
+                parts += (port.W, port.E_diss, port.offset)
+            np.concatenate([np.ravel(a) for a in parts], out=src.row(src.w))
         src.publish()
 
 
@@ -245,8 +320,6 @@ class LoopRecorderMcap(Hook):
             self.master._start(i, t_s, loop.master_side, before=True)
 
     def after_tick(self, i: int, t_s: float, loop: Any) -> None:
-        ms = loop.master_side
-        self.master.after_tick(i, t_s, ms)
-        self.master.commit(ms.status)
+        self.master.record(i, t_s, loop.master_side)
         if loop.slave_side is not None:
             self.slave.after_tick(i, t_s, loop.slave_side)

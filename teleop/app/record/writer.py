@@ -90,30 +90,41 @@ def _shared_fd(size: int) -> int:
 
 
 class _Ring:
-    """A ring's place in the shared memory: ``hdr[0]`` is w, ``hdr[8]`` is r."""
+    """A ring's place in the shared memory: its header's int64 0 is w, its int64 8 is r."""
 
     def __init__(self, writer: RecordWriter, row_bytes: int, capacity: int) -> None:
         self.writer, self.cap, self.row_bytes = writer, int(capacity), int(row_bytes)
-        self.offset = writer._alloc(_HEADER + self.row_bytes * self.cap)
-        self.hdr = np.frombuffer(writer._region, np.int64, count=_HEADER // 8, offset=self.offset)
+        size = _HEADER + self.row_bytes * self.cap
+        self.offset = writer._alloc(size)
+        writer._region[self.offset:self.offset + size] = bytes(size)  # its pages now, not one per few ticks
+        self.hdr = memoryview(writer._region)[self.offset:self.offset + _HEADER].cast("q")
         self.data = self.offset + _HEADER
         self.w = 0
+        self.r = 0  # the writer's r as last read: it only grows, so an old one errs on the safe side
         self.dropped = 0
+
+    def room(self, n: int = 1) -> bool:
+        """Whether n more rows fit (the writer's r read again only when they seem not to)."""
+        if self.w - self.r + n <= self.cap:
+            return True
+        self.r = self.hdr[8]
+        return self.w - self.r + n <= self.cap
 
 
 class Source:
-    """One side's ring: ``capacity`` rows of ``cols.width`` float64s, written by the tick's thread
-    (:meth:`slot`, then :meth:`publish`), read by the writer process. ``kind`` names the writer's
-    emitter ("master", "slave"); ``meta`` (picklable) is what the emitter needs to know."""
+    """One side's ring: ``capacity`` rows of ``cols.width`` float64s in the memory shared with the
+    writer process, written by the tick's thread (:meth:`next_row` gives the next row's byte offset
+    in :attr:`region`, or :meth:`slot` a numpy view of it; then :meth:`publish`). ``kind`` names
+    the writer's emitter ("master", "slave"); ``meta`` (picklable) is what the emitter needs."""
 
     def __init__(self, writer: RecordWriter, kind: str, cols: Columns, meta: dict, can: bool = False) -> None:
         self.writer, self.cols, self.kind = writer, cols, kind
         cap = writer.capacity
-        self.ring = _Ring(writer, 8 * cols.width, cap)
+        self.ring = ring = _Ring(writer, 8 * cols.width, cap)
+        self.region = writer._region
         self.buf = np.frombuffer(writer._region, np.float64, count=cap * cols.width,
-                                 offset=self.ring.data).reshape(cap, cols.width)
-        self._rows = [self.buf[k] for k in range(cap)]
-        self.cap, self.hdr = cap, self.ring.hdr
+                                 offset=ring.data).reshape(cap, cols.width)
+        self.cap = cap
         self.high, self.low = writer.high_water, writer.low_water
         self.waits = 0
         self.waited_s = 0.0
@@ -123,7 +134,7 @@ class Source:
         self.can = _Ring(writer, CAN_ROW.size, CAN_CAPACITY) if can else None
         self.can_frames: list[tuple] = []
         self.sid = writer._add(self)
-        writer._send(("source", self.sid, kind, self.ring.offset, cap, cols.width, dict(meta, cols=cols.at),
+        writer._send(("source", self.sid, kind, ring.offset, cap, cols.width, dict(meta, cols=cols.at),
                       None if self.can is None else self.can.offset))
 
     @property
@@ -142,30 +153,44 @@ class Source:
             self.writer._send(("name", self.sid, c, s))
         return c
 
-    def slot(self) -> np.ndarray | None:
-        """The next row to fill, or None (the ring is full: the tick is dropped and counted)."""
+    def next_row(self) -> int:
+        """The byte offset in :attr:`region` of the next row to fill, or -1 (the ring is full: the
+        tick is dropped and counted)."""
         ring = self.ring
-        if ring.w - int(self.hdr[8]) >= self.cap:
-            ring.dropped += 1
-            return None
-        return self._rows[ring.w % self.cap]
+        if ring.room():
+            return ring.data + (ring.w % ring.cap) * ring.row_bytes
+        ring.dropped += 1
+        return -1
+
+    def slot(self) -> np.ndarray | None:
+        """The next row to fill as a numpy view, or None (see :meth:`next_row`)."""
+        ring = self.ring
+        if ring.room():
+            return self.buf[ring.w % ring.cap]
+        ring.dropped += 1
+        return None
+
+    def row(self, k: int) -> np.ndarray:
+        """Row ``k`` (counting from the first) as a numpy view."""
+        return self.buf[k % self.cap]
 
     def publish(self) -> None:
-        """The row from :meth:`slot` is filled: hand it to the writer."""
+        """The next row is filled: hand it to the writer."""
         ring = self.ring
         ring.w += 1
-        self.hdr[0] = ring.w
+        ring.hdr[0] = ring.w
         if self.can_frames:
             self._publish_can()
-        if ring.w - int(self.hdr[8]) >= self.high:
-            self._wait()
+        if ring.w - ring.r >= self.high:
+            ring.r = ring.hdr[8]
+            if ring.w - ring.r >= self.high:
+                self._wait()
 
     def _publish_can(self) -> None:
-        ring, region, pack, size = self.can, self.writer._region, CAN_ROW.pack, CAN_ROW.size
+        ring, region, pack, size = self.can, self.region, CAN_ROW.pack, CAN_ROW.size
         assert ring is not None
-        r = int(ring.hdr[8])
         for fr in self.can_frames:
-            if ring.w - r >= ring.cap:
+            if not ring.room():
                 ring.dropped += 1
                 continue
             at = ring.data + (ring.w % ring.cap) * size
@@ -175,14 +200,15 @@ class Source:
         self.can_frames.clear()
 
     def _wait(self) -> None:
+        ring = self.ring
         if self._stalled:  # the last wait timed out: no more waiting until the writer catches up
-            if self.ring.w - int(self.hdr[8]) <= self.low:
+            if ring.w - ring.hdr[8] <= self.low:
                 self._stalled = False
             return
         wr = self.writer
         t0 = time.perf_counter()
         end = t0 + wr.block_s
-        while self.ring.w - int(self.hdr[8]) > self.low:
+        while ring.w - ring.hdr[8] > self.low:
             if wr._proc.poll() is not None:  # the writer is gone: stop recording
                 wr._dead()
                 break
@@ -190,6 +216,7 @@ class Source:
                 self._stalled = True
                 break
             time.sleep(1e-4)
+        ring.r = ring.hdr[8]
         self.waits += 1
         self.waited_s += time.perf_counter() - t0
 
