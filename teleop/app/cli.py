@@ -24,6 +24,7 @@ import re
 import signal
 import sys
 import threading
+from contextlib import contextmanager
 from pathlib import Path
 
 from teleop import __version__
@@ -120,13 +121,19 @@ def cmd_run(args) -> int:
             bar = RunBar(scene.duration_s, scene.dt_s, enabled=not args.quiet)
             result = run_scene(scene, progress=bar, realtime=args.realtime, view=rv)
             bar.close()
-        written = _write_run(result, view, rv, scene, folder) if folder is not None else []
-        if folder is not None and args.link == "zenoh":  # the recording drawn from the merged log
-            record_from_log(result, scene, folder)
-            written = sorted(p.name for p in folder.tmp.iterdir())
-        if folder is not None:
-            folder.commit()
-            folder = None
+        with _deferred_interrupts() as late:  # the run is over: its files are written whole, then told
+            written = _write_run(result, view, rv, scene, folder) if folder is not None else []
+            if folder is not None and args.link == "zenoh":  # the recording drawn from the merged log
+                record_from_log(result, scene, folder)
+                written = sorted(p.name for p in folder.tmp.iterdir())
+            if folder is not None:
+                folder.commit()
+                folder = None
+            s = result.summary
+            if json_path is not None:
+                write_json(json_path, s)
+        if late:
+            print("teleop: Ctrl-C came after the run ended: its files were written first", file=sys.stderr)
         if args.viewer and args.hold:
             print(_summary_text(result.summary), file=sys.stderr)
             view.hold(lambda url: print(f"viewer: {url} holds the last frame; Ctrl-C ends it", file=sys.stderr))
@@ -137,10 +144,7 @@ def cmd_run(args) -> int:
             view.close()  # the meshcat server never outlives the run, even on Ctrl-C
         if folder is not None:
             folder.abort()  # nothing half-written
-    s = result.summary
-    if json_path is not None:
-        write_json(json_path, s)
-    elif args.json == "-":
+    if args.json == "-":
         sys.stdout.write(json.dumps(s, indent=2) + "\n")
     text = sys.stderr if args.json == "-" else sys.stdout
     if not args.quiet:
@@ -155,6 +159,23 @@ def cmd_run(args) -> int:
     if s["status"] == "interrupted":
         return EXIT_INTERRUPTED
     return EXIT_OK if s["status"] == "ok" else EXIT_FAILED
+
+
+@contextmanager
+def _deferred_interrupts():
+    """Ctrl-C and SIGTERM wait while the block runs (a run's files being written and committed):
+    the flag yielded says one came. Main thread only; elsewhere nothing changes."""
+    came = []
+    if threading.current_thread() is not threading.main_thread():
+        yield came
+        return
+    previous = {sig: signal.signal(sig, lambda signum, frame: came.append(signum))
+                for sig in (signal.SIGINT, signal.SIGTERM)}
+    try:
+        yield came
+    finally:
+        for sig, handler in previous.items():
+            signal.signal(sig, handler)
 
 
 def _run_log(arg: str):
