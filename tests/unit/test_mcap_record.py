@@ -165,10 +165,12 @@ def test_record_reads_back_what_the_sides_held(tmp_path):
     with RecordWriter(path, metadata={"scene": "stand-in"}) as w:
         held = _drive(w, 300)
         w.link_event(0.0125, "master", "lost", seq=12, detail={"why": "test"})
+        w.attach("scene.toml", 'name = "stand-in"\n', "application/toml")
     assert w.stats()["messages"] > 0 and w.stats()["ticks_dropped"] == 0
     rec = read_record(path, keep_messages=True)
     assert rec.complete and rec.error is None
     assert rec.metadata["teleop"]["scene"] == "stand-in"
+    assert rec.attachments == {"scene.toml": b'name = "stand-in"\n'}
     expect = {"/master/tool_pose": schemas.POSE, "/master/hand_wrench": schemas.WRENCH,
               "/master/felt_wrench": schemas.WRENCH, "/master/tf": schemas.TF, "/master/state": "teleop.MasterTick",
               "/slave/tool_pose": schemas.POSE, "/slave/target_pose": schemas.POSE, "/slave/contact": schemas.WRENCH,

@@ -53,14 +53,15 @@ class Channel:
 
 @dataclass
 class Record:
-    """A record read back: ``channels`` by topic, the file's ``metadata`` records by name,
-    ``complete`` (the file ended with its footer: closed properly), ``error`` why reading
-    stopped short (a truncated file), or None."""
+    """A record read back: ``channels`` by topic, the file's ``metadata`` records by name, its
+    ``attachments`` (name -> bytes), ``complete`` (the file ended with its footer: closed
+    properly), ``error`` why reading stopped short (a truncated file), or None."""
 
     channels: dict
     metadata: dict
     complete: bool
     error: str | None = None
+    attachments: dict = field(default_factory=dict)
 
     def __getitem__(self, topic: str) -> Channel:
         return self.channels[topic]
@@ -155,8 +156,8 @@ def read_record(path: str | Path, topics=None, keep_messages: bool = False) -> R
     """The record at ``path`` (see :class:`Record`), only ``topics`` if given. Reads a file cut
     short (a killed process) up to its last whole record. ``keep_messages``: keep the decoded
     messages in each :attr:`Channel.messages`."""
+    from mcap.records import Attachment, Footer, Message, Metadata, Schema
     from mcap.records import Channel as McapChannel
-    from mcap.records import Footer, Message, Metadata, Schema
     from mcap.stream_reader import StreamReader
     from mcap_ros2.decoder import DecoderFactory
 
@@ -167,6 +168,7 @@ def read_record(path: str | Path, topics=None, keep_messages: bool = False) -> R
     decoders: dict[int, Any] = {}
     raw: dict[int, list] = {}
     metadata: dict = {}
+    attachments: dict = {}
     complete, error = False, None
     with open(path, "rb") as f:
         try:
@@ -182,6 +184,8 @@ def read_record(path: str | Path, topics=None, keep_messages: bool = False) -> R
                     raw.setdefault(rec.channel_id, []).append((rec.log_time, rec.sequence, rec.data))
                 elif isinstance(rec, Metadata):
                     metadata[rec.name] = dict(rec.metadata)
+                elif isinstance(rec, Attachment):
+                    attachments[rec.name] = bytes(rec.data)
                 elif isinstance(rec, Footer):
                     complete = True
         except Exception as e:  # noqa: BLE001 - a truncated tail: keep what came before it
@@ -205,4 +209,4 @@ def read_record(path: str | Path, topics=None, keep_messages: bool = False) -> R
         if keep_messages:
             ch.messages = msgs
         out[c.topic] = ch
-    return Record(out, metadata, complete, error)
+    return Record(out, metadata, complete, error, attachments)

@@ -126,6 +126,11 @@ def main(argv: list[str]) -> int:
                 sides[sid].emitter.names[code] = name
             elif kind == "event":
                 events.append(msg[1:])
+            elif kind == "attach":
+                assert out is not None
+                _, name, data, media_type = msg
+                out.mcap.add_attachment(create_time=time.time_ns(), log_time=0, name=name, media_type=media_type,
+                                        data=data)
             elif kind == "close":
                 closing, parent_stats = True, msg[1]
         if eof or stop or os.getppid() != parent:

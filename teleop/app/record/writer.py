@@ -33,6 +33,7 @@ the recording host is in the JSON records (``wall_time_s``, Unix time).
 from __future__ import annotations
 
 import atexit
+import importlib.util
 import json
 import mmap
 import os
@@ -245,6 +246,8 @@ class RecordWriter:
         if not 0 < self.low_water < self.high_water <= self.capacity:
             raise ValueError(f"record: need 0 < low_water < high_water <= capacity, got {self.low_water}, "
                              f"{self.high_water}, {self.capacity}")
+        if importlib.util.find_spec("mcap") is None:
+            raise RecordError("record: the mcap package is not installed (pip install mcap)")
         if compression not in ("zstd", "lz4", "none"):
             raise ValueError(f"record: compression must be zstd, lz4 or none, got {compression!r}")
         self.live = True
@@ -292,6 +295,10 @@ class RecordWriter:
         ``side``; written to ``/link/events`` (JSON). A pickle down a pipe (a few us): meant for
         events, not for every message of every tick."""
         self._send(("event", float(t_s), time.time(), str(side), str(kind), seq, detail))
+
+    def attach(self, name: str, data: bytes | str, media_type: str = "text/plain") -> None:
+        """A file carried in the record (an MCAP attachment: the scene as run, say), at log time 0."""
+        self._send(("attach", str(name), data.encode() if isinstance(data, str) else bytes(data), str(media_type)))
 
     def close(self) -> None:
         """Have the writer write what is left and the summary section, and wait for it
