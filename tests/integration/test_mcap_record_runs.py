@@ -15,7 +15,8 @@ import pytest
 pytest.importorskip("mcap")
 pytest.importorskip("mcap_ros2")
 
-from mcap.reader import make_reader
+from mcap.exceptions import McapError
+from mcap.reader import NonSeekingReader, make_reader
 from mcap_ros2.decoder import DecoderFactory
 
 from teleop.app.assembly import build_master, build_slave, make_link
@@ -25,6 +26,7 @@ from teleop.app.record import (
     RecordWriter,
     SlaveRecorderMcap,
     read_record,
+    recover,
 )
 from teleop.app.runtime import run_scene
 from teleop.app.session import Session, tick_count
@@ -206,6 +208,15 @@ def test_a_run_killed_at_3_s_keeps_its_ticks(tmp_path, killed):
     else:
         assert not rec.complete and rec.error is not None
         assert min(ticks.values()) >= reached - 100, (ticks, reached)
+        # mcap's own stream reader reads as much (then stops at the cut); recover() finishes a copy
+        n = 0
+        with open(path, "rb") as f, pytest.raises(McapError):
+            for _, channel, _ in NonSeekingReader(f).iter_messages(log_time_order=False):
+                n += channel.topic == "/slave/state"
+        assert n == ticks["/slave/state"]
+        fixed, _ = recover(path)
+        with open(fixed, "rb") as f:
+            assert make_reader(f).get_summary().statistics.channel_message_counts  # a summary, as a closed file
     assert min(ticks.values()) >= 2900
     st = rec["/slave/state"]
     assert st.seq.tolist() == list(range(len(st)))  # no gap: every tick up to the last one kept

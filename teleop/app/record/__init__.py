@@ -9,6 +9,7 @@
         ...                                    # run: the hooks copy, the writer's thread writes
     rec = read_record(out / "record.mcap")     # per channel arrays; reads a killed run's file too
     rec["/slave/contact"]["force"]             # (n, 3) N
+    recover(path)                              # a killed writer's file, finished (summary and all)
 
 :mod:`~teleop.app.record.writer` (the thread, the rings, crash safety, timestamps),
 :mod:`~teleop.app.record.hooks` (what each side records, the channels), :mod:`~teleop.app.record.cdr`
@@ -17,8 +18,8 @@ The Foxglove layout is ``docs/foxglove/teleop_layout.json``.
 """
 
 from teleop.app.record.hooks import LoopRecorderMcap, MasterRecorderMcap, SlaveRecorderMcap
-from teleop.app.record.reader import Channel, Record, read_record
+from teleop.app.record.reader import Channel, Record, read_record, recover
 from teleop.app.record.writer import RecordError, RecordWriter
 
 __all__ = ["Channel", "LoopRecorderMcap", "MasterRecorderMcap", "Record", "RecordError", "RecordWriter",
-           "SlaveRecorderMcap", "read_record"]
+           "SlaveRecorderMcap", "read_record", "recover"]

@@ -210,3 +210,42 @@ def read_record(path: str | Path, topics=None, keep_messages: bool = False) -> R
             ch.messages = msgs
         out[c.topic] = ch
     return Record(out, metadata, complete, error, attachments)
+
+
+def recover(path: str | Path, out: str | Path | None = None) -> tuple[Path, int]:
+    """A finished copy of the record at ``path`` that was cut short (its writer killed): every
+    schema, channel, message, metadata record and attachment up to its last whole record, written
+    again by ``mcap``'s writer with a summary section, so that any reader (``mcap``'s seeking
+    reader, which reads the footer first, or Foxglove's) opens it. ``out`` defaults to
+    ``<name>.recovered.mcap`` beside it. Returns (the copy's path, messages copied)."""
+    from mcap.records import Attachment, Message, Metadata, Schema
+    from mcap.records import Channel as McapChannel
+    from mcap.stream_reader import StreamReader
+    from mcap.writer import Writer
+
+    src = Path(path)
+    dst = Path(out) if out is not None else src.with_name(src.stem + ".recovered.mcap")
+    schema_ids: dict[int, int] = {}
+    channel_ids: dict[int, int] = {}
+    n = 0
+    with open(src, "rb") as f, open(dst, "wb") as g:
+        w = Writer(g)
+        w.start(profile="", library="teleop.app.record.recover")
+        try:
+            for rec in StreamReader(f, record_size_limit=None).records:
+                if isinstance(rec, Schema):
+                    schema_ids[rec.id] = w.register_schema(rec.name, rec.encoding, rec.data)
+                elif isinstance(rec, McapChannel):
+                    channel_ids[rec.id] = w.register_channel(rec.topic, rec.message_encoding,
+                                                             schema_ids.get(rec.schema_id, 0), dict(rec.metadata))
+                elif isinstance(rec, Message) and rec.channel_id in channel_ids:
+                    w.add_message(channel_ids[rec.channel_id], rec.log_time, rec.data, rec.publish_time, rec.sequence)
+                    n += 1
+                elif isinstance(rec, Metadata):
+                    w.add_metadata(rec.name, dict(rec.metadata))
+                elif isinstance(rec, Attachment):
+                    w.add_attachment(rec.create_time, rec.log_time, rec.name, rec.media_type, rec.data)
+        except Exception:  # noqa: BLE001, S110 - the cut: everything before it is copied
+            pass
+        w.finish()
+    return dst, n
