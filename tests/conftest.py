@@ -17,3 +17,17 @@ def lopsided_body() -> RigidBody:
     """An asymmetric body (distinct principal inertias, off-diagonal terms) to exercise Coriolis."""
     J = np.array([[0.004, 0.0003, -0.0002], [0.0003, 0.0025, 0.0001], [-0.0002, 0.0001, 0.0011]])
     return RigidBody(0.4, J)
+
+
+@pytest.fixture(autouse=True)
+def _teleop_log_reaches_caplog():
+    """The CLI's configure_logging (run by any test that calls main) stops the "teleop" logger
+    from propagating; each test starts with it propagating to pytest's caplog again, so a test's
+    log assertions do not depend on which tests ran before it in the same worker."""
+    import logging
+
+    log = logging.getLogger("teleop")
+    saved = (log.propagate, list(log.handlers), log.level)
+    log.propagate, log.handlers[:] = True, []
+    yield
+    log.propagate, log.handlers[:], log.level = saved[0], saved[1], saved[2]
