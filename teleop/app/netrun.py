@@ -29,6 +29,7 @@ import math
 import os
 import socket
 import time
+from contextlib import nullcontext
 from dataclasses import asdict, replace
 
 import numpy as np
@@ -211,6 +212,11 @@ def _start_pose(scene: Scene):
     return build_tool(scene).pose()
 
 
+def _own_stop(stop):
+    """The caller's stop flag (set by its own Ctrl-C handler), or one of this side's own."""
+    return nullcontext(stop) if stop is not None else _stop_requests()
+
+
 def run_master(scene: Scene, connect: str | None, listen: str | None = None, session: str = "default",
                timeout_s: float = CONNECT_TIMEOUT_S, config_json5: dict | None = None, pin: bool = True,
                stop=None, *, keys, allow_plaintext_network: bool = False) -> tuple[SideRun, dict]:
@@ -218,10 +224,7 @@ def run_master(scene: Scene, connect: str | None, listen: str | None = None, ses
     metrics. ``config_json5``: extra Zenoh settings (TLS, see :mod:`teleop.link.zenoh_link`);
     ``pin``: :func:`claim_core`. Ctrl-C or SIGTERM at any point (warm-up, connection, ticks) ends
     it with status "interrupted" and what it ran."""
-    if stop is not None:  # the caller's flag (set by its own Ctrl-C handler)
-        return _run_master(scene, connect, listen, session, timeout_s, config_json5, pin, stop, keys,
-                           allow_plaintext_network)
-    with _stop_requests() as stop:
+    with _own_stop(stop) as stop:
         return _run_master(scene, connect, listen, session, timeout_s, config_json5, pin, stop, keys,
                            allow_plaintext_network)
 
@@ -278,10 +281,7 @@ def run_slave(scene: Scene, listen: str | None, connect: str | None = None, sess
     "interrupted" and what it ran."""
     if scene.slave is None:
         raise TeleopError(f"{scene.path}: slave: the scene has no [slave] table: nothing to run on this side")
-    if stop is not None:  # the caller's flag (set by its own Ctrl-C handler)
-        return _run_slave(scene, listen, connect, session, timeout_s, config_json5, pin, stop, keys,
-                          allow_plaintext_network)
-    with _stop_requests() as stop:
+    with _own_stop(stop) as stop:
         return _run_slave(scene, listen, connect, session, timeout_s, config_json5, pin, stop, keys,
                           allow_plaintext_network)
 

@@ -17,12 +17,14 @@ from __future__ import annotations
 from collections.abc import Sequence
 from typing import Any, Protocol
 
-import numpy as np
-
 from teleop.tick.master_side import MasterSide
 from teleop.tick.ports import Hook, MasterEnd, SlaveEnd
 from teleop.tick.slave_side import SlaveSide
 from teleop.util.errors import ConfigError
+
+
+#: what a loop hook reads of the master side through the loop
+MASTER_READOUTS = frozenset(("dt", "tool", "master", "operator", "feedback", "hand_W", "felt_W", "feedback_W", "status"))
 
 
 class Link(MasterEnd, SlaveEnd, Protocol):
@@ -58,43 +60,13 @@ class BilateralLoop:
             h.after_tick(i, t, self)
         return status
 
-    # the master side's read-outs, for loop hooks
-    @property
-    def dt(self) -> float:
-        return self.master_side.dt
-
-    @property
-    def tool(self) -> Any:
-        return self.master_side.tool
-
-    @property
-    def master(self) -> Any:
-        return self.master_side.master
-
-    @property
-    def operator(self) -> Any:
-        return self.master_side.operator
-
-    @property
-    def feedback(self) -> Any:
-        return self.master_side.feedback
+    def __getattr__(self, name: str) -> Any:
+        """The master side's read-outs, for loop hooks (``loop.tool``, ``loop.hand_W``, ...)."""
+        if name in MASTER_READOUTS:
+            return getattr(self.master_side, name)
+        raise AttributeError(f"BilateralLoop has no attribute {name!r}")
 
     @property
     def slave(self) -> SlaveSide | None:
+        """The slave side (None without one)."""
         return self.slave_side
-
-    @property
-    def hand_W(self) -> np.ndarray:
-        return self.master_side.hand_W
-
-    @property
-    def felt_W(self) -> np.ndarray:
-        return self.master_side.felt_W
-
-    @property
-    def feedback_W(self) -> np.ndarray:
-        return self.master_side.feedback_W
-
-    @property
-    def status(self) -> str:
-        return self.master_side.status
