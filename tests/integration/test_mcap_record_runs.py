@@ -123,8 +123,8 @@ def test_side_hooks_record_what_the_loop_hook_records(tmp_path):
     rng = np.random.default_rng(scene.seed)
     mb, sb = build_master(scene, n, rng), build_slave(scene, n)
     with RecordWriter(tmp_path / "sides.mcap") as w:
-        mb.side.add_hooks(MasterRecorderMcap(w))
-        sb.side.add_hooks(SlaveRecorderMcap(w))
+        mb.side.add_hooks(MasterRecorderMcap(w, side=mb.side))  # the rings made now, not at the first tick
+        sb.side.add_hooks(SlaveRecorderMcap(w, side=sb.side))
         run = Session.of(BilateralLoop(mb.side, sb.side, make_link(scene, rng)), scene.duration_s, mb.recorder).run_ticks()
     assert run.steps == n
     by_sides = read_record(tmp_path / "sides.mcap")
@@ -156,7 +156,7 @@ CHILD = textwrap.dedent("""
             mm[0] = i + 1
 
     scene = load_scene("straight_incision", sets=["duration_s=10.0"])
-    w = RecordWriter(out)
+    w = RecordWriter(out, realtime=True)
     mm[1] = w.pid
     run_scene(scene, realtime=True, hooks=[LoopRecorderMcap(w), Progress()])
     w.close()

@@ -87,7 +87,7 @@ class _CanTee:
             self.prev.close()
 
 
-def _master_source(writer: RecordWriter, side: Any, prefix: str, can_t0: float | None) -> Source:
+def _master_source(writer: RecordWriter, side: Any, prefix: str, can: bool) -> Source:
     c = Columns()
     for k in ("i", "t", "wall", "status", "gain", "lost", "peer_lost", "tick_ns", "cmd_err"):
         c.add(k)
@@ -104,10 +104,10 @@ def _master_source(writer: RecordWriter, side: Any, prefix: str, can_t0: float |
         for k in ("gW", "gE", "gA"):
             c.add(k, 6)
     reg = getattr(side.feedback, "reg", None)
-    meta = {"prefix": prefix, "nj": nj, "guarded": guarded, "can_t0": can_t0,
+    meta = {"prefix": prefix, "nj": nj, "guarded": guarded, "can_t0": None,
             "joint_names": _names(getattr(getattr(side.master, "model", None), "model", None), nj, "joint"),
             "registration": None if reg is None else (np.array(reg.X_PM_p, float), np.array(reg.X_PM_R, float))}
-    return Source(writer, "master", c, meta, can=can_t0 is not None)
+    return Source(writer, "master", c, meta, can=can)
 
 
 class MasterRecorderMcap(Hook):
@@ -115,42 +115,53 @@ class MasterRecorderMcap(Hook):
     ``writer`` under ``prefix`` (see the module docstring for the channels). The side sets its
     status after its hooks, so tick i's row is handed to the writer at the start of tick i + 1
     (or at ``writer.close()``), with the status tick i ended in. ``can``: on a simulated cobot,
-    record the bus's frames (the simulated device's capture point is teed while recording)."""
+    record the bus's frames (the simulated device's capture point is teed while recording).
+    ``side``: the side, to make the ring now rather than at the first tick (its memory is then
+    laid out before the clock starts)."""
 
-    def __init__(self, writer: RecordWriter, prefix: str = "/master", can: bool = True) -> None:
+    def __init__(self, writer: RecordWriter, prefix: str = "/master", can: bool = True, side: Any = None) -> None:
         self.writer, self.prefix, self.can = writer, prefix, can
         self.source: Source | None = None
         self._side: Any = None
-        self._held = False
+        self._held = self._begun = self._tap = self._extra = False
         self._tee: tuple[Any, _CanTee] | None = None
-        self._extra = False
         self._at = 0
+        if side is not None:
+            self._make(side)
 
     @property
     def dropped(self) -> int:
         return 0 if self.source is None else self.source.dropped
 
-    def _start(self, i: int, t_s: float, side: Any, before: bool) -> Source:
+    def _make(self, side: Any) -> Source:
         sim = getattr(side.master, "sim", None)
-        tap = self.can and sim is not None and hasattr(sim, "capture") and hasattr(side.master, "t")
-        # the bus's clock when tick i starts (before) or ends (after), less the run's: the offset
-        can_t0 = float(side.master.t) - t_s - (0.0 if before else side.dt) if tap else None
-        src = self.source = _master_source(self.writer, side, self.prefix, can_t0)
+        self._tap = bool(self.can and sim is not None and hasattr(sim, "capture") and hasattr(side.master, "t"))
+        src = self.source = _master_source(self.writer, side, self.prefix, self._tap)
         assert list(src.cols.at)[:len(_MASTER_FIXED)] == list(_MASTER_FIXED) and src.cols.at["fb"][1] == 45
         self._extra = src.cols.width > 45
         src.finalize = self.finalize  # type: ignore[method-assign]
         self._side = side
-        if tap and sim is not None:
+        return src
+
+    def _begin(self, i: int, t_s: float, side: Any, before: bool) -> Source:
+        """The first tick: the ring (unless made already), the bus's capture teed."""
+        src = self.source or self._make(side)
+        self._begun, self._side = True, side
+        sim = getattr(side.master, "sim", None)
+        if self._tap and sim is not None:
             tee = _CanTee(sim.capture, src)
             sim.capture = tee
             self._tee = (sim, tee)
+            # the bus's clock when tick i starts (before) or ends (after), less the run's: the offset
+            can_t0 = float(side.master.t) - t_s - (0.0 if before else side.dt)
+            self.writer._send(("meta", src.sid, {"can_t0": can_t0}))
         return src
 
     def before_tick(self, i: int, t_s: float, side: Any) -> None:
         if self._held:
             self.commit(side.status)
-        elif self.source is None:
-            self._start(i, t_s, side, before=True)
+        elif not self._begun:
+            self._begin(i, t_s, side, before=True)
 
     def after_tick(self, i: int, t_s: float, side: Any) -> None:
         if self._held:  # no before_tick since the last one (a side driven without its hooks' pair)
@@ -160,7 +171,7 @@ class MasterRecorderMcap(Hook):
 
     def _fill(self, i: int, t_s: float, side: Any, code: float) -> bool:
         """Tick i's row (status ``code``); False when it was not recorded."""
-        src = self.source or self._start(i, t_s, side, before=False)
+        src = self.source if self._begun and self.source is not None else self._begin(i, t_s, side, before=False)
         if not src.live:
             return False
         o = src.next_row()
@@ -218,7 +229,7 @@ class MasterRecorderMcap(Hook):
     def record(self, i: int, t_s: float, side: Any) -> None:
         """Tick i's row handed over at once with the side's status as it is now (a loop hook, which
         runs after the side has set its status)."""
-        src = self.source or self._start(i, t_s, side, before=False)
+        src = self.source if self._begun and self.source is not None else self._begin(i, t_s, side, before=False)
         if self._fill(i, t_s, side, src.code(side.status)):
             src.publish()
 
@@ -253,21 +264,26 @@ def _slave_source(writer: RecordWriter, side: Any, prefix: str) -> Source:
 
 class SlaveRecorderMcap(Hook):
     """A slave-side hook recording the :class:`~teleop.tick.slave_side.SlaveSide` into
-    ``writer`` under ``prefix`` (see the module docstring for the channels)."""
+    ``writer`` under ``prefix`` (see the module docstring for the channels); ``side`` as for
+    :class:`MasterRecorderMcap`."""
 
-    def __init__(self, writer: RecordWriter, prefix: str = "/slave") -> None:
+    def __init__(self, writer: RecordWriter, prefix: str = "/slave", side: Any = None) -> None:
         self.writer, self.prefix = writer, prefix
         self.source: Source | None = None
+        if side is not None:
+            self._make(side)
+
+    def _make(self, side: Any) -> Source:
+        src = self.source = _slave_source(self.writer, side, self.prefix)
+        assert list(src.cols.at)[:len(_SLAVE_FIXED)] == list(_SLAVE_FIXED) and src.cols.col("q") == 48
+        return src
 
     @property
     def dropped(self) -> int:
         return 0 if self.source is None else self.source.dropped
 
     def after_tick(self, i: int, t_s: float, side: Any) -> None:
-        src = self.source
-        if src is None:
-            src = self.source = _slave_source(self.writer, side, self.prefix)
-            assert list(src.cols.at)[:len(_SLAVE_FIXED)] == list(_SLAVE_FIXED) and src.cols.col("q") == 48
+        src = self.source or self._make(side)
         if not src.live:
             return
         o = src.next_row()
@@ -308,16 +324,17 @@ class SlaveRecorderMcap(Hook):
 class LoopRecorderMcap(Hook):
     """A loop hook for the in-process :class:`~teleop.tick.loop.BilateralLoop`: both sides into
     one ``writer`` (the master's row handed over at once: the loop's hooks run after the side has
-    set its status)."""
+    set its status). ``loop``: the loop, to make the rings now rather than at the first tick."""
 
-    def __init__(self, writer: RecordWriter, can: bool = True) -> None:
+    def __init__(self, writer: RecordWriter, can: bool = True, loop: Any = None) -> None:
         self.writer = writer
-        self.master = MasterRecorderMcap(writer, can=can)
-        self.slave = SlaveRecorderMcap(writer)
+        self.master = MasterRecorderMcap(writer, can=can, side=None if loop is None else loop.master_side)
+        self.slave = SlaveRecorderMcap(writer, side=None if loop is None or loop.slave_side is None
+                                       else loop.slave_side)
 
     def before_tick(self, i: int, t_s: float, loop: Any) -> None:
-        if self.master.source is None:
-            self.master._start(i, t_s, loop.master_side, before=True)
+        if not self.master._begun:
+            self.master._begin(i, t_s, loop.master_side, before=True)
 
     def after_tick(self, i: int, t_s: float, loop: Any) -> None:
         self.master.record(i, t_s, loop.master_side)

@@ -1,7 +1,7 @@
 """The writer process of a record: ``python -m teleop.app.record.serve FD SIZE PARENT_PID``,
 started by :class:`teleop.app.record.writer.RecordWriter` and fed by it: the shared memory
 ``FD`` (``SIZE`` bytes) holds the sides' rings, stdin brings length-prefixed pickles ("open",
-"source", "name", "event", "close"). It ends when told to close or when its parent is gone
+"source", "name", "meta", "event", "attach", "close"). It ends when told to close or when its parent is gone
 (stdin at its end, or another parent): either way it takes every row published, finishes the file
 and prints its counts as one JSON line. It ignores SIGINT (a Ctrl-C is the run's to handle) and
 finishes on SIGTERM as on a close.
@@ -24,6 +24,9 @@ import numpy as np
 from teleop.app.record.emit import CAN_ROW, EMITTERS, McapOut
 
 POLL_S = 0.01  # the sleep when nothing is pending (s): batches of ~10 ticks at 1 kHz
+#: ticks a side taken at once; between two such slices the writer yields its core (a run pinned to
+#: it gets it back within a slice, some 0.5 ms)
+SLICE_ROWS = 8
 _HEADER = 128
 _LEN = struct.Struct("<I")
 
@@ -42,6 +45,7 @@ class _Reader:
                                       offset=offset + _HEADER).reshape(cap, row_bytes)
 
     def take(self, w: int) -> np.ndarray | None:
+        w = min(w, self.r + SLICE_ROWS) if self.rows.dtype == np.float64 else w
         if w <= self.r:
             return None
         idx = np.arange(self.r, w) % self.cap
@@ -124,6 +128,9 @@ def main(argv: list[str]) -> int:
             elif kind == "name":
                 _, sid, code, name = msg
                 sides[sid].emitter.names[code] = name
+            elif kind == "meta":
+                _, sid, more = msg
+                sides[sid].emitter.meta.update(more)
             elif kind == "event":
                 events.append(msg[1:])
             elif kind == "attach":
@@ -144,8 +151,14 @@ def main(argv: list[str]) -> int:
             ws = {sid: (int(s.ring.hdr[0]), int(s.can.hdr[0]) if s.can is not None else 0)
                   for sid, s in sides.items()}
         busy = False
-        for sid, (w, wc) in ws.items():
-            busy |= sides[sid].drain(w, wc)
+        while True:  # slice by slice, every side in turn, yielding the core between slices
+            more = False
+            for sid, (w, wc) in ws.items():
+                more |= sides[sid].drain(w, wc)
+            busy |= more
+            if not more:
+                break
+            os.sched_yield()
         if events:
             cid = out.json_channel("/link/events", _link_schema())
             for t_s, wall, side, kind, seq, detail in events:

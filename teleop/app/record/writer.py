@@ -11,10 +11,12 @@ shared the tick's interpreter lock and stalled ticks that run faster than real t
 
 Rings: each is single-producer single-consumer, its counters ``w`` (rows published, the tick's)
 and ``r`` (rows taken, the writer's) int64s in the shared memory; a row is written before ``w``
-is advanced past it (x86's store order makes that enough; no lock). A ring that holds
-``high_water`` unwritten ticks makes its hook wait (sleeping) until the writer is back under
-``low_water``, at most ``block_s``; one that fills all the same drops the ticks it has no room
-for, and counts them. Status strings, the sides' static facts and link events go over the
+is advanced past it (x86's store order makes that enough; no lock). When the writer falls
+behind: a run paced to the wall clock (``realtime=True``) never waits for it, and a ring that
+fills (16384 ticks, 16 s at 1 kHz) drops the ticks it has no room for and counts them (the
+record's ``ticks_dropped``); a run on the simulated clock (the default) loses nothing: a ring
+that holds ``high_water`` unwritten ticks makes its hook wait (sleeping) until the writer is back
+under ``low_water``, at most ``block_s`` at once. Status strings, the sides' static facts and link events go over the
 writer's stdin as pickles (rare: once per new status).
 
 Crash safety: the writer process lives in its own session, outside the run's process group (a
@@ -56,8 +58,10 @@ from teleop.app.record.emit import CAN_ROW, Columns
 FLUSH_S = 0.05
 #: a chunk also closes when it reaches this many bytes (uncompressed)
 CHUNK_BYTES = 1024 * 1024
-#: ticks a side's ring holds; CAN frames the bus's ring holds
+#: ticks a side's ring holds (a run on the simulated clock; one paced to the wall clock); CAN
+#: frames the bus's ring holds
 CAPACITY = 4096
+REALTIME_CAPACITY = 16384
 CAN_CAPACITY = 16384
 #: unwritten ticks in a ring at which its hook waits for the writer, and down to which it waits
 HIGH_WATER, LOW_WATER = 2048, 512
@@ -126,7 +130,7 @@ class Source:
         self.buf = np.frombuffer(writer._region, np.float64, count=cap * cols.width,
                                  offset=ring.data).reshape(cap, cols.width)
         self.cap = cap
-        self.high, self.low = writer.high_water, writer.low_water
+        self.high, self.low, self.realtime = writer.high_water, writer.low_water, writer.realtime
         self.waits = 0
         self.waited_s = 0.0
         self._stalled = False
@@ -182,7 +186,7 @@ class Source:
         ring.hdr[0] = ring.w
         if self.can_frames:
             self._publish_can()
-        if ring.w - ring.r >= self.high:
+        if ring.w - ring.r >= self.high and not self.realtime:
             ring.r = ring.hdr[8]
             if ring.w - ring.r >= self.high:
                 self._wait()
@@ -228,6 +232,8 @@ class Source:
 class RecordWriter:
     """An MCAP record at ``path`` (its folder made), written by a process started here; see the
     module docstring. ``metadata`` (str -> str) goes in the file's "teleop" metadata record.
+    ``realtime``: the run is paced to the wall clock: its ticks never wait for the writer (a full
+    ring drops ticks, counted) and the rings are 4 times longer.
     ``close()`` (or leaving a ``with`` block, or the interpreter's exit) has the writer write
     what is left and the summary section, and waits for it. Sides attach with
     :class:`~teleop.app.record.hooks.MasterRecorderMcap` and
@@ -236,12 +242,14 @@ class RecordWriter:
     :meth:`link_event`."""
 
     def __init__(self, path: str | Path, metadata: dict | None = None, flush_s: float = FLUSH_S,
-                 chunk_bytes: int = CHUNK_BYTES, compression: str = "zstd", capacity: int = CAPACITY,
-                 high_water: int = HIGH_WATER, low_water: int = LOW_WATER, block_s: float = BLOCK_S,
-                 region_bytes: int = REGION_BYTES) -> None:
+                 chunk_bytes: int = CHUNK_BYTES, compression: str = "zstd", realtime: bool = False,
+                 capacity: int | None = None, high_water: int = HIGH_WATER, low_water: int = LOW_WATER,
+                 block_s: float = BLOCK_S, region_bytes: int = REGION_BYTES) -> None:
         self.path = Path(path)
         self.path.parent.mkdir(parents=True, exist_ok=True)
-        self.capacity, self.block_s = int(capacity), float(block_s)
+        self.realtime = bool(realtime)
+        self.capacity = int(capacity if capacity is not None else REALTIME_CAPACITY if realtime else CAPACITY)
+        self.block_s = float(block_s)
         self.high_water, self.low_water = int(high_water), int(low_water)
         if not 0 < self.low_water < self.high_water <= self.capacity:
             raise ValueError(f"record: need 0 < low_water < high_water <= capacity, got {self.low_water}, "
