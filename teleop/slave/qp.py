@@ -61,7 +61,7 @@ class SlaveArm:
         self._alpha = dt_s / (cfg.servo_lag_s + dt_s)
         self.status = "ok"
         self.slack = np.zeros(self.qp.m)
-        self.fixture_forces = np.zeros(self.qp.m)
+        self._y = None  # the last solve's row multipliers (None: no forces), see fixture_forces
         self._set_state(am.q0.copy())
 
     # -- state ------------------------------------------------------------------------------
@@ -83,6 +83,14 @@ class SlaveArm:
         are computed when read (:attr:`tau`): nothing in the tick needs them."""
         F = None if F_tip_W is None else np.array(F_tip_W, dtype=float)
         self._tau_of, self._tau = (self.q, self.qd, self.qdd, self.J, F), None
+
+    @property
+    def fixture_forces(self) -> np.ndarray:
+        """The fixture rows' forces (N or N*m) of the last tick: the QP's row multipliers times
+        -``impedance_Ns_per_m`` (zeros when the QP did not solve). Computed when read."""
+        if self._y is None:
+            return np.zeros(self.qp.m)
+        return self._y * -self.cfg.impedance_Ns_per_m
 
     @property
     def tau(self) -> np.ndarray:
@@ -163,12 +171,12 @@ class SlaveArm:
                                         self.q_post)
         if e is None:  # a target that is not finite never reaches the solver: stop within the bounds
             qd, status = qp.compute_fallback(self.J, _ZERO6, lb, ub, True, self.qd_cmd), "invalid_target"
-            self.slack, self.fixture_forces = np.zeros(qp.m), np.zeros(qp.m)
+            self.slack, self._y = np.zeros(qp.m), None
         else:
             qd, s, y, ok = qp.solve()
             if ok:
                 self.slack = s
-                self.fixture_forces = y * -cfg.impedance_Ns_per_m
+                self._y = y
                 tol = cfg.relaxed_tol_mps  # on max |s|; |s|_2 <= tol rules it out with one product
                 if np.vdot(s, s) > tol * tol and max(np.abs(s).tolist()) > tol:
                     status = "fixtures_relaxed"
@@ -180,7 +188,7 @@ class SlaveArm:
                     status = "ok"
             else:
                 qd = qp.compute_fallback(self.J, e, lb, ub, cfg.fallback == "hold", self.qd_cmd)
-                self.slack, self.fixture_forces = np.zeros(qp.m), np.zeros(qp.m)
+                self.slack, self._y = np.zeros(qp.m), None
                 status = "infeasible_fallback"
         self._advance(qd, F_tip_W)
         self.status = status
