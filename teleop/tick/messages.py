@@ -18,10 +18,13 @@ finite numbers, a known status). A side that cannot make a well-formed message s
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 from numba import njit
+from numpy.typing import ArrayLike
 
 from teleop.util.errors import TeleopError
 
@@ -41,9 +44,9 @@ _NO_ENERGY.flags.writeable = False
 
 
 @njit(cache=True)
-def _well_formed(x, kind, r, e):
+def _well_formed(x: np.ndarray, kind: int, r: int, e: int) -> bool:
     """True when the packed fields x (float64, 1-d) of a message pass every check of its
-    ``__post_init__``: all finite; ``kind`` 1: x[r:r + 9] a row-major 3x3 with |det - 1| <= 1e-6
+    ``__init__``: all finite; ``kind`` 1: x[r:r + 9] a row-major 3x3 with |det - 1| <= 1e-6
     (:func:`_det3`'s arithmetic); ``kind`` 2: x[r:r + 36] a 6x6 symmetric within 1e-9 of
     max(1, its largest entry); x[e:] (the energy, J) >= 0. One compiled pass over the message:
     the fast path of the checks, whose slow path names the field that fails."""
@@ -67,7 +70,8 @@ def _well_formed(x, kind, r, e):
 _F64 = np.dtype(np.float64)
 
 
-def _fast_flat(parts: tuple, energy, n: int, kind: int, r: int) -> np.ndarray | None:
+def _fast_flat(parts: tuple[ArrayLike, ...], energy: ArrayLike | None, n: int, kind: int,
+               r: int) -> np.ndarray | None:
     """The parts (``n`` numbers) and ``energy`` (None: none; else 6 more) as one read-only float
     array, when they pass every check of the message (:func:`_well_formed`): the fields are then
     views into it, as :func:`_packed` and :func:`_energy` make them. None when they do not, or are
@@ -83,7 +87,7 @@ def _fast_flat(parts: tuple, energy, n: int, kind: int, r: int) -> np.ndarray | 
     return flat
 
 
-def _packed(parts, sizes, names) -> tuple:
+def _packed(parts: tuple[ArrayLike, ...], sizes: tuple[int, ...], names: tuple[str, ...]) -> tuple[np.ndarray, ...]:
     """The parts as read-only float views into one array, after one finiteness check (a message
     is made every tick: one concatenation instead of a check per field)."""
     try:
@@ -101,26 +105,27 @@ def _packed(parts, sizes, names) -> tuple:
         if bad:
             raise MessageError(f"{', '.join(bad)}: not finite")
     flat.flags.writeable = False
-    out, i = [], 0
+    out: list[np.ndarray] = []
+    i = 0
     for n in sizes:
         out.append(flat[i:i + n])
         i += n
     return tuple(out)
 
 
-def _det3(r) -> float:
+def _det3(r: Sequence[float]) -> float:
     """det of a row-major 3x3 given as 9 floats."""
     a, b, c, d, e, f, g, h, k = r
     return a * (e * k - f * h) - b * (d * k - f * g) + c * (d * h - e * g)
 
 
-def _seq(x, name: str) -> int:
+def _seq(x: Any, name: str) -> int:
     if isinstance(x, bool) or not isinstance(x, (int, np.integer)) or not 0 <= int(x) < 2**63:
         raise MessageError(f"{name}: expected an integer in [0, 2^63), got {x!r}")
     return int(x)
 
 
-def _energy(x, name: str) -> np.ndarray:
+def _energy(x: ArrayLike | None, name: str) -> np.ndarray:
     """(6,) cumulative port energy in J, non-negative; None gives zeros."""
     if x is None:
         a = np.zeros(6)
@@ -132,7 +137,7 @@ def _energy(x, name: str) -> np.ndarray:
     return a
 
 
-def _time(x, name: str) -> float:
+def _time(x: Any, name: str) -> float:
     t = float(x)
     if not math.isfinite(t):
         raise MessageError(f"{name}: not finite")
@@ -154,10 +159,11 @@ class ToolCommand:
     R: np.ndarray
     v_m_s: np.ndarray
     w_rad_s: np.ndarray
-    clutch: bool = True
-    energy_J: np.ndarray | None = None
+    clutch: bool
+    energy_J: np.ndarray
 
-    def __init__(self, seq: int, t_s: float, p_m, R, v_m_s, w_rad_s, clutch: bool = True, energy_J=None):
+    def __init__(self, seq: int, t_s: float, p_m: ArrayLike, R: ArrayLike, v_m_s: ArrayLike, w_rad_s: ArrayLike,
+                 clutch: bool = True, energy_J: ArrayLike | None = None) -> None:
         """Checked as made (each field written once, with its checked value)."""
         object.__setattr__(self, "seq", _seq(seq, "ToolCommand.seq"))
         object.__setattr__(self, "t_s", _time(t_s, "ToolCommand.t_s"))
@@ -196,13 +202,14 @@ class ContactFeedback:
     t_s: float
     wrench_P: np.ndarray
     status: str
-    command_seq: int = -1
-    energy_J: np.ndarray | None = None
-    damping_P: np.ndarray | None = None
-    twist_P: np.ndarray | None = None
+    command_seq: int
+    energy_J: np.ndarray
+    damping_P: np.ndarray
+    twist_P: np.ndarray
 
-    def __init__(self, seq: int, t_s: float, wrench_P, status: str, command_seq: int = -1, energy_J=None,
-                 damping_P=None, twist_P=None):
+    def __init__(self, seq: int, t_s: float, wrench_P: ArrayLike, status: str, command_seq: int = -1,
+                 energy_J: ArrayLike | None = None, damping_P: ArrayLike | None = None,
+                 twist_P: ArrayLike | None = None) -> None:
         """Checked as made (each field written once, with its checked value)."""
         object.__setattr__(self, "seq", _seq(seq, "ContactFeedback.seq"))
         object.__setattr__(self, "t_s", _time(t_s, "ContactFeedback.t_s"))
