@@ -264,7 +264,8 @@ class Session:
     def result(run: SideRun, metrics: dict | None = None, exempt=()) -> RunResult:
         """The run's summary (:func:`teleop.tick.verdict.run_summary`, the runner's figures beside)
         and its log."""
-        summary = run_summary(run.status, run.steps, run.dt_s, run.master, run.slave, metrics or {}, run.nan, exempt)
+        summary = run_summary(run.status, run.steps, run.dt_s, run.master, run.slave, metrics or {}, run.nan, exempt,
+                              run.runner.get("link"))
         if run.status == "stopped_by_operator":
             summary["stopped_by_operator"] = True
         if run.status == "interrupted":

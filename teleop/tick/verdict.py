@@ -79,14 +79,15 @@ def run_status(master_status: str, steps: int, slave_counts: dict | None, metric
 
 
 def run_summary(master_status: str, steps: int, dt_s: float, master: dict | None, slave: dict | None,
-                metrics: dict, nan: bool, exempt: Iterable[str] = ()) -> dict:
+                metrics: dict, nan: bool, exempt: Iterable[str] = (), link: dict | None = None) -> dict:
     """The summary of a run from its parts: ``master`` (:meth:`MasterSide.summary`, None for a
     slave process alone), ``slave`` (:meth:`SlaveSide.summary`, None without a slave or for a
     master process alone, which judges the slave by the statuses its replies carried), the
     scene's ``metrics`` of both sides, ``nan`` (the master's tool went non-finite). Keys:
     ``status``, ``status_reason``, ``master_status``, ``steps``, ``dt_s``, ``duration_s``,
     ``nan``, ``metrics``, and what the parts hold (``slave_statuses``, ``heartbeat``,
-    ``passivity``, counters)."""
+    ``passivity``, counters). ``link``: the transports' counters by end (a link that refused
+    frames only an attacker sends makes the run ``link_attacked``: refused, but said)."""
     m, s = master or {}, slave or {}
     counts = s.get("slave_statuses") if slave is not None else m.get("slave_statuses_heard")
     lost_m = m.get("heartbeat", {}).get("lost_ticks", 0)
@@ -96,6 +97,10 @@ def run_summary(master_status: str, steps: int, dt_s: float, master: dict | None
     if status == "ok" and m.get("pushes_refused"):
         status, reason = "push_refused", (f"the hand's wrench could not be applied on {m['pushes_refused']} ticks "
                                           "(not 6 finite numbers, or past a hand's strength)")
+    attacks = link_attacks(link or {})
+    if status == "ok" and attacks:
+        status, reason = "link_attacked", ("frames no paired peer sends reached the link and were refused: "
+                                           + ", ".join(f"{k} {v}" for k, v in sorted(attacks.items())))
     if status == "ok" and s.get("followed_last_command") is False:  # a slave process that ran out of time
         status, reason = "link_lost", (f"the slave followed the master's commands up to {s['last_command_seq']}: "
                                        "the master's last never reached it")
@@ -114,4 +119,20 @@ def run_summary(master_status: str, steps: int, dt_s: float, master: dict | None
     if master is not None:
         out["slave_statuses_heard"] = m.get("slave_statuses_heard", {})
     out["metrics"] = dict(metrics)
+    return out
+
+
+#: refusal reasons no paired peer's frames ever have (a stale or duplicate frame may be the network's)
+ATTACK_REASONS = ("malformed", "bad_mac", "other_session", "second_master", "far_future", "invalid")
+
+
+def link_attacks(link: dict) -> dict[str, int]:
+    """The frames refused for :data:`ATTACK_REASONS`, summed over the link's ends (each end's
+    counters ``{"refused": {reason: n}}``)."""
+    out: dict[str, int] = {}
+    for end in link.values():
+        refused = end.get("refused", {}) if isinstance(end, dict) else {}
+        for k in ATTACK_REASONS:
+            if refused.get(k):
+                out[k] = out.get(k, 0) + int(refused[k])
     return out

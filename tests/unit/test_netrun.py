@@ -167,3 +167,14 @@ def test_zenoh_config_file_is_checked(tmp_path, capsys):
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "--zenoh-config" in err[0]
     assert main(["master", "straight_incision", "--zenoh-config", str(tmp_path / "none.json")]) == 2
+
+
+def test_frames_only_an_attacker_sends_make_the_run_say_so():
+    hb = {"lost_ticks": 0}
+    m, s = {"heartbeat": hb}, {"heartbeat": hb, "slave_statuses": {"ok": 10}}
+    clean = {"zenoh_master": {"refused": {"stale": 1, "bad_mac": 0}}, "zenoh_slave": {"refused": {}}}
+    assert run_summary("ok", 10, DT, m, s, {}, False, link=clean)["status"] == "ok"  # a stale frame may be the network's
+    forged = {"zenoh_master": {"refused": {"bad_mac": 3}}, "zenoh_slave": {"refused": {"other_session": 2}}}
+    out = run_summary("ok", 10, DT, m, s, {}, False, link=forged)
+    assert out["status"] == "link_attacked" and "bad_mac 3" in out["status_reason"] and "other_session 2" in out["status_reason"]
+    assert run_summary("tracking_error", 10, DT, m, s, {}, False, link=forged)["status"] == "tracking_error"
