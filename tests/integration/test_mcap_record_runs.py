@@ -113,16 +113,18 @@ def test_guarded_record_has_the_guards_energies(tmp_path):
     assert np.array_equal(rec["/slave/state"]["guard.drift_M"], log["tdpa_drift_M"])
 
 
-def test_side_hooks_record_what_the_loop_hook_records(tmp_path):
+@pytest.mark.parametrize("mode", ["process", "thread"])
+def test_side_hooks_record_what_the_loop_hook_records(tmp_path, mode):
     """The wiring for every runner: a MasterRecorderMcap on the master side and a SlaveRecorderMcap
     on the slave side (as build_master / build_slave would add them) record the same run as the
-    in-process loop's hook, value for value (but the wall clock and the CPU times)."""
+    in-process loop's hook, value for value (but the wall clock and the CPU times), the writer a
+    process of its own or a thread of the run's."""
     scene = load_scene("straight_incision", sets=["duration_s=0.4", "link.round_trip_ms=10"])
     _, by_loop, _ = _record(tmp_path, scene)
     n = tick_count(scene.duration_s, scene.dt_s)
     rng = np.random.default_rng(scene.seed)
     mb, sb = build_master(scene, n, rng), build_slave(scene, n)
-    with RecordWriter(tmp_path / "sides.mcap") as w:
+    with RecordWriter(tmp_path / "sides.mcap", mode=mode) as w:
         mb.side.add_hooks(MasterRecorderMcap(w, side=mb.side))  # the rings made now, not at the first tick
         sb.side.add_hooks(SlaveRecorderMcap(w, side=sb.side))
         run = Session.of(BilateralLoop(mb.side, sb.side, make_link(scene, rng)), scene.duration_s, mb.recorder).run_ticks()

@@ -161,9 +161,10 @@ def _drive(writer, n, seed=3, slave=True):
     return held
 
 
-def test_record_reads_back_what_the_sides_held(tmp_path):
+@pytest.mark.parametrize("mode", ["process", "thread"])
+def test_record_reads_back_what_the_sides_held(tmp_path, mode):
     path = tmp_path / "r.mcap"
-    with RecordWriter(path, metadata={"scene": "stand-in"}) as w:
+    with RecordWriter(path, metadata={"scene": "stand-in"}, mode=mode) as w:
         held = _drive(w, 300)
         w.link_event(0.0125, "master", "lost", seq=12, detail={"why": "test"})
         w.attach("scene.toml", 'name = "stand-in"\n', "application/toml")

@@ -1,10 +1,15 @@
-"""The writer process of a record: ``python -m teleop.app.record.serve FD SIZE PARENT_PID``,
-started by :class:`teleop.app.record.writer.RecordWriter` and fed by it: the shared memory
-``FD`` (``SIZE`` bytes) holds the sides' rings, stdin brings length-prefixed pickles ("open",
-"source", "name", "meta", "event", "attach", "close"). It ends when told to close or when its parent is gone
-(stdin at its end, or another parent): either way it takes every row published, finishes the file
-and prints its counts as one JSON line. It ignores SIGINT (a Ctrl-C is the run's to handle) and
-finishes on SIGTERM as on a close.
+"""The writer of a record: :class:`Server` takes the rows the hooks publish and writes them. It
+runs either as a process of its own (the default: ``python -m teleop.app.record.serve FD SIZE
+PARENT_PID``, started by :class:`teleop.app.record.writer.RecordWriter`: the shared memory ``FD``
+of ``SIZE`` bytes holds the rings, stdin brings length-prefixed pickles) or as a thread of the
+run's process (``RecordWriter(mode="thread")``: the messages come through a queue).
+
+Messages: ("open", path, metadata, options), ("source", sid, kind, offset, capacity, width, meta,
+can_offset), ("name", sid, code, status), ("meta", sid, {...}), ("event", ...), ("attach", name,
+data, media_type), ("close", stats). The process ends when told to close or when its parent is
+gone (stdin at its end, or another parent): either way it takes every row published, finishes the
+file and prints its counts as one JSON line. It ignores SIGINT (a Ctrl-C is the run's to handle)
+and finishes on SIGTERM or SIGHUP as on a close.
 """
 
 from __future__ import annotations
@@ -24,9 +29,13 @@ import numpy as np
 from teleop.app.record.emit import CAN_ROW, EMITTERS, McapOut
 
 POLL_S = 0.01  # the sleep when nothing is pending (s): batches of ~10 ticks at 1 kHz
-#: ticks a side taken at once; between two such slices the writer yields its core (a run pinned to
-#: it gets it back within a slice, some 0.5 ms)
-SLICE_ROWS = 8
+#: ticks a side taken at once, in a process of its own and in a thread of the run; between two
+#: slices the writer sleeps YIELD_S, giving its core (and, as a thread, the GIL) back, so a tick
+#: waits for it at most a slice. A sleep, not sched_yield: on Linux 6.18 (EEVDF) a writer that
+#: yielded beside two pinned sides spinning on sched_yield was left runnable and unscheduled for
+#: seconds (its /proc/PID/schedstat run time frozen).
+SLICE_ROWS = {"process": 8, "thread": 2}
+YIELD_S = 2e-4
 _HEADER = 128
 _LEN = struct.Struct("<I")
 
@@ -34,9 +43,10 @@ _LEN = struct.Struct("<I")
 class _Reader:
     """The rows of one ring, as the writer sees them."""
 
-    def __init__(self, region: mmap.mmap, offset: int, cap: int, width: int | None, row_bytes: int) -> None:
+    def __init__(self, region: mmap.mmap, offset: int, cap: int, width: int | None, row_bytes: int,
+                 slice_rows: int | None) -> None:
         self.hdr = np.frombuffer(region, np.int64, count=_HEADER // 8, offset=offset)
-        self.cap, self.r = cap, 0
+        self.cap, self.r, self.slice = cap, 0, slice_rows
         self.rows: np.ndarray
         if width is not None:
             self.rows = np.frombuffer(region, np.float64, count=cap * width, offset=offset + _HEADER).reshape(cap, width)
@@ -45,7 +55,8 @@ class _Reader:
                                       offset=offset + _HEADER).reshape(cap, row_bytes)
 
     def take(self, w: int) -> np.ndarray | None:
-        w = min(w, self.r + SLICE_ROWS) if self.rows.dtype == np.float64 else w
+        if self.slice is not None:
+            w = min(w, self.r + self.slice)
         if w <= self.r:
             return None
         idx = np.arange(self.r, w) % self.cap
@@ -57,12 +68,13 @@ class _Reader:
 
 class _Side:
     def __init__(self, out: McapOut, region: mmap.mmap, kind: str, offset: int, cap: int, width: int, meta: dict,
-                 can_offset: int | None) -> None:
+                 can_offset: int | None, slice_rows: int) -> None:
         from teleop.app.record.writer import CAN_CAPACITY
 
         self.emitter = EMITTERS[kind](out, meta)
-        self.ring = _Reader(region, offset, cap, width, 8 * width)
-        self.can = None if can_offset is None else _Reader(region, can_offset, CAN_CAPACITY, None, CAN_ROW.size)
+        self.ring = _Reader(region, offset, cap, width, 8 * width, slice_rows)
+        self.can = None if can_offset is None else _Reader(region, can_offset, CAN_CAPACITY, None, CAN_ROW.size,
+                                                           None)
 
     def drain(self, w: int, w_can: int) -> bool:
         busy = False
@@ -78,11 +90,98 @@ class _Side:
         return busy
 
 
+class Server:
+    """One record's writer over the rings in ``region``; ``mode`` "process" or "thread" (the
+    slice it takes at once). The loop that drives it: :meth:`counters` first, then every message
+    that came (:meth:`handle`: each name and side a published row needs came before the row),
+    then :meth:`step` up to those counters; :meth:`finish` once ``closing``."""
+
+    def __init__(self, region: mmap.mmap, mode: str = "process") -> None:
+        self.region, self.slice = region, SLICE_ROWS[mode]
+        self.out: McapOut | None = None
+        self.sides: dict[int, _Side] = {}
+        self.events: list[tuple] = []
+        self.closing = False
+        self.parent_stats: dict = {}
+
+    def counters(self) -> dict[int, tuple[int, int]]:
+        return {sid: (int(s.ring.hdr[0]), int(s.can.hdr[0]) if s.can is not None else 0)
+                for sid, s in self.sides.items()}
+
+    def handle(self, msg: tuple) -> None:
+        kind = msg[0]
+        if kind == "open":
+            _, path, metadata, opts = msg
+            self.out = McapOut(path, metadata, opts["flush_s"], opts["chunk_bytes"], opts["compression"])
+            return
+        if kind == "close":
+            self.closing, self.parent_stats = True, msg[1]
+            return
+        out = self.out
+        assert out is not None, f"record: {kind!r} before 'open'"
+        if kind == "source":
+            _, sid, side_kind, offset, cap, width, meta, can_offset = msg
+            self.sides[sid] = _Side(out, self.region, side_kind, offset, cap, width, meta, can_offset, self.slice)
+        elif kind == "name":
+            _, sid, code, name = msg
+            self.sides[sid].emitter.names[code] = name
+        elif kind == "meta":
+            _, sid, more = msg
+            self.sides[sid].emitter.meta.update(more)
+        elif kind == "event":
+            self.events.append(msg[1:])
+        elif kind == "attach":
+            _, name, data, media_type = msg
+            out.mcap.add_attachment(create_time=time.time_ns(), log_time=0, name=name, media_type=media_type,
+                                    data=data)
+
+    def step(self, ws: dict[int, tuple[int, int]]) -> bool:
+        """Write every side's rows up to ``ws``, a slice at a time; the link events; flush when it
+        is time. Returns whether there was anything."""
+        out = self.out
+        if out is None:
+            return False
+        if self.closing:  # the run has stopped writing: everything it published
+            ws = self.counters()
+        busy = False
+        while True:  # slice by slice, every side in turn, giving the core back between slices
+            more = False
+            for sid, (w, wc) in ws.items():
+                more |= self.sides[sid].drain(w, wc)
+            busy |= more
+            if not more:
+                break
+            time.sleep(YIELD_S)
+        if self.events:
+            from teleop.app.record.schemas import LINK_EVENT
+
+            cid = out.json_channel("/link/events", LINK_EVENT)
+            for t_s, wall, side, kind, seq, detail in self.events:
+                text = json.dumps({"t_s": t_s, "wall_time_s": wall, "side": side, "kind": kind, "seq": seq,
+                                   "detail": detail}, default=str)
+                out.add_one(cid, max(0, round(t_s * 1e9)), text.encode())
+            self.events.clear()
+            busy = True
+        out.maybe_flush()
+        return busy
+
+    def finish(self, closed_by: str) -> dict:
+        """The summary section written and the file closed; returns the counts."""
+        out = self.out
+        if out is None:
+            return {}
+        out.flush()
+        stats = {**self.parent_stats, "messages": out.messages, "chunks": out.chunks, "closed_by": closed_by}
+        out.finish(stats)
+        return stats
+
+
 def main(argv: list[str]) -> int:
     fd, size, parent = int(argv[1]), int(argv[2]), int(argv[3])
     signal.signal(signal.SIGINT, signal.SIG_IGN)
-    stop = []
-    signal.signal(signal.SIGTERM, lambda *_: stop.append(1))
+    stop: list[int] = []
+    for sig in (signal.SIGTERM, signal.SIGHUP):
+        signal.signal(sig, lambda *_: stop.append(1))
     try:
         os.nice(int(os.environ.get("TELEOP_RECORD_NICE", "5")))
     except OSError:
@@ -96,13 +195,10 @@ def main(argv: list[str]) -> int:
     ctl = sys.stdin.buffer.fileno()
     os.set_blocking(ctl, False)
     buf = bytearray()
-    out: McapOut | None = None
-    sides: dict[int, _Side] = {}
-    events: list[tuple] = []
-    closing, parent_stats, eof = False, {}, False
+    srv = Server(region, "process")
+    eof = False
     while True:
-        # the counters first, then the pipe: every name and side a published row needs is in it
-        ws = {sid: (int(s.ring.hdr[0]), int(s.can.hdr[0]) if s.can is not None else 0) for sid, s in sides.items()}
+        ws = srv.counters()  # the counters first, then the pipe
         while not eof:
             try:
                 chunk = os.read(ctl, 1 << 16)
@@ -117,62 +213,15 @@ def main(argv: list[str]) -> int:
                 break
             msg = pickle.loads(bytes(buf[4:4 + n]))
             del buf[:4 + n]
-            kind = msg[0]
-            if kind == "open":
-                _, path, metadata, opts = msg
-                out = McapOut(path, metadata, opts["flush_s"], opts["chunk_bytes"], opts["compression"])
-            elif kind == "source":
-                assert out is not None
-                _, sid, side_kind, offset, cap, width, meta, can_offset = msg
-                sides[sid] = _Side(out, region, side_kind, offset, cap, width, meta, can_offset)
-            elif kind == "name":
-                _, sid, code, name = msg
-                sides[sid].emitter.names[code] = name
-            elif kind == "meta":
-                _, sid, more = msg
-                sides[sid].emitter.meta.update(more)
-            elif kind == "event":
-                events.append(msg[1:])
-            elif kind == "attach":
-                assert out is not None
-                _, name, data, media_type = msg
-                out.mcap.add_attachment(create_time=time.time_ns(), log_time=0, name=name, media_type=media_type,
-                                        data=data)
-            elif kind == "close":
-                closing, parent_stats = True, msg[1]
+            srv.handle(msg)
+        told = srv.closing
         if eof or stop or os.getppid() != parent:
-            closing = True
-        if out is None:
-            if closing:
-                return 0
-            time.sleep(POLL_S)
-            continue
-        if closing:  # the run has stopped writing: everything it published
-            ws = {sid: (int(s.ring.hdr[0]), int(s.can.hdr[0]) if s.can is not None else 0)
-                  for sid, s in sides.items()}
-        busy = False
-        while True:  # slice by slice, every side in turn, yielding the core between slices
-            more = False
-            for sid, (w, wc) in ws.items():
-                more |= sides[sid].drain(w, wc)
-            busy |= more
-            if not more:
-                break
-            os.sched_yield()
-        if events:
-            cid = out.json_channel("/link/events", _link_schema())
-            for t_s, wall, side, kind, seq, detail in events:
-                text = json.dumps({"t_s": t_s, "wall_time_s": wall, "side": side, "kind": kind, "seq": seq,
-                                   "detail": detail}, default=str)
-                out.add_one(cid, max(0, round(t_s * 1e9)), text.encode())
-            events.clear()
-            busy = True
-        out.maybe_flush()
-        if closing:
-            out.flush()
-            stats = {**parent_stats, "messages": out.messages, "chunks": out.chunks,
-                     "closed_by": "close" if parent_stats else "end of the run's process"}
-            out.finish(stats)
+            srv.closing = True
+        if srv.out is None and srv.closing:
+            return 0
+        busy = srv.step(ws)
+        if srv.closing:
+            stats = srv.finish("close" if told else "end of the run's process")
             try:  # to the run, if it is still there to read it
                 os.write(sys.stdout.fileno(), (json.dumps(stats) + "\n").encode())
             except OSError:
@@ -180,12 +229,6 @@ def main(argv: list[str]) -> int:
             return 0
         if not busy:
             time.sleep(POLL_S)
-
-
-def _link_schema() -> dict:
-    from teleop.app.record.schemas import LINK_EVENT
-
-    return LINK_EVENT
 
 
 if __name__ == "__main__":

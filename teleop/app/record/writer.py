@@ -46,6 +46,7 @@ import sys
 import tempfile
 import threading
 import time
+from collections import deque
 from pathlib import Path
 from typing import Any, Self
 
@@ -214,7 +215,7 @@ class Source:
         t0 = time.perf_counter()
         end = t0 + wr.block_s
         while ring.w - ring.hdr[8] > self.low:
-            if wr._proc.poll() is not None:  # the writer is gone: stop recording
+            if not wr._alive():  # the writer is gone: stop recording
                 wr._dead()
                 break
             if time.perf_counter() > end:
@@ -233,7 +234,11 @@ class RecordWriter:
     """An MCAP record at ``path`` (its folder made), written by a process started here; see the
     module docstring. ``metadata`` (str -> str) goes in the file's "teleop" metadata record.
     ``realtime``: the run is paced to the wall clock: its ticks never wait for the writer (a full
-    ring drops ticks, counted) and the rings are 4 times longer.
+    ring drops ticks, counted) and the rings are 4 times longer. ``mode``: "process" (a process of
+    its own, on any core: for runs in one process, which leave the other core free) or "thread"
+    (a thread of the run's process, working while the tick waits for its next period: for a side
+    pinned to a core that it spins on, as in the two-process run, where a process of its own
+    either steals that core mid-tick or, in a session of its own, was starved).
     ``close()`` (or leaving a ``with`` block, or the interpreter's exit) has the writer write
     what is left and the summary section, and waits for it. Sides attach with
     :class:`~teleop.app.record.hooks.MasterRecorderMcap` and
@@ -244,8 +249,11 @@ class RecordWriter:
     def __init__(self, path: str | Path, metadata: dict | None = None, flush_s: float = FLUSH_S,
                  chunk_bytes: int = CHUNK_BYTES, compression: str = "zstd", realtime: bool = False,
                  capacity: int | None = None, high_water: int = HIGH_WATER, low_water: int = LOW_WATER,
-                 block_s: float = BLOCK_S, region_bytes: int = REGION_BYTES) -> None:
+                 block_s: float = BLOCK_S, region_bytes: int = REGION_BYTES, mode: str = "process") -> None:
         self.path = Path(path)
+        if mode not in ("process", "thread"):
+            raise ValueError(f"record: mode must be process or thread, got {mode!r}")
+        self.mode = mode
         self.path.parent.mkdir(parents=True, exist_ok=True)
         self.realtime = bool(realtime)
         self.capacity = int(capacity if capacity is not None else REALTIME_CAPACITY if realtime else CAPACITY)
@@ -264,15 +272,27 @@ class RecordWriter:
         self._sources: list[Source] = []
         self._size, self._used = int(region_bytes), 0
         self._lock = threading.Lock()
-        fd = _shared_fd(self._size)
-        try:
-            self._region = mmap.mmap(fd, self._size)
-            self._proc = subprocess.Popen(
-                [sys.executable, "-m", "teleop.app.record.serve", str(fd), str(self._size), str(os.getpid())],
-                stdin=subprocess.PIPE, stdout=subprocess.PIPE, pass_fds=(fd,), start_new_session=True,
-                env=_child_env())
-        finally:
-            os.close(fd)
+        self._proc: subprocess.Popen | None = None
+        self._thread: threading.Thread | None = None
+        self._error: BaseException | None = None
+        if mode == "thread":
+            self._region = mmap.mmap(-1, self._size)
+            self._queue: deque = deque()
+            self._thread = threading.Thread(target=self._serve, name="teleop-record", daemon=True)
+            self._thread.start()
+        else:
+            fd = _shared_fd(self._size)
+            try:
+                self._region = mmap.mmap(fd, self._size)
+                # its own process group (a Ctrl-C or a signal to the run's group does not reach it) but
+                # not its own session: a session of its own is a scheduling group of its own
+                # (autogroup), which Linux 6.18 left unscheduled for seconds beside pinned sides
+                self._proc = subprocess.Popen(
+                    [sys.executable, "-m", "teleop.app.record.serve", str(fd), str(self._size), str(os.getpid())],
+                    stdin=subprocess.PIPE, stdout=subprocess.PIPE, pass_fds=(fd,), process_group=0,
+                    env=_child_env())
+            finally:
+                os.close(fd)
         self._send(("open", str(self.path), {"log_time": "the run's simulated time, ns from tick 0 (t_s = i * dt)",
                                              "wall_time": "JSON wall_time_s: Unix time on the recording host",
                                              **{str(k): str(v) for k, v in (metadata or {}).items()}},
@@ -281,8 +301,36 @@ class RecordWriter:
 
     @property
     def pid(self) -> int:
-        """The writer process's id."""
-        return self._proc.pid
+        """The writer process's id (this process's, for a thread)."""
+        return self._proc.pid if self._proc is not None else os.getpid()
+
+    def _alive(self) -> bool:
+        if self._proc is not None:
+            return self._proc.poll() is None
+        return self._thread is not None and self._thread.is_alive()
+
+    def _serve(self) -> None:
+        """The writer as a thread of this process (mode "thread")."""
+        from teleop.app.record.serve import POLL_S, Server
+
+        srv = Server(self._region, "thread")
+        q = self._queue
+        try:
+            while True:
+                ws = srv.counters()  # the counters first, then the messages
+                while q:
+                    srv.handle(q.popleft())
+                if srv.out is None and srv.closing:
+                    return
+                busy = srv.step(ws)
+                if srv.closing:
+                    self.result = srv.finish("close")
+                    return
+                if not busy:
+                    time.sleep(POLL_S)
+        except BaseException as e:  # noqa: BLE001 - raised by close()
+            self._error = e
+            self._dead()
 
     @property
     def dropped(self) -> int:
@@ -318,6 +366,15 @@ class RecordWriter:
         for s in list(self._sources):
             s.finalize()
         self._send(("close", {k: v for k, v in self.stats().items() if k != "path"}))
+        if self._thread is not None:
+            self._thread.join(CLOSE_TIMEOUT_S)
+            self.live = False
+            for s in self._sources:
+                s.live = False
+            if self._error is not None or self._thread.is_alive() or not self.result:
+                raise RecordError(f"record {self.path}: the writer failed: {self._error!r}") from self._error
+            return
+        assert self._proc is not None
         try:
             out, _ = self._proc.communicate(timeout=CLOSE_TIMEOUT_S)  # closes its stdin too
         except subprocess.TimeoutExpired:
@@ -355,6 +412,10 @@ class RecordWriter:
     def _send(self, msg: tuple) -> None:
         if not self.live and msg[0] != "close":
             return
+        if self._thread is not None:
+            self._queue.append(msg)
+            return
+        assert self._proc is not None
         data = pickle.dumps(msg, protocol=pickle.HIGHEST_PROTOCOL)
         try:
             with self._lock:
