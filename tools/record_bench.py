@@ -1,7 +1,7 @@
 """What the MCAP recorder (teleop.app.record) costs the tick, measured in one run with and without it.
 
     python tools/record_bench.py [--scene straight_incision] [--seconds 5] [--block 250]
-                                 [--realtime SECONDS] [--json OUT.json]
+                                 [--mode process|thread] [--spool] [--realtime SECONDS] [--json OUT.json]
 
 Two loops of the same scene and seed are built side by side, one with the recorder's loop hook
 (``LoopRecorderMcap`` on a ``RecordWriter``), one without, and ticked in interleaved blocks of
@@ -61,17 +61,19 @@ def _loop(scene, hooks=()):
     return BilateralLoop(mb.side, sb.side if sb is not None else None, link, hooks), n
 
 
-def interleaved(scene_name: str, seconds: float, block: int, folder: Path) -> dict:
+def interleaved(scene_name: str, seconds: float, block: int, folder: Path, **opts) -> dict:
     from teleop.app.record import LoopRecorderMcap, RecordWriter
     from teleop.scenario.schema import load_scene
 
     scene = load_scene(scene_name, sets=[f"duration_s={seconds}"])
-    writer = RecordWriter(folder / "record.mcap", metadata={"scene": scene.name, "bench": "record_bench"})
-    loops = {"with": _loop(scene, [LoopRecorderMcap(writer)]), "without": _loop(scene)}
-    n = loops["with"][1]
+    writer = RecordWriter(folder / "record.mcap", metadata={"scene": scene.name, "bench": "record_bench"}, **opts)
+    loop, n = _loop(scene)
+    loop.hooks = (LoopRecorderMcap(writer, loop=loop),)  # the rings laid out before the clock starts
+    loops = {"with": (loop, n), "without": _loop(scene)}
     tick = {k: np.zeros(n) for k in loops}
     wall = {k: np.zeros(n) for k in loops}
-    cpu0 = _cpu_s(writer.pid)
+    pid = writer.pid
+    cpu0 = _cpu_s(pid) if pid != os.getpid() else float("nan")
     with loops["with"][0].master, loops["without"][0].master:
         for a in range(0, n, block):
             order = ("with", "without") if (a // block) % 2 == 0 else ("without", "with")
@@ -83,10 +85,10 @@ def interleaved(scene_name: str, seconds: float, block: int, folder: Path) -> di
                     wall[k][i] = (time.perf_counter_ns() - t0) * 1e-3
                     tick[k][i] = loop.tick_ns * 1e-3
     time.sleep(0.1)  # the writer's last poll
-    cpu = _cpu_s(writer.pid) - cpu0
+    cpu = _cpu_s(pid) - cpu0
     writer.close()
     skip = min(n - 1, 10)  # the first ticks load the kernels
-    out = {"scene": scene.name, "ticks": n, "block": block}
+    out = {"scene": scene.name, "ticks": n, "block": block, "writer": opts}
     for k in loops:
         out[k] = {"tick_us": _stats(tick[k][skip:]), "wall_us": _stats(wall[k][skip:])}
     out["added_median_us"] = {m: round(out["with"][m]["median"] - out["without"][m]["median"], 2)
@@ -99,7 +101,7 @@ def interleaved(scene_name: str, seconds: float, block: int, folder: Path) -> di
     return out
 
 
-def realtime(scene_name: str, seconds: float, folder: Path) -> dict:
+def realtime(scene_name: str, seconds: float, folder: Path, **opts) -> dict:
     from teleop.app.record import LoopRecorderMcap, RecordWriter
     from teleop.app.runtime import run_scene
     from teleop.scenario.schema import load_scene
@@ -109,7 +111,7 @@ def realtime(scene_name: str, seconds: float, folder: Path) -> dict:
     for rep in range(2):
         for k in ("with", "without"):
             if k == "with":
-                with RecordWriter(folder / f"rt{rep}.mcap") as w:
+                with RecordWriter(folder / f"rt{rep}.mcap", realtime=True, **opts) as w:
                     s = run_scene(scene, realtime=True, hooks=[LoopRecorderMcap(w)]).summary
             else:
                 s = run_scene(scene, realtime=True).summary
@@ -125,14 +127,17 @@ def main(argv=None) -> int:
     ap.add_argument("--block", type=int, default=250, help="ticks per interleaved block (default 250)")
     ap.add_argument("--realtime", type=float, default=0.0, metavar="S",
                     help="also S seconds paced to the wall clock, with and without, twice each")
+    ap.add_argument("--mode", choices=["process", "thread"], default="process", help="the writer's (default process)")
+    ap.add_argument("--spool", action="store_true", help="the writer spools, and writes the MCAP file after the run")
     ap.add_argument("--json", help="write the figures here")
     args = ap.parse_args(argv)
     with tempfile.TemporaryDirectory() as tmp:
-        res = {"interleaved": interleaved(args.scene, args.seconds, args.block, Path(tmp))}
+        kw = {"mode": args.mode, "spool": args.spool}
+        res = {"interleaved": interleaved(args.scene, args.seconds, args.block, Path(tmp), **kw)}
         if args.realtime > 0:
-            res["realtime"] = realtime(args.scene, args.realtime, Path(tmp))
+            res["realtime"] = realtime(args.scene, args.realtime, Path(tmp), **kw)
     r = res["interleaved"]
-    print(f"{r['scene']}: {r['ticks']} ticks, interleaved blocks of {r['block']}")
+    print(f"{r['scene']}: {r['ticks']} ticks, interleaved blocks of {r['block']}, writer {r['writer']}")
     print(f"{'':10s} {'tick_us median':>15s} {'p99':>8s} {'wall_us median':>15s} {'p99':>8s}")
     for k in ("without", "with"):
         print(f"{k:10s} {r[k]['tick_us']['median']:15.2f} {r[k]['tick_us']['p99']:8.2f} "

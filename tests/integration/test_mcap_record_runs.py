@@ -150,7 +150,7 @@ CHILD = textwrap.dedent("""
     from teleop.scenario.schema import load_scene
     from teleop.tick.ports import Hook
 
-    out, progress = sys.argv[1], sys.argv[2]
+    out, progress, spool = sys.argv[1], sys.argv[2], sys.argv[3] == "spool"
     mm = np.memmap(progress, dtype=np.int64, mode="r+", shape=(2,))
 
     class Progress(Hook):  # the ticks whose rows the recorder has published
@@ -158,7 +158,7 @@ CHILD = textwrap.dedent("""
             mm[0] = i + 1
 
     scene = load_scene("straight_incision", sets=["duration_s=10.0"])
-    w = RecordWriter(out, realtime=True)
+    w = RecordWriter(out, realtime=True, spool=spool)
     mm[1] = w.pid
     run_scene(scene, realtime=True, hooks=[LoopRecorderMcap(w), Progress()])
     w.close()
@@ -174,16 +174,18 @@ def _gone(pid):
 
 
 @pytest.mark.long
-@pytest.mark.parametrize("killed", ["run", "run_and_writer"])
-def test_a_run_killed_at_3_s_keeps_its_ticks(tmp_path, killed):
+@pytest.mark.parametrize(("killed", "spool"), [("run", False), ("run_and_writer", False), ("run", True),
+                                               ("run_and_writer", True)])
+def test_a_run_killed_at_3_s_keeps_its_ticks(tmp_path, killed, spool):
     """A real-time straight cut SIGKILLed once it has ticked 3 s. The run alone: its writer (in a
-    session of its own) takes every row published and finishes the file. The writer too (the
+    process group of its own) takes every row published and finishes the file. The writer too (the
     worst case): the file, without its summary, still reads to its last chunk, at most 100 ms
-    short of what was published, so at least 2.9 s of ticks."""
+    short of what was published, so at least 2.9 s of ticks; a spooling writer's spool becomes
+    the file (recover)."""
     path, progress = tmp_path / "record.mcap", tmp_path / "progress"
     progress.write_bytes(bytes(16))
     mm = np.memmap(progress, dtype=np.int64, mode="r", shape=(2,))
-    child = subprocess.Popen([sys.executable, "-c", CHILD, str(path), str(progress)])
+    child = subprocess.Popen([sys.executable, "-c", CHILD, str(path), str(progress), "spool" if spool else "-"])
     try:
         end = time.monotonic() + 120
         while mm[0] < 3000 and child.poll() is None and time.monotonic() < end:
@@ -202,6 +204,12 @@ def test_a_run_killed_at_3_s_keeps_its_ticks(tmp_path, killed):
     end = time.monotonic() + 60
     while not _gone(writer) and time.monotonic() < end:
         time.sleep(0.02)
+    if spool and killed == "run_and_writer":
+        assert not path.exists()
+        recover(path)  # the spool, to the MCAP file
+        assert read_record(path).complete
+        _check_ticks(read_record(path), reached - 20)  # the spool is written every 10 ms
+        return
     rec = read_record(path)
     ticks = {k: len(rec[k]) for k in ("/master/state", "/slave/state", "/slave/joints", "/master/tool_pose")}
     if killed == "run":
@@ -219,6 +227,11 @@ def test_a_run_killed_at_3_s_keeps_its_ticks(tmp_path, killed):
         fixed, _ = recover(path)
         with open(fixed, "rb") as f:
             assert make_reader(f).get_summary().statistics.channel_message_counts  # a summary, as a closed file
-    assert min(ticks.values()) >= 2900
+    _check_ticks(rec, 0)
+
+
+def _check_ticks(rec, at_least):
+    ticks = {k: len(rec[k]) for k in ("/master/state", "/slave/state", "/slave/joints", "/master/tool_pose")}
+    assert min(ticks.values()) >= max(2900, at_least), ticks
     st = rec["/slave/state"]
     assert st.seq.tolist() == list(range(len(st)))  # no gap: every tick up to the last one kept

@@ -161,14 +161,18 @@ def _drive(writer, n, seed=3, slave=True):
     return held
 
 
-@pytest.mark.parametrize("mode", ["process", "thread"])
-def test_record_reads_back_what_the_sides_held(tmp_path, mode):
+@pytest.mark.parametrize(("mode", "spool"), [("process", False), ("thread", False), ("process", True),
+                                             ("thread", True)])
+def test_record_reads_back_what_the_sides_held(tmp_path, mode, spool):
+    """What the sides held, read back exactly: the writer a process or a thread, writing the MCAP
+    as the run goes or (spool) after it."""
     path = tmp_path / "r.mcap"
-    with RecordWriter(path, metadata={"scene": "stand-in"}, mode=mode) as w:
+    with RecordWriter(path, metadata={"scene": "stand-in"}, mode=mode, spool=spool) as w:
         held = _drive(w, 300)
         w.link_event(0.0125, "master", "lost", seq=12, detail={"why": "test"})
         w.attach("scene.toml", 'name = "stand-in"\n', "application/toml")
     assert w.stats()["messages"] > 0 and w.stats()["ticks_dropped"] == 0
+    assert not os.path.exists(str(path) + ".spool")
     rec = read_record(path, keep_messages=True)
     assert rec.complete and rec.error is None
     assert rec.metadata["teleop"]["scene"] == "stand-in"
@@ -366,3 +370,23 @@ def test_arrays_of_any_layout_are_recorded_alike(tmp_path):
     assert np.array_equal(rec["/master/felt_wrench"]["W"], [np.asarray(m.felt_W, float) for m, _ in sides])
     assert np.array_equal(rec["/slave/joints"]["position"], [s.arm.q for _, s in sides])
     assert np.abs(rec["/slave/tool_pose"]["R"] - [s.state.R for _, s in sides]).max() < 1e-14
+
+
+def test_a_killed_spooling_writer_leaves_a_spool_that_recovers(tmp_path):
+    """spool=True and the writer killed: the spool it appended to every poll becomes the MCAP file."""
+    path = tmp_path / "r.mcap"
+    w = RecordWriter(path, spool=True)
+    try:
+        _drive(w, 300)
+        time.sleep(0.3)  # a few polls: the rows are in the spool
+        os.kill(w.pid, signal.SIGKILL)
+    finally:
+        with pytest.raises(Exception):  # noqa: B017 - the writer is gone
+            w.close()
+    assert not path.exists() and os.path.exists(str(path) + ".spool")
+    out, n = recover(path)
+    assert out == path and n > 0
+    rec = read_record(path)
+    assert rec.complete
+    assert len(rec["/slave/state"]) == 300 and len(rec["/master/state"]) == 299  # the master's last is held
+    assert rec.metadata["teleop.record"]["closed_by"] == "recovered from its spool"

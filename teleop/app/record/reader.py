@@ -217,7 +217,15 @@ def recover(path: str | Path, out: str | Path | None = None) -> tuple[Path, int]
     schema, channel, message, metadata record and attachment up to its last whole record, written
     again by ``mcap``'s writer with a summary section, so that any reader (``mcap``'s seeking
     reader, which reads the footer first, or Foxglove's) opens it. ``out`` defaults to
-    ``<name>.recovered.mcap`` beside it. Returns (the copy's path, messages copied)."""
+    ``<name>.recovered.mcap`` beside it. A record written with ``spool=True`` whose writer was
+    killed left ``<path>.spool`` (``path`` may name either): it becomes the MCAP file ``out``
+    (default: ``path``). Returns (the file's path, messages written)."""
+    spool = Path(path) if str(path).endswith(".spool") else Path(str(path) + ".spool")
+    if spool.exists():
+        from teleop.app.record.serve import convert
+
+        target = Path(out) if out is not None else Path(str(spool)[: -len(".spool")])
+        return target, int(convert(str(spool), str(target)).get("messages", 0))
     from mcap.records import Attachment, Message, Metadata, Schema
     from mcap.records import Channel as McapChannel
     from mcap.stream_reader import StreamReader

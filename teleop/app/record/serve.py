@@ -66,15 +66,21 @@ class _Reader:
         return out
 
 
-class _Side:
-    def __init__(self, out: McapOut, region: mmap.mmap, kind: str, offset: int, cap: int, width: int, meta: dict,
-                 can_offset: int | None, slice_rows: int) -> None:
-        from teleop.app.record.writer import CAN_CAPACITY
+def _readers(region: mmap.mmap, offset: int, cap: int, width: int, can_offset: int | None,
+             slice_rows: int | None) -> tuple[_Reader, _Reader | None]:
+    from teleop.app.record.writer import CAN_CAPACITY
 
+    can = None if can_offset is None else _Reader(region, can_offset, CAN_CAPACITY, None, CAN_ROW.size, None)
+    return _Reader(region, offset, cap, width, 8 * width, slice_rows), can
+
+
+class _Side:
+    def __init__(self, out: McapOut, region: mmap.mmap | None, kind: str, offset: int, cap: int, width: int,
+                 meta: dict, can_offset: int | None, slice_rows: int) -> None:
         self.emitter = EMITTERS[kind](out, meta)
-        self.ring = _Reader(region, offset, cap, width, 8 * width, slice_rows)
-        self.can = None if can_offset is None else _Reader(region, can_offset, CAN_CAPACITY, None, CAN_ROW.size,
-                                                           None)
+        self.width = width
+        if region is not None:
+            self.ring, self.can = _readers(region, offset, cap, width, can_offset, slice_rows)
 
     def drain(self, w: int, w_can: int) -> bool:
         busy = False
@@ -96,7 +102,7 @@ class Server:
     that came (:meth:`handle`: each name and side a published row needs came before the row),
     then :meth:`step` up to those counters; :meth:`finish` once ``closing``."""
 
-    def __init__(self, region: mmap.mmap, mode: str = "process") -> None:
+    def __init__(self, region: mmap.mmap | None, mode: str = "process") -> None:
         self.region, self.slice = region, SLICE_ROWS[mode]
         self.out: McapOut | None = None
         self.sides: dict[int, _Side] = {}
@@ -176,8 +182,106 @@ class Server:
         return stats
 
 
+class Spooler:
+    """A writer that, during the run, only appends every message and every batch of rows to
+    ``<path>.spool`` (frames: a 4-byte length, then a pickle), a few us of its CPU a tick; at the
+    end (:meth:`finish`) the spool becomes the MCAP file (:func:`convert`) and is removed. For runs
+    with no core to spare. A spool left by a killed writer: :func:`teleop.app.record.recover`."""
+
+    def __init__(self, region: mmap.mmap, mode: str = "process") -> None:
+        self.region = region
+        self.readers: dict[int, tuple[_Reader, _Reader | None]] = {}
+        self.closing = False
+        self.parent_stats: dict = {}
+        self.path: str | None = None
+        self.fd = -1
+        self.out = None
+
+    def counters(self) -> dict[int, tuple[int, int]]:
+        return {sid: (int(r.hdr[0]), int(c.hdr[0]) if c is not None else 0) for sid, (r, c) in self.readers.items()}
+
+    def _frame(self, obj: tuple) -> None:
+        data = pickle.dumps(obj, protocol=pickle.HIGHEST_PROTOCOL)
+        os.write(self.fd, _LEN.pack(len(data)) + data)
+
+    def handle(self, msg: tuple) -> None:
+        kind = msg[0]
+        if kind == "close":
+            self.closing, self.parent_stats = True, msg[1]
+            return
+        if kind == "open":
+            self.path = msg[1]
+            self.fd = os.open(self.path + ".spool", os.O_WRONLY | os.O_CREAT | os.O_TRUNC, 0o644)
+            self.out = True  # type: ignore[assignment]
+        elif kind == "source":
+            _, sid, _, offset, cap, width, _, can_offset = msg
+            self.readers[sid] = _readers(self.region, offset, cap, width, can_offset, None)
+        self._frame(("msg", msg))
+
+    def step(self, ws: dict[int, tuple[int, int]]) -> bool:
+        if self.fd < 0:
+            return False
+        if self.closing:
+            ws = self.counters()
+        busy = False
+        for sid, (w, wc) in ws.items():
+            ring, can = self.readers[sid]
+            rows = ring.take(w)
+            if rows is not None:
+                self._frame(("rows", sid, rows.tobytes()))
+                busy = True
+            frames = can.take(wc) if can is not None else None
+            if frames is not None:
+                self._frame(("can", sid, frames.tobytes()))
+                busy = True
+        return busy
+
+    def finish(self, closed_by: str) -> dict:
+        if self.fd < 0 or self.path is None:
+            return {}
+        os.close(self.fd)
+        self.fd = -1
+        spool = self.path + ".spool"
+        stats = convert(spool, self.path, self.parent_stats, closed_by)
+        os.unlink(spool)
+        return stats
+
+
+def convert(spool: str, path: str, extra: dict | None = None, closed_by: str = "recovered from its spool") -> dict:
+    """The MCAP file at ``path`` from the spool ``spool`` (up to its last whole frame)."""
+    srv = Server(None, "process")
+    with open(spool, "rb") as f:
+        data = f.read()
+    at, n = 0, len(data)
+    while at + 4 <= n:
+        size = _LEN.unpack_from(data, at)[0]
+        if at + 4 + size > n:
+            break  # a frame cut short: the writer was killed writing it
+        try:
+            frame = pickle.loads(data[at + 4:at + 4 + size])
+        except Exception:  # noqa: BLE001 - a torn frame ends the spool
+            break
+        at += 4 + size
+        if frame[0] == "msg":
+            msg = frame[1]
+            if msg[0] == "open":
+                msg = (msg[0], str(path), *msg[2:])
+            srv.handle(msg)
+        elif frame[0] == "rows":
+            side = srv.sides[frame[1]]
+            side.emitter.emit(np.frombuffer(frame[2], np.float64).reshape(-1, side.width))
+            assert srv.out is not None
+            srv.out.maybe_flush()
+        elif frame[0] == "can":
+            srv.sides[frame[1]].emitter.emit_can(  # type: ignore[attr-defined]
+                np.frombuffer(frame[2], np.uint8).reshape(-1, CAN_ROW.size))
+    srv.step({})  # the link events
+    srv.parent_stats = dict(extra or {})
+    return srv.finish(closed_by)
+
+
 def main(argv: list[str]) -> int:
-    fd, size, parent = int(argv[1]), int(argv[2]), int(argv[3])
+    fd, size, parent = int(argv[1]), int(argv[2]), int(argv[3])  # then --spool, if so
     signal.signal(signal.SIGINT, signal.SIG_IGN)
     stop: list[int] = []
     for sig in (signal.SIGTERM, signal.SIGHUP):
@@ -195,7 +299,7 @@ def main(argv: list[str]) -> int:
     ctl = sys.stdin.buffer.fileno()
     os.set_blocking(ctl, False)
     buf = bytearray()
-    srv = Server(region, "process")
+    srv: Server | Spooler = Spooler(region) if "--spool" in argv else Server(region, "process")
     eof = False
     while True:
         ws = srv.counters()  # the counters first, then the pipe

@@ -1,5 +1,16 @@
 """The record's writer: an MCAP file written by a process of its own, fed by bounded rings.
 
+Three ways to run it, for three kinds of run (measured on this 2-core machine, see the report of
+``tools/record_bench.py`` and the two-process figures in the record's tests):
+
+* ``RecordWriter(path)``: a process of its own writes the MCAP file as the run goes. For a run in
+  one process (its loop uses one core; the writer, some 10 % of the other).
+* ``RecordWriter(path, spool=True)``: the process only appends the rows to ``<path>.spool``
+  while the run goes (a few us of CPU a tick) and writes the MCAP file after it. For runs with no
+  core to spare: the two-process run pins each side to a core and spins on it, and a writer doing
+  its MCAP work beside them made some 10x more late ticks; spooling made none more.
+* ``RecordWriter(path, mode="thread")``: the same writer as a thread of the run's process.
+
 The tick never serialises or writes. A side's hook (:mod:`teleop.app.record.hooks`) copies the
 few numbers it records into the next row of a preallocated ring (:class:`Source`, one per side)
 in memory shared with the writer process (:mod:`teleop.app.record.serve`), and publishes the row
@@ -238,7 +249,11 @@ class RecordWriter:
     its own, on any core: for runs in one process, which leave the other core free) or "thread"
     (a thread of the run's process, working while the tick waits for its next period: for a side
     pinned to a core that it spins on, as in the two-process run, where a process of its own
-    either steals that core mid-tick or, in a session of its own, was starved).
+    either steals that core mid-tick or, in a session of its own, was starved). ``spool``: write
+    the MCAP file after the run: during it the writer only appends the rows to ``<path>.spool`` (a
+    few us of its CPU a tick, for runs with no core to spare: two sides pinned to a 2-core
+    machine); ``close()`` converts it (the run's process ended otherwise: the writer process
+    converts it all the same); a spool left by a killed writer: :func:`~teleop.app.record.recover`.
     ``close()`` (or leaving a ``with`` block, or the interpreter's exit) has the writer write
     what is left and the summary section, and waits for it. Sides attach with
     :class:`~teleop.app.record.hooks.MasterRecorderMcap` and
@@ -249,11 +264,12 @@ class RecordWriter:
     def __init__(self, path: str | Path, metadata: dict | None = None, flush_s: float = FLUSH_S,
                  chunk_bytes: int = CHUNK_BYTES, compression: str = "zstd", realtime: bool = False,
                  capacity: int | None = None, high_water: int = HIGH_WATER, low_water: int = LOW_WATER,
-                 block_s: float = BLOCK_S, region_bytes: int = REGION_BYTES, mode: str = "process") -> None:
+                 block_s: float = BLOCK_S, region_bytes: int = REGION_BYTES, mode: str = "process",
+                 spool: bool = False) -> None:
         self.path = Path(path)
         if mode not in ("process", "thread"):
             raise ValueError(f"record: mode must be process or thread, got {mode!r}")
-        self.mode = mode
+        self.mode, self.spool = mode, bool(spool)
         self.path.parent.mkdir(parents=True, exist_ok=True)
         self.realtime = bool(realtime)
         self.capacity = int(capacity if capacity is not None else REALTIME_CAPACITY if realtime else CAPACITY)
@@ -288,7 +304,8 @@ class RecordWriter:
                 # not its own session: a session of its own is a scheduling group of its own
                 # (autogroup), which Linux 6.18 left unscheduled for seconds beside pinned sides
                 self._proc = subprocess.Popen(
-                    [sys.executable, "-m", "teleop.app.record.serve", str(fd), str(self._size), str(os.getpid())],
+                    [sys.executable, "-m", "teleop.app.record.serve", str(fd), str(self._size), str(os.getpid()),
+                     *(["--spool"] if self.spool else [])],
                     stdin=subprocess.PIPE, stdout=subprocess.PIPE, pass_fds=(fd,), process_group=0,
                     env=_child_env())
             finally:
@@ -311,9 +328,9 @@ class RecordWriter:
 
     def _serve(self) -> None:
         """The writer as a thread of this process (mode "thread")."""
-        from teleop.app.record.serve import POLL_S, Server
+        from teleop.app.record.serve import POLL_S, Server, Spooler
 
-        srv = Server(self._region, "thread")
+        srv: Server | Spooler = Spooler(self._region) if self.spool else Server(self._region, "thread")
         q = self._queue
         try:
             while True:
