@@ -16,9 +16,10 @@ few numbers it records into the next row of a preallocated ring (:class:`Source`
 in memory shared with the writer process (:mod:`teleop.app.record.serve`), and publishes the row
 by advancing a counter there; the writer process takes the published rows in batches, lays out
 their messages with numpy and adds them to the file through the ``mcap`` package's writer
-(:mod:`teleop.app.record.emit`). The writer's work (about 50 us a tick a side, most of it inside
-``mcap``'s own Python) runs on another core, not under the tick's GIL: a thread would have
-shared the tick's interpreter lock and stalled ticks that run faster than real time.
+(:mod:`teleop.app.record.emit`). The writer's work (some 50-100 us a tick a side, most of it
+inside ``mcap``'s own Python) runs on another core, not under the tick's GIL: as a thread it
+shares the tick's interpreter lock (a run faster than real time never releases it, and a thread
+that waits for it forces a switch in mid-tick every 5 ms).
 
 Rings: each is single-producer single-consumer, its counters ``w`` (rows published, the tick's)
 and ``r`` (rows taken, the writer's) int64s in the shared memory; a row is written before ``w``
@@ -27,16 +28,18 @@ behind: a run paced to the wall clock (``realtime=True``) never waits for it, an
 fills (16384 ticks, 16 s at 1 kHz) drops the ticks it has no room for and counts them (the
 record's ``ticks_dropped``); a run on the simulated clock (the default) loses nothing: a ring
 that holds ``high_water`` unwritten ticks makes its hook wait (sleeping) until the writer is back
-under ``low_water``, at most ``block_s`` at once. Status strings, the sides' static facts and link events go over the
-writer's stdin as pickles (rare: once per new status).
+under ``low_water``, at most ``block_s`` at once. Status strings, the sides' static facts and
+link events go over the writer's stdin as pickles (rare: once per new status).
 
-Crash safety: the writer process lives in its own session, outside the run's process group (a
-Ctrl-C or a group signal does not reach it), and watches its stdin: when the run's process ends,
+Crash safety: the writer process lives in its own process group (a Ctrl-C or a signal to the
+run's group does not reach it) and watches its stdin: when the run's process ends,
 however it ends (SIGKILL included), the writer takes every row the run published and finishes
 the file, summary and all. When the writer itself is killed, the file keeps every chunk it
 closed: a chunk is closed and flushed to the operating system whenever it holds ``flush_s`` of
 the run's time or has been open ``flush_s`` of the wall clock (0.05 s), and
-:func:`teleop.app.record.reader.read_record` reads such a file to its last whole chunk.
+:func:`teleop.app.record.reader.read_record` reads such a file to its last whole chunk
+(:func:`~teleop.app.record.reader.recover` finishes a copy). A spooling writer appends to its
+spool every 10 ms, and ``recover`` makes the file of a killed one's spool.
 
 Timestamps: each message's log time (and publish time, and a ROS 2 header's stamp) is the run's
 simulated time ``t_s`` of its tick, in ns from the run's start (tick 0 at 0); the wall clock of
