@@ -22,12 +22,16 @@ def lopsided_body() -> RigidBody:
 @pytest.fixture(autouse=True)
 def _teleop_log_reaches_caplog():
     """The CLI's configure_logging (run by any test that calls main) stops the "teleop" logger
-    from propagating; each test starts with it propagating to pytest's caplog again, so a test's
-    log assertions do not depend on which tests ran before it in the same worker."""
+    from propagating, and a library's logging.config (dask's) disables the loggers that exist;
+    each test starts with them enabled and propagating to pytest's caplog again, so a test's log
+    assertions do not depend on which tests ran before it in the same worker."""
     import logging
 
     log = logging.getLogger("teleop")
     saved = (log.propagate, list(log.handlers), log.level)
     log.propagate, log.handlers[:] = True, []
+    for name, other in list(logging.root.manager.loggerDict.items()):  # a library's dictConfig (dask's)
+        if name.startswith("teleop") and isinstance(other, logging.Logger):  # may have disabled them
+            other.disabled = False
     yield
     log.propagate, log.handlers[:], log.level = saved[0], saved[1], saved[2]
