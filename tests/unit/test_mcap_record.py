@@ -271,7 +271,10 @@ def test_a_full_ring_drops_ticks_and_counts_them(tmp_path, realtime):
         w.close()
     s = w.stats()
     assert s["ticks_dropped"] > 0 and (s["hook_waits"] == 0 if realtime else s["hook_waits"] >= 1)
-    assert blocked < (0.2 if realtime else 1.0)  # waited once per stall, not once per tick
+    if realtime:
+        assert s["hook_waited_s"] == 0.0
+    else:
+        assert blocked < 2.0  # waited once per stall (5 ms), not once per tick
     rec = read_record(path)
     assert len(rec["/master/state"]) + s["ticks_dropped"] // 2 >= 200  # each side drops alike
     assert len(rec["/slave/state"]) < 205
