@@ -17,12 +17,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from teleop.tick.kernels import energy_code, pose_code, reply_code
 from teleop.tick.messages import ContactFeedback, ToolCommand
 
-#: |R^T R - I| beyond this is not a rotation (the message check only looks at the determinant)
-ORTHO_TOL = 1e-6
-#: energy may run backwards by round-off only (J)
-ENERGY_TOL_J = 1e-9
 
 
 @dataclass(frozen=True)
@@ -52,17 +49,15 @@ class ReplyLimits:
     power_W: float = 1e3
 
 
+ENERGY_REASONS = (None, "energy_not_finite_or_negative", "energy_ran_backwards", "energy_too_fast")
+POSE_REASONS = (None, "not_a_rotation", "out_of_reach", "jump_too_far", "turn_too_fast")
+REPLY_REASONS = (None, "wrench_too_large", "damping_too_large")
+_Z3, _I3, _Z6 = np.zeros(3), np.eye(3), np.zeros(6)
+
+
 def _energy_reason(E: np.ndarray, last: np.ndarray | None, dt_s: float, power_W: float) -> str | None:
     """Why the port energy ``E`` (6,) J cannot follow ``last`` after ``dt_s`` s, or None."""
-    if not np.all(np.isfinite(E)) or float(E.min()) < -ENERGY_TOL_J:
-        return "energy_not_finite_or_negative"
-    if last is not None:
-        grow = E - last
-        if float(grow.min()) < -ENERGY_TOL_J:
-            return "energy_ran_backwards"
-        if float(grow.max()) > power_W * max(dt_s, 0.0) + ENERGY_TOL_J:
-            return "energy_too_fast"
-    return None
+    return ENERGY_REASONS[energy_code(E, _Z6 if last is None else last, last is not None, dt_s, power_W)]
 
 
 class CommandCheck:
@@ -98,19 +93,10 @@ class CommandCheck:
     def pose_reason(self, cmd: ToolCommand, p_P: np.ndarray, R_P: np.ndarray) -> str | None:
         """Why the command's target (``p_P`` m, ``R_P`` in the patient frame) is implausible, or
         None (it becomes the reference for the next)."""
-        lim = self.limits
-        why = None
-        if float(np.abs(cmd.R.T @ cmd.R - np.eye(3)).max()) > ORTHO_TOL:
-            why = "not_a_rotation"
-        elif not float(np.linalg.norm(p_P - self.center)) <= lim.reach_m:
-            why = "out_of_reach"
-        elif self._pose is not None:
-            t0, p0, R0 = self._pose
-            dt = max(cmd.t_s - t0, self.dt)
-            if float(np.linalg.norm(p_P - p0)) > lim.speed_m_s * dt:
-                why = "jump_too_far"
-            elif _angle(R0.T @ R_P) > lim.rate_rad_s * dt:
-                why = "turn_too_fast"
+        lim, last = self.limits, self._pose
+        t0, p0, R0 = last if last is not None else (cmd.t_s, _Z3, _I3)
+        why = POSE_REASONS[pose_code(cmd.R, p_P, self.center, lim.reach_m, last is not None, p0, R0, R_P,
+                                     max(cmd.t_s - t0, self.dt), lim.speed_m_s, lim.rate_rad_s)]
         if why is None:
             self._pose = (cmd.t_s, p_P, R_P)
         return self._refuse(why)
@@ -131,16 +117,8 @@ class ReplyCheck:
     def reason(self, msg: ContactFeedback) -> str | None:
         """Why the reply is implausible, or None (it becomes the reference for the next)."""
         lim = self.limits
-        W = msg.wrench_P
-        with np.errstate(over="ignore", invalid="ignore"):
-            f, m = float(np.linalg.norm(W[:3])), float(np.linalg.norm(W[3:]))
-            d = float(np.abs(msg.damping_P).max())
-        why = None
-        if not (f <= lim.force_N and m <= lim.torque_Nm):
-            why = "wrench_too_large"
-        elif not d <= lim.damping:
-            why = "damping_too_large"
-        else:
+        why = REPLY_REASONS[reply_code(msg.wrench_P, msg.damping_P, lim.force_N, lim.torque_Nm, lim.damping)]
+        if why is None:
             t0, E0 = self._last if self._last is not None else (msg.t_s, None)
             if msg.t_s < t0:
                 why = "time_ran_backwards"
@@ -151,8 +129,3 @@ class ReplyCheck:
             return why
         self._last = (msg.t_s, msg.energy_J)
         return None
-
-
-def _angle(R: np.ndarray) -> float:
-    """The rotation angle of ``R`` (rad)."""
-    return math.acos(min(1.0, max(-1.0, 0.5 * (float(np.trace(R)) - 1.0))))
