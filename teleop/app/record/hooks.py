@@ -1,16 +1,17 @@
-"""The recorder's hooks: each side's tick copied into its ring, for the writer's thread to write.
+"""The recorder's hooks: each side's tick copied into its ring, for the writer to write.
 
     writer = RecordWriter(folder / "record.mcap", metadata={"scene": scene.name})
-    master.side.add_hooks(MasterRecorderMcap(writer))    # a master-side hook
-    slave.side.add_hooks(SlaveRecorderMcap(writer))      # a slave-side hook
+    master.side.add_hooks(MasterRecorderMcap(writer, side=master.side))    # a master-side hook
+    slave.side.add_hooks(SlaveRecorderMcap(writer, side=slave.side))       # a slave-side hook
     ... run ...
     writer.close()
 
 or, on the in-process loop, one loop hook for both: ``run_scene(scene, hooks=[LoopRecorderMcap(writer)])``.
 
-A hook's ``after_tick`` costs one ``np.concatenate`` of the side's arrays into a preallocated row
-of memory shared with the writer process (a few us a side; ``tools/record_bench.py`` measures it);
-it reads, it never changes the physics. The channels (frames: ``patient``
+A hook's ``after_tick`` copies the side's scalars (``struct``) and its arrays' bytes into the next
+row of a preallocated ring in memory shared with the writer (about 3 us a side, median, here;
+``tools/record_bench.py`` measures what it costs the tick); it reads, it never changes the
+physics. The channels (frames: ``patient``
 is the slave's world, ``master`` the master's workspace, placed in ``patient`` on ``/tf_static`` by
 the registration's rotation and offset; its scale, master:slave, is not a transform and is left out):
 
