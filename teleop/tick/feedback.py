@@ -43,6 +43,7 @@ from teleop.control.kernels import render_local_damping
 from teleop.control.mapping import Registration
 from teleop.dynamics.effects import total_wrench
 from teleop.dynamics.kernels.small import is_positive_definite
+from teleop.tick.kernels import lowpass
 from teleop.tick.messages import ContactFeedback
 from teleop.tick.ports import ToolState
 
@@ -89,14 +90,14 @@ class FeedbackPath:
             if self.local_damping and np.any(msg.damping_P):
                 self._take_model(msg)
         a = self.alpha
-        self.wrench_M = self.wrench_M + a * (self._target - self.wrench_M)
+        self.wrench_M = lowpass(self.wrench_M, self._target, a)
         if not self.local_damping:
             return self.wrench_M
-        self.offset_M = self.offset_M + a * (self._offset - self.offset_M)
-        if self._D is _ZERO66 and float(np.abs(self.damping_M).max()) <= _D_FLOOR:
+        self.offset_M = lowpass(self.offset_M, self._offset, a)
+        if self._D is _ZERO66 and (self.damping_M is _ZERO66 or float(np.abs(self.damping_M).max()) <= _D_FLOOR):
             self.damping_M = _ZERO66  # decayed after the contact ended: nothing left to render
         else:
-            self.damping_M = self.damping_M + a * (self._D - self.damping_M)
+            self.damping_M = lowpass(self.damping_M, self._D, a)
         return self.offset_M
 
     def _take_model(self, msg: ContactFeedback) -> None:

@@ -15,6 +15,8 @@ where it held.
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 
 #: silence within this of the timeout does not count (s): simulated ticks are float sums
@@ -36,7 +38,7 @@ class HeartbeatState:
         self.tick_late_s = 0.0  # set by a wall-clock run loop before each tick: its lateness (s)
         self.speed_lost_max = self.speed_lost_last = 0.0  # the side's speed while lost (m/s or rad/s)
         self.jump_after_resume_m = self.step_max_m = 0.0  # position step per tick (m)
-        self._prev: np.ndarray | None = None
+        self._prev: list[float] | None = None  # the last position (m), as floats
         self._since_resume = 10**9
 
     def silent(self, now_s: float, last_heard_s: float | None) -> bool:
@@ -65,13 +67,15 @@ class HeartbeatState:
         if self.lost:
             self.speed_lost_max, self.speed_lost_last = max(self.speed_lost_max, speed), speed
             self._since_resume = -1
+        now = np.asarray(p, dtype=float).tolist()
         if self._prev is not None:
-            step = float(np.linalg.norm(p - self._prev))
-            self.step_max_m = max(self.step_max_m, step)
-            if 0 <= self._since_resume < RESUME_WINDOW:
-                self.jump_after_resume_m = max(self.jump_after_resume_m, step)
+            step = math.dist(now, self._prev)
+            if step > self.step_max_m:
+                self.step_max_m = step
+            if 0 <= self._since_resume < RESUME_WINDOW and step > self.jump_after_resume_m:
+                self.jump_after_resume_m = step
         self._since_resume += 1
-        self._prev = np.array(p, dtype=float)
+        self._prev = now
 
     def summary(self) -> dict:
         return {"lost_events": self.events, "lost_ticks": self.ticks_lost, "resumed": self.resumed,

@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import math
 
+import numpy as np
 from numba import njit
 
 #: energy may run backwards by round-off only (J)
@@ -81,3 +82,14 @@ def pose_code(Rc, p, center, reach_m, has_last, p0, R0, R, dt_s, speed_m_s, rate
     if turn < math.pi and 0.5 * (tr - 1.0) < math.cos(turn):
         return 4
     return 0
+
+
+@njit(cache=True)
+def lowpass(y, target, alpha):
+    """One step of the first-order low-pass y + alpha (target - y), elementwise (any shape): a
+    new array, the arithmetic of numpy's ``y + alpha * (target - y)``."""
+    out = np.empty_like(y)
+    yf, tf, of = y.ravel(), target.ravel(), out.ravel()
+    for i in range(yf.size):
+        of[i] = yf[i] + alpha * (tf[i] - yf[i])
+    return out

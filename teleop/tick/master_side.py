@@ -26,6 +26,7 @@ below one), so neither the loss nor the resume steps the force and the tool does
 
 from __future__ import annotations
 
+import math
 from collections.abc import Sequence
 from time import perf_counter_ns
 from typing import Any
@@ -127,7 +128,7 @@ class MasterSide:
         if link is not None:
             self._send(i, t_s, link, lost)
         self.tick_ns = perf_counter_ns() - t0
-        self.heart.motion(self.state.p, float(np.linalg.norm(tool.qd)))
+        self.heart.motion(self.state.p, math.hypot(*tool.qd.tolist()))
         for h in self.hooks:
             h.after_tick(i, t_s, self)
         self.status = st if st != "ok" else st_m
@@ -214,11 +215,14 @@ class MasterSide:
 
 
 def _applicable(W: object) -> bool:
-    """A hand wrench the tool can step under: 6 finite numbers within PUSH_MAX."""
+    """A hand wrench the tool can step under: 6 finite numbers within PUSH_MAX (NaN fails every
+    comparison, so one pass on Python floats checks both)."""
     w = np.asarray(W, dtype=float)
-    if w.shape != (6,) or not np.all(np.isfinite(w)):
+    if w.shape != (6,):
         return False
-    return bool(np.abs(w[:3]).max() <= PUSH_MAX[0] and np.abs(w[3:]).max() <= PUSH_MAX[1])
+    f, m = PUSH_MAX
+    a, b, c, d, e, g = w.tolist()
+    return -f <= a <= f and -f <= b <= f and -f <= c <= f and -m <= d <= m and -m <= e <= m and -m <= g <= m
 
 
 class SetWrench:

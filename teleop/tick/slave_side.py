@@ -25,6 +25,7 @@ Plain arguments only: no scene, no runtime.
 
 from __future__ import annotations
 
+import math
 from collections.abc import Sequence
 from dataclasses import replace
 from time import perf_counter_ns
@@ -43,6 +44,8 @@ from teleop.tick.messages import ContactFeedback, ToolCommand
 from teleop.tick.plausible import CommandCheck, CommandLimits
 from teleop.tick.ports import Hook, SlaveEnd
 
+_Z3 = np.zeros(3)
+_Z3.flags.writeable = False
 #: the heartbeat's timeout when none is given (s): ``[link] heartbeat_ms``'s default
 HEARTBEAT_S = 0.02
 
@@ -82,6 +85,8 @@ class SlaveSide:
                  hooks: Sequence[Hook] = (), limits: CommandLimits | None = None) -> None:
         self.arm, self.reg, self.tissue = arm, registration, tissue
         self.tip_B = np.asarray(tip_B, dtype=float)
+        self._tip_at_origin = not self.tip_B.any()
+        self._written_damping = hasattr(tissue, "damping")  # the model writes its damping out
         self.guard, self.hooks = guard, list(hooks)
         self.heart = HeartbeatState(heartbeat_s)
         self.last_seq = 0              # the newest command taken (its seq)
@@ -136,7 +141,7 @@ class SlaveSide:
         self.tick_ns = perf_counter_ns() - t0
         st = self.state.status
         self.statuses[st] = self.statuses.get(st, 0) + 1
-        self.heart.motion(self.state.p, float(np.linalg.norm(self.arm.qd)))
+        self.heart.motion(self.state.p, math.hypot(*self.arm.qd.tolist()))
         for h in self.hooks:
             h.after_tick(i, t_s, self)
         return reply
@@ -219,18 +224,23 @@ class SlaveSide:
         s.status = status
         p, R = self.arm.tool_pose()
         v, w = self.arm.tool_twist()
-        d = R @ self.tip_B
-        tip = p + d
-        contact = self.tissue.wrench(tip, R, v + cross(w, d), w) if self.tissue is not None else np.zeros(6)
+        if self._tip_at_origin:  # the shipped scalpels: the blade tip is the tool frame's origin
+            d, tip, v_tip = _Z3, p, v
+        else:
+            d = R @ self.tip_B
+            tip, v_tip = p + d, v + cross(w, d)
+        contact = self.tissue.wrench(tip, R, v_tip, w) if self.tissue is not None else np.zeros(6)
         s.p_t, s.R_t, s.p, s.R, s.v, s.w, s.tip, s.contact_P = p_t, R_t, p, R, v, w, tip, contact
         s.ticks += 1
         at_origin = contact.copy()
-        at_origin[3:] += cross(d, contact[:3])  # the tip's wrench moved to the tool frame origin
-        twist = np.concatenate((v, w))
+        if not self._tip_at_origin:
+            at_origin[3:] += cross(d, contact[:3])  # the tip's wrench moved to the tool frame origin
+        twist = np.empty(6)
+        twist[:3], twist[3:] = v, w
         damping = None
         if self.tissue is not None and contact.any():  # the contact's damping, for the master to render
-            if hasattr(self.tissue, "damping"):  # written out by the model
-                damping = moved_to_origin(self.tissue.damping(tip, R, v + cross(w, d), w), d)
+            if self._written_damping:  # written out by the model
+                damping = moved_to_origin(self.tissue.damping(tip, R, v_tip, w), d)
             else:
                 damping = contact_damping(lambda V: self._wrench_at_origin(tip, R, d, V), twist)
         self._seq += 1
