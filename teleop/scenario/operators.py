@@ -10,6 +10,7 @@ Both return a world wrench (6,: N, N*m) at the tool origin for the virtual tool'
 from __future__ import annotations
 
 import math
+from bisect import bisect_right
 
 from abc import ABC, abstractmethod
 
@@ -93,6 +94,7 @@ class VirtualHand(Operator):
         self.base = base
         wp = np.array(spec.waypoints, dtype=float)
         self.times, self.points = wp[:, 0], wp[:, 1:4]
+        self._times = self.times.tolist()  # for bisect: a Python search per tick, not a numpy call
         self.tremor_on = tremor and spec.tremor_amplitude_m > 0
         n = 5  # components spread over the physiological band
         self.freqs = rng.uniform(spec.tremor_band_hz[0], spec.tremor_band_hz[1], n)
@@ -107,7 +109,7 @@ class VirtualHand(Operator):
             return self.points[0].copy()
         if t >= ts[-1]:
             return self.points[-1].copy()
-        i = int(np.searchsorted(ts, t, side="right")) - 1
+        i = bisect_right(self._times, t) - 1
         a = (t - ts[i]) / (ts[i + 1] - ts[i])
         return (1.0 - a) * self.points[i] + a * self.points[i + 1]
 
@@ -115,7 +117,7 @@ class VirtualHand(Operator):
         ts = self.times
         if t <= ts[0] or t >= ts[-1]:
             return np.zeros(3)
-        i = int(np.searchsorted(ts, t, side="right")) - 1
+        i = bisect_right(self._times, t) - 1
         return (self.points[i + 1] - self.points[i]) / (ts[i + 1] - ts[i])
 
     def tremor(self, t: float) -> np.ndarray:
