@@ -181,11 +181,14 @@ class SlaveBuild:
         return out
 
 
-def build_master(scene: Scene, n: int, rng: np.random.Generator, operator=None, networked: bool = False) -> MasterBuild:
+def build_master(scene: Scene, n: int, rng: np.random.Generator, operator=None, networked: bool = False,
+                 record=None) -> MasterBuild:
     """The master side of ``scene`` for a run of ``n`` ticks: its tool, master (ideal or cobot),
     operator (the scene's, or ``operator``), feedback path (with a [slave]), the guard's master port
     when the link is guarded (``networked``: the link crosses a network) and the scene's heartbeat,
-    with its recorder and metrics as hooks. Draws from ``rng`` in a fixed order (operator, master)."""
+    with its recorder and metrics as hooks, and, given a ``record`` (a
+    :class:`~teleop.app.record.RecordWriter`), every tick on record. Draws from ``rng`` in a fixed
+    order (operator, master)."""
     tool = build_tool(scene)
     spec_M = master_fixture_spec(scene)
     if operator is None:
@@ -203,10 +206,14 @@ def build_master(scene: Scene, n: int, rng: np.random.Generator, operator=None, 
     hooks = [recorder, metrics, energy] + ([glog] if glog is not None else [])
     side = MasterSide(tool, master, operator, scene.dt_s, feedback, guard[0] if guard else None,
                       scene.link.heartbeat_ms * 1e-3, hooks)
+    if record is not None:
+        from teleop.app.record import MasterRecorderMcap
+
+        side.add_hooks(MasterRecorderMcap(record, side=side))
     return MasterBuild(side, recorder, metrics, energy, reg, glog)
 
 
-def build_slave(scene: Scene, n: int, networked: bool = False) -> SlaveBuild | None:
+def build_slave(scene: Scene, n: int, networked: bool = False, record=None) -> SlaveBuild | None:
     """The slave side of ``scene`` (None without a [slave] table), placed where the scene's tool
     starts, with the guard's slave port when the link is guarded, and its metrics as hooks."""
     if scene.slave is None:
@@ -222,6 +229,10 @@ def build_slave(scene: Scene, n: int, networked: bool = False) -> SlaveBuild | N
     recorder = SlaveRecorder(n)
     glog = GuardRecorder(n, "slave") if guard is not None else None
     side.add_hooks(metrics, recorder, *([glog] if glog is not None else []))
+    if record is not None:
+        from teleop.app.record import SlaveRecorderMcap
+
+        side.add_hooks(SlaveRecorderMcap(record, side=side))
     return SlaveBuild(side, metrics, recorder, glog)
 
 

@@ -30,7 +30,7 @@ class _ViewHook(Hook):
 
 
 def run_scene(scene: Scene, progress=None, realtime: bool = False, operator=None, view=None, hooks=(),
-              status_line=None, simulated_link: bool | None = None) -> RunResult:
+              status_line=None, simulated_link: bool | None = None, record=None) -> RunResult:
     """Run a scene. ``operator`` replaces the scene's (e.g. a keyboard; one with ``stats()`` adds
     them to the summary as "operator"); ``view`` gets every tick and throttles itself;
     ``progress(i, n)`` is called every 1000 ticks; ``hooks`` more loop :class:`~teleop.tick.ports.Hook` s,
@@ -38,11 +38,12 @@ def run_scene(scene: Scene, progress=None, realtime: bool = False, operator=None
     session); ``simulated_link`` forces the link (:func:`make_link`: True, the simulated channel of
     the scene's [link] table even when it asks for nothing, as the fault campaign's link loss
     needs). The scene's ``heartbeat_ms`` watches a link that can lose messages
-    (:mod:`teleop.tick.heartbeat`)."""
+    (:mod:`teleop.tick.heartbeat`). ``record``: a :class:`~teleop.app.record.RecordWriter` both
+    sides write every tick to (the caller opens and closes it)."""
     n = tick_count(scene.duration_s, scene.dt_s)  # refuses a run past MAX_TICKS before building anything
     rng = np.random.default_rng(scene.seed)
-    mb = build_master(scene, n, rng, operator)
-    sb = build_slave(scene, n)
+    mb = build_master(scene, n, rng, operator, record=record)
+    sb = build_slave(scene, n, record=record)
     link = make_link(scene, rng, simulated_link) if sb is not None else None
     loop_hooks: list[Hook] = []
     tremor = None
