@@ -42,6 +42,8 @@ def add_subcommands(sub) -> None:
                             "authenticated but not encrypted: use a tls/ endpoint instead)")
         p.add_argument("--no-pin", dest="pin", action="store_false",
                        help="do not pin this side to a core of its own (pinned, it spins instead of sleeping)")
+        p.add_argument("--record", metavar="PATH", help="every tick of this side to an MCAP file (default with --out: "
+                                                         f"OUT/{role}.mcap)")
         p.add_argument("--part", help=argparse_suppress())
         p.set_defaults(func=cmd_side, role=role, link="zenoh")
 
@@ -133,7 +135,8 @@ def _side(args, stop) -> int:
             scene = with_capture(scene, folder, capture)
         if args.role == "slave" and scene.slave is None:
             raise ConfigError(f"{scene.path}: slave: the scene has no [slave] table: nothing to run on this side")
-        trust = dict(keys=side_keys(args, args.role), allow_plaintext_network=args.allow_plaintext_network)
+        trust = dict(keys=side_keys(args, args.role), allow_plaintext_network=args.allow_plaintext_network,
+                     record=args.record or (folder.path(f"{args.role}.mcap") if folder is not None else None))
         run = (run_slave(scene, listen=args.endpoint, session=args.session, timeout_s=args.timeout, config_json5=extra,
                          pin=args.pin, stop=stop, **trust) if args.role == "slave" else
                run_master(scene, connect=args.endpoint, session=args.session, timeout_s=args.timeout,
@@ -151,7 +154,7 @@ def _side(args, stop) -> int:
     return _report(result.summary, args, json_path, f"{args.role}: ")
 
 
-def cmd_run_zenoh(scene, quiet: bool = False):
+def cmd_run_zenoh(scene, quiet: bool = False, record_dir=None):
     """``teleop run SCENE --link zenoh``: the slave and the master as two child processes on a
     free loopback port, each running ``scene`` (written resolved for them); their two runs merged
     into one (:func:`teleop.app.netrun.merge`). A side whose process dies is judged by the other
@@ -166,8 +169,9 @@ def cmd_run_zenoh(scene, quiet: bool = False):
         path = save_scene_copy(scene, tmp)
         py = [sys.executable, "-m", "teleop"]
         common = ["--part", tmp, "-q", "--pairing-key", str(key_file)]  # the parent prints the one summary
-        slave = subprocess.Popen(py + ["slave", str(path), "--listen", ep] + common)
-        master = subprocess.Popen(py + ["master", str(path), "--connect", ep] + common)
+        rec = {r: (["--record", str(Path(record_dir) / f"{r}.mcap")] if record_dir else []) for r in ("slave", "master")}
+        slave = subprocess.Popen(py + ["slave", str(path), "--listen", ep] + common + rec["slave"])
+        master = subprocess.Popen(py + ["master", str(path), "--connect", ep] + common + rec["master"])
         codes = _wait_pair(master, slave, scene.duration_s + PAIR_MARGIN_S)
         sides = {k: load_side(tmp, k) for k in codes}
         why = ", ".join(f"{k} process exit {c}" for k, c in codes.items()

@@ -29,7 +29,7 @@ import math
 import os
 import socket
 import time
-from contextlib import nullcontext
+from contextlib import contextmanager, nullcontext
 from dataclasses import asdict, replace
 
 import numpy as np
@@ -212,6 +212,23 @@ def _start_pose(scene: Scene):
     return build_tool(scene).pose()
 
 
+@contextmanager
+def _recording(path, scene: Scene, role: str):
+    """This side's MCAP writer at ``path`` (None: no record), paced for the wall clock (its file
+    written after the run, off the tick's core), closed however the run ends."""
+    if path is None:
+        yield None
+        return
+    from teleop.app.record import RecordWriter
+
+    writer = RecordWriter(path, realtime=True, metadata={"scene": scene.name, "seed": scene.seed, "side": role,
+                                                         "master": scene.master})
+    try:
+        yield writer
+    finally:
+        writer.close()
+
+
 def _own_stop(stop):
     """The caller's stop flag (set by its own Ctrl-C handler), or one of this side's own."""
     return nullcontext(stop) if stop is not None else _stop_requests()
@@ -219,23 +236,23 @@ def _own_stop(stop):
 
 def run_master(scene: Scene, connect: str | None, listen: str | None = None, session: str = "default",
                timeout_s: float = CONNECT_TIMEOUT_S, config_json5: dict | None = None, pin: bool = True,
-               stop=None, *, keys, allow_plaintext_network: bool = False) -> tuple[SideRun, dict]:
+               stop=None, *, keys, allow_plaintext_network: bool = False, record=None) -> tuple[SideRun, dict]:
     """The master process: its side ticked on the wall clock over Zenoh. Returns its run and its
     metrics. ``config_json5``: extra Zenoh settings (TLS, see :mod:`teleop.link.zenoh_link`);
     ``pin``: :func:`claim_core`. Ctrl-C or SIGTERM at any point (warm-up, connection, ticks) ends
     it with status "interrupted" and what it ran."""
-    with _own_stop(stop) as stop:
+    with _own_stop(stop) as stop, _recording(record, scene, "master") as writer:
         return _run_master(scene, connect, listen, session, timeout_s, config_json5, pin, stop, keys,
-                           allow_plaintext_network)
+                           allow_plaintext_network, writer)
 
 
 def _run_master(scene, connect, listen, session, timeout_s, config_json5, pin, stop, keys,
-                allow_plaintext_network) -> tuple[SideRun, dict]:
+                allow_plaintext_network, writer=None) -> tuple[SideRun, dict]:
     n = tick_count(scene.duration_s, scene.dt_s)
     core = claim_core("master") if pin else None
     spin_s = math.inf if core is not None else PACE_SPIN_S
     warm_up(scene, "master")
-    mb = build_master(scene, n, np.random.default_rng(scene.seed), networked=True)
+    mb = build_master(scene, n, np.random.default_rng(scene.seed), networked=True, record=writer)
     side, dt = mb.side, scene.dt_s
     link = _linked("master", stop, session, listen, connect, timeout_s, config_json5, keys, allow_plaintext_network)
     if isinstance(link, SideRun):
@@ -275,25 +292,25 @@ def _run_master(scene, connect, listen, session, timeout_s, config_json5, pin, s
 
 def run_slave(scene: Scene, listen: str | None, connect: str | None = None, session: str = "default",
               timeout_s: float = CONNECT_TIMEOUT_S, config_json5: dict | None = None, pin: bool = True,
-              stop=None, *, keys, allow_plaintext_network: bool = False) -> tuple[SideRun, dict]:
+              stop=None, *, keys, allow_plaintext_network: bool = False, record=None) -> tuple[SideRun, dict]:
     """The slave process: its side ticked as the master's commands come. Returns its run and its
     metrics; ``pin``: :func:`claim_core`. Ctrl-C or SIGTERM at any point ends it with status
     "interrupted" and what it ran."""
     if scene.slave is None:
         raise TeleopError(f"{scene.path}: slave: the scene has no [slave] table: nothing to run on this side")
-    with _own_stop(stop) as stop:
+    with _own_stop(stop) as stop, _recording(record, scene, "slave") as writer:
         return _run_slave(scene, listen, connect, session, timeout_s, config_json5, pin, stop, keys,
-                          allow_plaintext_network)
+                          allow_plaintext_network, writer)
 
 
 def _run_slave(scene, listen, connect, session, timeout_s, config_json5, pin, stop, keys,
-               allow_plaintext_network) -> tuple[SideRun, dict]:
+               allow_plaintext_network, writer=None) -> tuple[SideRun, dict]:
     core = claim_core("slave") if pin else None
     poll_s = 0.0 if core is not None else POLL_S
     n = tick_count(scene.duration_s, scene.dt_s)
     cap = n + int(round(GRACE_S / scene.dt_s)) + 1
     warm_up(scene, "slave")
-    sb = build_slave(scene, cap, networked=True)
+    sb = build_slave(scene, cap, networked=True, record=writer)
     side, dt = sb.side, scene.dt_s
     link = _linked("slave", stop, session, listen, connect, timeout_s, config_json5, keys, allow_plaintext_network)
     if isinstance(link, SideRun):
