@@ -162,7 +162,7 @@ def figures(rtt: np.ndarray, warmup: int) -> dict:
     """p50/p90/p99/max round trip (ms) and frames lost, the first ``warmup`` left out."""
     r = rtt[warmup:]
     ok = r[~np.isnan(r)] * 1e3
-    out = {"frames": int(len(r)), "lost": int(len(r) - len(ok))}
+    out = {"frames": len(r), "lost": int(len(r) - len(ok))}
     if len(ok):
         p50, p90, p99 = np.percentile(ok, [50, 90, 99])
         out.update(p50_ms=float(p50), p90_ms=float(p90), p99_ms=float(p99), max_ms=float(ok.max()))

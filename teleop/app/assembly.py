@@ -22,16 +22,17 @@ from teleop.contact.cutting import CuttingModel
 from teleop.dynamics.constraints import RemoteCenter
 from teleop.link import ChannelSpec, LockstepLink, SimulatedChannel
 from teleop.master import CobotMaster, IdealMaster
-from teleop.slave import SlaveArm
 from teleop.scenario.build import build_fixture, build_registration, build_tool, master_fixture_spec
 from teleop.scenario.operators import make_operator
 from teleop.scenario.schema import FixtureSpec, Scene
+from teleop.slave import SlaveArm
 from teleop.tick.feedback import FeedbackPath
 from teleop.tick.guard import MasterGuard, SlaveGuard, tdpa_params
 from teleop.tick.master_side import MasterSide
 from teleop.tick.plausible import CommandLimits
 from teleop.tick.slave_side import SlaveSide
 from teleop.util.errors import ConfigError, SceneError
+
 
 def make_master(scene: Scene, tool, rng: np.random.Generator):
     """The scene's master: the ideal one, or the cobot with only the device effects it names."""

@@ -74,11 +74,11 @@ class Workspace:
         """The distance (m) from ``p`` to the nearest face: positive inside, negative outside."""
         return float(self.distances(p).min())
 
-    def shrunk(self, by: float) -> "Workspace":
+    def shrunk(self, by: float) -> Workspace:
         """The box ``by`` m inside this one on every face (never thinner than nothing)."""
         return Workspace(self.center, self.axes, np.maximum(self.half - by, 0.0))
 
-    def grown_to(self, p, by: float) -> "Workspace":
+    def grown_to(self, p, by: float) -> Workspace:
         """The smallest box with the same axes holding this one and the ball of radius ``by`` at p."""
         u = self.axes.T @ (np.asarray(p, float) - self.center)
         lo, hi = np.minimum(-self.half, u - by), np.maximum(self.half, u + by)

@@ -11,11 +11,11 @@ from abc import ABC, abstractmethod
 
 import numpy as np
 
+from teleop.app.recorders import Columns
 from teleop.dynamics.rotations import cross
 from teleop.dynamics.rows import RowStack
-from teleop.tick.ports import Hook
 from teleop.scenario.schema import FixtureSpec
-from teleop.app.recorders import Columns
+from teleop.tick.ports import Hook
 
 #: Rolling-error regulariser of Figure 8 D: 1 mm/s.
 ROLLING_EPS_M_S = 1e-3

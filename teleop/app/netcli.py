@@ -121,7 +121,7 @@ def cmd_side(args) -> int:
 def _side(args, stop) -> int:
     from teleop.app.args import scene_for
     from teleop.app.netrun import run_master, run_slave, save_side, side_result
-    from teleop.app.outputs import RunFolder, check_json_target, write_json
+    from teleop.app.outputs import RunFolder, check_json_target
 
     refuse_over_zenoh(args)
     scene, capture = scene_for(args)
@@ -160,8 +160,8 @@ def cmd_run_zenoh(scene, quiet: bool = False, record_dir=None):
     into one (:func:`teleop.app.netrun.merge`). A side whose process dies is judged by the other
     (a lost peer: status ``link_lost``); Ctrl-C stops both between ticks and keeps what they ran."""
     from teleop.app.netrun import free_endpoint, load_side, merge
-    from teleop.link.keys import one_run_keys
     from teleop.app.view_bridge import save_scene_copy
+    from teleop.link.keys import one_run_keys
 
     ep = free_endpoint()
     key_file, _, _ = one_run_keys()  # a key for this run's two children only, in a private folder

@@ -35,8 +35,18 @@ from dataclasses import asdict, replace
 import numpy as np
 
 from teleop.app.assembly import build_master, build_slave, exempt_metrics
-from teleop.app.session import (_YIELD, PACE_SPIN_S, RunResult, Session, SideRun, _fine_timer_slack, _pace,
-                                _stop_requests, tick_count, tick_stats)
+from teleop.app.session import (
+    _YIELD,
+    PACE_SPIN_S,
+    RunResult,
+    Session,
+    SideRun,
+    _fine_timer_slack,
+    _pace,
+    _stop_requests,
+    tick_count,
+    tick_stats,
+)
 from teleop.scenario.schema import Scene
 from teleop.tick.messages import ContactFeedback, ToolCommand
 from teleop.util.errors import TeleopError

@@ -9,14 +9,22 @@ from __future__ import annotations
 
 import numpy as np
 
-from teleop.app.assembly import build_master, build_slave, exempt_metrics, make_guard, make_link, make_master, make_slave
+from teleop.app.assembly import (
+    build_master,
+    build_slave,
+    exempt_metrics,
+    make_guard,
+    make_link,
+    make_master,
+    make_slave,
+)
 from teleop.app.metrics import TremorProbe
 from teleop.app.session import RunResult, Session, tick_count
 from teleop.scenario.schema import FixtureSpec, Scene
 from teleop.tick.loop import BilateralLoop
 from teleop.tick.ports import Hook
 
-__all__ = ["run_scene", "make_master", "make_slave", "make_link", "make_guard", "RunResult"]
+__all__ = ["RunResult", "make_guard", "make_link", "make_master", "make_slave", "run_scene"]
 
 
 class _ViewHook(Hook):

@@ -31,7 +31,6 @@ import numpy as np
 from dask.distributed import Client, LocalCluster, as_completed
 from tqdm import tqdm
 
-
 #: no dashboard; the scheduler's small HTTP server (health checks) on a free port of 127.0.0.1
 #: rather than 8787, which another cluster may hold (a warning on every run)
 QUIET_SCHEDULER = {"dashboard": False, "dashboard_address": "127.0.0.1:0"}

@@ -18,11 +18,11 @@ from pathlib import Path
 import numpy as np
 import tomli_w
 
-from teleop.util.errors import ConfigError
-from teleop.util.inputs import plain
 from teleop.scenario.build import master_fixture_spec, master_frame
 from teleop.scenario.schema import Scene, load_scene
 from teleop.scenario.tables import CustomFixture
+from teleop.util.errors import ConfigError
+from teleop.util.inputs import plain
 from teleop.util.typed import as_table
 
 #: the files a run folder holds for the viewer

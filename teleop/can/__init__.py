@@ -7,5 +7,7 @@ from teleop.can.capture import Capture
 from teleop.can.confinement import ErrorCounters
 from teleop.can.faults import Faults
 
-__all__ = ["BusModel", "BusTiming", "compute_cycle_load_pct", "compute_frame_time_s", "Capture", "ErrorCounters",
-           "Faults"]
+__all__ = [
+    "BusModel", "BusTiming", "Capture", "ErrorCounters", "Faults", "compute_cycle_load_pct",
+    "compute_frame_time_s",
+]

@@ -45,7 +45,7 @@ class Faults:
         object.__setattr__(self, key, v)
 
     @classmethod
-    def from_dict(cls, d: dict, where: str = "faults") -> "Faults":
+    def from_dict(cls, d: dict, where: str = "faults") -> Faults:
         check_table(d, where, {f.name for f in fields(cls)}, "fault", "a table of fault settings")
         try:
             return cls(**d)

@@ -21,7 +21,7 @@ import can
 from can.bus import LOG as _LOG  # python-can's own receive log
 
 #: open buses per channel name
-_CHANNELS: dict[str, list["LockstepBus"]] = {}
+_CHANNELS: dict[str, list[LockstepBus]] = {}
 
 
 class LockstepBus(can.BusABC):

@@ -75,7 +75,7 @@ class TissueBlock(Checked):
                          self.alpha_s_per_m, self.damping_Ns_per_m, *self.cutting.law_params()], dtype=float)
 
     @classmethod
-    def from_dict(cls, d: dict, where: str = "tissue") -> "TissueBlock":
+    def from_dict(cls, d: dict, where: str = "tissue") -> TissueBlock:
         """Build from a plain table through the one validator (errors name ``where.key``)."""
         return validate(cls, d, "", where)
 

@@ -3,4 +3,4 @@
 from teleop.control.admittance import AdmittanceController, AdmittanceGains, Phi
 from teleop.control.clutch import Clutch
 
-__all__ = ["AdmittanceController", "AdmittanceGains", "Phi", "Clutch"]
+__all__ = ["AdmittanceController", "AdmittanceGains", "Clutch", "Phi"]

@@ -89,7 +89,7 @@ class Phi:
         """Inverse of :meth:`wrench_to_virtual`: a wrench at the tool origin -> at the handle."""
         return self._maps[3] @ F_V
 
-    def reindexed(self, p_H, R_H, p_V, R_V) -> "Phi":
+    def reindexed(self, p_H, R_H, p_V, R_V) -> Phi:
         """The same scale with the offset that maps the handle pose exactly onto (p_V, R_V)."""
         R_off = R_V @ np.asarray(R_H).T
         return Phi(self.scale, np.asarray(p_V) - self.scale * (R_off @ p_H), R_off)

@@ -5,4 +5,4 @@ from teleop.dynamics.fixtures import Fixture
 from teleop.dynamics.integrators import INTEGRATORS
 from teleop.dynamics.tool import ReferenceTool
 
-__all__ = ["RigidBody", "Fixture", "INTEGRATORS", "ReferenceTool"]
+__all__ = ["INTEGRATORS", "Fixture", "ReferenceTool", "RigidBody"]

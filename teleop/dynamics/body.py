@@ -61,7 +61,7 @@ class Kinematics:
     w_B (3,) rad/s body, E_W = R E_B (3, 3).
     """
 
-    __slots__ = ("p", "R", "E_B", "Edq", "v", "w", "w_B", "E_W")
+    __slots__ = ("E_B", "E_W", "Edq", "R", "p", "v", "w", "w_B")
 
     def __init__(self, chart: EulerChart, q: np.ndarray, qd: np.ndarray):
         R, E_B, Edq = rate_map(chart, q[3:], qd[3:])

@@ -43,7 +43,7 @@ class Fixture:
     def nonholonomic(self) -> tuple:
         return tuple(c for c in self.constraints if not c.holonomic)
 
-    def with_extra(self, *extra) -> "Fixture":
+    def with_extra(self, *extra) -> Fixture:
         """The same fixture with more rows (e.g. a duplicated row); keeps the parametrization."""
         return Fixture(self.name, self.constraints + tuple(extra), self.parametrization, self.chart)
 

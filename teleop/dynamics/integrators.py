@@ -23,14 +23,13 @@ from abc import ABC, abstractmethod
 from dataclasses import dataclass
 
 import numpy as np
-
 import pinocchio as pin
 
 from teleop.dynamics.body import Kinematics
 from teleop.dynamics.kernels.motion import energy_scale, flat_advance, left_pinv, split_end, split_twist
 from teleop.dynamics.kernels.steps import flat_parametric_step, flat_split_step
-from teleop.dynamics.multipliers import RANK_RTOL
 from teleop.dynamics.model import ConstrainedBody
+from teleop.dynamics.multipliers import RANK_RTOL
 from teleop.dynamics.rotations import EulerChart, chart_conditioning, euler_from_rotation, rechart
 from teleop.util.errors import ConfigError
 

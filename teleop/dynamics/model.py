@@ -54,7 +54,7 @@ class PoseTerms:
     views costs about 1.5 us, more than a fused step reads of them). ``chart`` and ``q`` are the
     objects they were computed for (the cache's key)."""
 
-    __slots__ = ("chart", "q", "p", "R", "terms")
+    __slots__ = ("R", "chart", "p", "q", "terms")
 
     def __init__(self, chart, q, terms):
         self.chart, self.q, self.p, self.terms, self.R = chart, q, q[:3], terms, terms[0]
@@ -85,7 +85,7 @@ class Evaluation:
     that started with this evaluation, (9,): :func:`kernels.steps.end_checks`'s (total, v2, w2),
     then the world twist nu (6,: m/s, rad/s)."""
 
-    __slots__ = ("qdd", "nudot", "lam", "rank", "wrench_W", "constraint_wrench_W", "pose", "end")
+    __slots__ = ("constraint_wrench_W", "end", "lam", "nudot", "pose", "qdd", "rank", "wrench_W")
 
     def __init__(self, qdd, nudot, lam, rank, wrench_W, constraint_wrench_W, pose, end=None):
         self.qdd, self.nudot, self.lam, self.rank = qdd, nudot, lam, rank

@@ -40,7 +40,7 @@ class FrameMap:
     scale: float = 1.0
 
     @staticmethod
-    def identity() -> "FrameMap":
+    def identity() -> FrameMap:
         return FrameMap(np.eye(3), np.zeros(3), 1.0)
 
     def point(self, x) -> np.ndarray:

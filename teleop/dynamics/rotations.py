@@ -94,7 +94,7 @@ class EulerChart:
         """Angles (rad) farthest from the chart's singularity: where re-charting lands."""
         return np.array([0.0, math.pi / 2, 0.0]) if self.proper else np.zeros(3)
 
-    def with_R0(self, R0: np.ndarray) -> "EulerChart":
+    def with_R0(self, R0: np.ndarray) -> EulerChart:
         return EulerChart(self.sequence, R0)
 
 

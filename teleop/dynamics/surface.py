@@ -23,6 +23,7 @@ from scipy.interpolate import RectBivariateSpline
 from teleop.dynamics.kernels import surface as SK
 from teleop.util.errors import ConfigError
 
+
 class HeightSurface:
     """A spline height field ``heights[i][j] = f(x[i], y[j])`` (m) placed by (origin, Q, scale).
 
@@ -58,7 +59,7 @@ class HeightSurface:
                      int(degree))
         self.bounds = (x[0], x[-1], y[0], y[-1])
 
-    def placed(self, origin, Q, scale: float) -> "HeightSurface":
+    def placed(self, origin, Q, scale: float) -> HeightSurface:
         """The same spline placed by another frame (e.g. the master's)."""
         return HeightSurface(self.x, self.y, self.heights, origin, Q, scale, self.degree)
 

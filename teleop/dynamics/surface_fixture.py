@@ -34,11 +34,18 @@ import numpy as np
 
 from teleop.dynamics.constraints import Constraint, KnifeEdge
 from teleop.dynamics.fixtures import Fixture
+from teleop.dynamics.kernels import surface as SK
 from teleop.dynamics.parametrizations import Parametrization, plane_frame
 from teleop.dynamics.registry import FrameMap, register_fixture
-from teleop.dynamics.rotations import (EulerChart, axis_rotation, cross, euler_from_rotation, inverse3,
-                                       rate_map, rotation)
-from teleop.dynamics.kernels import surface as SK
+from teleop.dynamics.rotations import (
+    EulerChart,
+    axis_rotation,
+    cross,
+    euler_from_rotation,
+    inverse3,
+    rate_map,
+    rotation,
+)
 from teleop.dynamics.surface import HeightSurface
 from teleop.util.errors import ConfigError
 from teleop.util.typed import setting

@@ -3,10 +3,13 @@
 ``ZenohLink`` lives in :mod:`teleop.link.zenoh_link` (imports zenoh); the wire format in
 :mod:`teleop.link.wire`."""
 
+from teleop.control.passivity import MasterPassivity, PortLog, SlavePassivity, TdpaParams, compute_port_energy
 from teleop.link.base import Link, LockstepLink, Mailbox
 from teleop.link.channel import ChannelSpec, SimulatedChannel
-from teleop.control.passivity import MasterPassivity, PortLog, SlavePassivity, TdpaParams, compute_port_energy
 from teleop.tick.messages import SLAVE_STATUSES, ContactFeedback, MessageError, ToolCommand
 
-__all__ = ["Link", "LockstepLink", "Mailbox", "ChannelSpec", "SimulatedChannel",
-           "TdpaParams", "MasterPassivity", "SlavePassivity", "PortLog", "compute_port_energy", "ToolCommand", "ContactFeedback", "MessageError", "SLAVE_STATUSES"]
+__all__ = [
+    "SLAVE_STATUSES", "ChannelSpec", "ContactFeedback", "Link", "LockstepLink", "Mailbox", "MasterPassivity",
+    "MessageError", "PortLog", "SimulatedChannel", "SlavePassivity", "TdpaParams", "ToolCommand",
+    "compute_port_energy",
+]

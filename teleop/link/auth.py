@@ -134,8 +134,8 @@ class LinkAuth:
         if head.kind in self._in:
             s = self._session_of(head, data, now_s)
             return s if isinstance(s, str) else self._take(head, data, s)
-        if head.session != 0 or not (head.kind == wire.TYPE_HELLO and isinstance(p, SlavePairing) or head.kind in (
-                wire.TYPE_WELCOME, wire.TYPE_REFUSE) and isinstance(p, MasterPairing)):
+        if head.session != 0 or not ((head.kind == wire.TYPE_HELLO and isinstance(p, SlavePairing)) or (head.kind in (
+                wire.TYPE_WELCOME, wire.TYPE_REFUSE) and isinstance(p, MasterPairing))):
             return "malformed"  # not a frame this side receives
         if not wire.verified(data, p.mac):
             return "bad_mac"

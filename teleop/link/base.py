@@ -64,7 +64,7 @@ class Mailbox:
     """The newest in-order message of one direction: keeps the highest sequence number delivered,
     and refuses anything not newer (a reordered or duplicated message is counted and dropped)."""
 
-    __slots__ = ("pending", "last_seq", "delivered", "dropped_old")
+    __slots__ = ("delivered", "dropped_old", "last_seq", "pending")
 
     def __init__(self):
         self.pending = None

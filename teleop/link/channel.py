@@ -40,10 +40,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from teleop.util.errors import ConfigError
 from teleop.link.base import Link, Mailbox
-from teleop.tick.messages import ContactFeedback, ToolCommand
 from teleop.link.wire import encoded_size
+from teleop.tick.messages import ContactFeedback, ToolCommand
+from teleop.util.errors import ConfigError
 
 #: arrival times within this of the receive time count as arrived (s): ticks are float sums
 _EPS_S = 1e-9

@@ -94,6 +94,6 @@ class CobotConfig(Checked):
             raise FieldError("heartbeat_timeout_s", "must exceed heartbeat_period_s")
 
     @classmethod
-    def from_dict(cls, d: dict, where: str = "cobot") -> "CobotConfig":
+    def from_dict(cls, d: dict, where: str = "cobot") -> CobotConfig:
         """Build from a plain table through the one validator (errors name ``where.key``)."""
         return validate(cls, d, "", where)

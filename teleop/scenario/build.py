@@ -12,8 +12,8 @@ from teleop.dynamics.effects import AngularDamper, Gravity, LinearDamper, Spring
 from teleop.dynamics.fixtures import Fixture
 from teleop.dynamics.registry import FrameMap
 from teleop.dynamics.tool import ReferenceTool
-from teleop.util.errors import ConfigError, DynamicsError, SceneError
 from teleop.scenario.schema import Scene
+from teleop.util.errors import ConfigError, DynamicsError, SceneError
 
 
 def build_body(scene: Scene) -> RigidBody:

@@ -10,9 +10,8 @@ Both return a world wrench (6,: N, N*m) at the tool origin for the virtual tool'
 from __future__ import annotations
 
 import math
-from bisect import bisect_right
-
 from abc import ABC, abstractmethod
+from bisect import bisect_right
 
 import numpy as np
 

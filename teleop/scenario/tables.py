@@ -194,7 +194,7 @@ class FixtureSpec(Checked):
     euler_sequence: str = setting("ZYX", check=lambda s: None if len(s) == 3 and set(s) <= set("XYZ") else
                                   f"expected three axes such as 'ZYX' (got {s!r})", doc="Euler chart of a free tool")
 
-    def mapped(self, frame: FrameMap) -> "FixtureSpec":
+    def mapped(self, frame: FrameMap) -> FixtureSpec:
         """The same fixture with its geometry placed by ``frame`` (points mapped, normals rotated,
         lengths and the tool-frame tip scaled): the patient-frame spec as the master sees it."""
         mapped = dict(plane_origin_m=tuple(frame.point(self.plane_origin_m)),
@@ -233,7 +233,7 @@ class CustomFixture:
     def tip_m(self) -> tuple:
         return tuple(getattr(self.params, "tip_m", (0.0, 0.0, 0.0)))
 
-    def mapped(self, frame: FrameMap) -> "CustomFixture":
+    def mapped(self, frame: FrameMap) -> CustomFixture:
         return self  # a user's type places its own geometry, in build(frame)
 
     def build(self, frame: FrameMap | None = None) -> Fixture:

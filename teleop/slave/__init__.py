@@ -7,6 +7,6 @@ from teleop.slave.qp import STATUSES, FollowerQP, SlaveArm, compute_target_twist
 from teleop.slave.solvers import installed_solvers, make_solver
 
 __all__ = [
-    "SlaveConfig", "SlaveArm", "FollowerQP", "JointLimits", "STATUSES", "build_model",
-    "compute_target_twist", "installed_solvers", "make_solver", "project_onto_fixture",
+    "STATUSES", "FollowerQP", "JointLimits", "SlaveArm", "SlaveConfig", "build_model", "compute_target_twist",
+    "installed_solvers", "make_solver", "project_onto_fixture",
 ]

@@ -21,11 +21,11 @@ import example_robot_data as erd
 import numpy as np
 import pinocchio as pin
 
+from teleop.slave.limits import JointLimits
+from teleop.slave.solvers import PACKAGES, installed_solvers
 from teleop.util.errors import ConfigError
 from teleop.util.inputs import plain, read_text
 from teleop.util.resources import robot_file
-from teleop.slave.limits import JointLimits
-from teleop.slave.solvers import PACKAGES, installed_solvers
 from teleop.util.typed import Checked, setting, validate
 
 SCALPEL_URDF = robot_file("scalpel/scalpel.urdf")
@@ -134,7 +134,7 @@ class SlaveConfig(Checked):
     kkt_shortcut: bool = setting(True, doc="try the bound-free KKT solve first")
 
     @classmethod
-    def from_dict(cls, d: dict, where: str = "slave") -> "SlaveConfig":
+    def from_dict(cls, d: dict, where: str = "slave") -> SlaveConfig:
         """Build from a plain table through the one validator (errors name ``where.key``)."""
         return validate(cls, d, "", where)
 

@@ -46,8 +46,8 @@ import math
 import numpy as np
 import pinocchio as pin
 
-from teleop.slave import kernels
 from teleop.dynamics.rows import RowStack
+from teleop.slave import kernels
 from teleop.slave.solvers import make_solver
 
 #: the tie-break weight on |qd - qd0|^2 (per (rad/s)^2) in the fixture-first stage, against 1 per

@@ -21,8 +21,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from teleop.util.errors import ConfigError
 from teleop.slave.kernels import at_position_limit, velocity_bounds
+from teleop.util.errors import ConfigError
 
 
 @dataclass(frozen=True, eq=False)

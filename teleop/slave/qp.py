@@ -12,10 +12,10 @@ import numpy as np
 import pinocchio as pin
 
 from teleop.dynamics.constraints import stack_residual
-from teleop.util.errors import ConfigError
 from teleop.slave.arm import build_model
 from teleop.slave.follower import FollowerQP, compute_target_twist
 from teleop.slave.kernels import advance_joints
+from teleop.util.errors import ConfigError
 
 __all__ = ["STATUSES", "FollowerQP", "SlaveArm", "compute_target_twist"]
 

@@ -47,7 +47,6 @@ from teleop.tick.kernels import lowpass
 from teleop.tick.messages import ContactFeedback
 from teleop.tick.ports import ToolState
 
-
 _ZERO66 = np.zeros((6, 6))
 _ZERO66.flags.writeable = False
 _EYE6 = np.eye(6)

@@ -32,10 +32,9 @@ from typing import Any
 import numpy as np
 
 from teleop.control.mapping import Registration
-
+from teleop.control.passivity import MasterPassivity, SlavePassivity, TdpaParams
 from teleop.dynamics.kernels.so3 import exp3
 from teleop.tick.messages import ContactFeedback, ToolCommand
-from teleop.control.passivity import MasterPassivity, SlavePassivity, TdpaParams
 
 _ZERO6 = np.zeros(6)
 

@@ -21,7 +21,6 @@ from teleop.tick.kernels import energy_code, pose_code, reply_code
 from teleop.tick.messages import ContactFeedback, ToolCommand
 
 
-
 @dataclass(frozen=True)
 class CommandLimits:
     """What a real master can ask of this slave (slave units, patient frame): targets within

@@ -59,7 +59,7 @@ class SlaveState:
     ``R`` and twist ``v``, ``w``; blade ``tip`` (m); ``contact_P`` the tissue wrench at the tip
     (6,: N, N*m); ``status`` of the follower."""
 
-    __slots__ = ("p_t", "R_t", "p", "R", "v", "w", "tip", "contact_P", "status", "ticks")
+    __slots__ = ("R", "R_t", "contact_P", "p", "p_t", "status", "ticks", "tip", "v", "w")
 
     def __init__(self) -> None:
         self.p_t = self.p = self.tip = np.zeros(3)

@@ -13,7 +13,7 @@ from importlib.resources import files
 from importlib.resources.abc import Traversable
 from pathlib import Path
 
-__all__ = ["scenario_dir", "scenario_files", "robot_dir", "robot_file"]
+__all__ = ["robot_dir", "robot_file", "scenario_dir", "scenario_files"]
 
 
 def _data(name: str) -> Traversable:

@@ -227,7 +227,7 @@ def _sequence(value, hint, meta, key):
 
 
 def _rules(out, meta, key, raw):
-    numbers = [out] if isinstance(out, float) or isinstance(out, int) and not isinstance(out, bool) else (
+    numbers = [out] if isinstance(out, float) or (isinstance(out, int) and not isinstance(out, bool)) else (
         [x for x in out if _is_number(x)] if isinstance(out, (tuple, np.ndarray)) else [])
     for b in (b for b in ("ge", "gt", "le", "lt") if b in meta):
         lim = meta[b]

@@ -9,29 +9,28 @@ from meshcat import geometry as g
 from pinocchio.visualize import meshcat_visualizer as pmv
 
 from teleop.util.errors import ConfigError
-
 from teleop.viz.shapes import (
+    COLORS,
+    FIXTURE_DRAWN,
+    TINY,
     VIEW_HEIGHT_M,
     VIEW_WIDTH_M,
-    COLORS,
-    TINY,
     Y_TO_Z,
     arrow_matrices,
     arrow_parts,
     contact_line_matrix,
     contact_line_part,
+    custom_fixture_parts,
     device_joint_part,
     fixture_parts,
     material,
     pose_matrix,
     scalpel_parts,
     segment_matrix,
-    tissue_parts,
     text_part,
+    tissue_parts,
     tool_parts,
     triad_parts,
-    custom_fixture_parts,
-    FIXTURE_DRAWN,
 )
 
 PITCH = np.radians(20.0)
@@ -160,8 +159,8 @@ class Drawing:
         # nodes that move: hidden until a frame places them
         groups = {p.rsplit("/", 1)[0] for p, _, _ in parts}
         self.moving = sorted(p for p, _, _ in parts if "/arrows/" in p)
-        self.moving += sorted(p for p in groups if p.count("/") == 1 and p.split("/")[1] in (
-            "reference", "virtual", "contact", "handle", "tool") or p.startswith(("slave/arm/", "master/device/visuals/")))
+        self.moving += sorted(p for p in groups if (p.count("/") == 1 and p.split("/")[1] in (
+            "reference", "virtual", "contact", "handle", "tool")) or p.startswith(("slave/arm/", "master/device/visuals/")))
         self.moving += sorted(p for p, _, _ in parts if p.startswith("master/device/link"))
         self.moving += sorted(p for p in groups if p.startswith("master/device/joint"))
         self.followed = ("master", "slave") if scene.follow else ()

@@ -360,7 +360,7 @@ class MeshcatView:
             thread.join(timeout=SOCKET_TIMEOUT_MS / 1000.0 + 1.0)
         self._finalizer()
 
-    def __enter__(self) -> "MeshcatView":
+    def __enter__(self) -> MeshcatView:
         return self
 
     def __exit__(self, *exc) -> None:

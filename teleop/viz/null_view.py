@@ -38,7 +38,7 @@ class NullView:
     def close(self) -> None:
         self.closed = True
 
-    def __enter__(self) -> "NullView":
+    def __enter__(self) -> NullView:
         return self
 
     def __exit__(self, *exc) -> None:

@@ -3,11 +3,11 @@
 import numpy as np
 import pytest
 
-from teleop.dynamics.kernels import motion
 from teleop.dynamics import fixtures
 from teleop.dynamics.body import RigidBody
 from teleop.dynamics.effects import AngularDamper, LinearDamper
 from teleop.dynamics.integrators import INTEGRATORS
+from teleop.dynamics.kernels import motion
 from teleop.dynamics.tool import ReferenceTool
 
 PAPER = RigidBody(0.25, [0.0025, 0.0025, 0.0025])
@@ -107,8 +107,6 @@ def test_a_misshapen_operator_wrench_is_dropped_by_every_integrator(integrator, 
 def test_no_operator_wrench_needs_no_second_compilation():
     """A step without an operator wrench runs the same compiled evaluation as one with it (a
     read-only zero wrench was a second numba type: a second compilation in mid-run)."""
-    from teleop.dynamics import kernels
-
     tool = _sphere_tool("parametric")
     tool.step(1e-3, np.zeros(6))
     n = len(motion.evaluate.signatures)

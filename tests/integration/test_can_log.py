@@ -7,6 +7,7 @@ import subprocess
 import sys
 
 import can
+
 from teleop.app.cli import main
 from teleop.master.cobot.database import DEFAULT_DBC, FrameDatabase
 

@@ -14,8 +14,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from teleop.util import inputs
 from teleop.app.cli import main
+from teleop.util import inputs
 
 SCENES = Path(__file__).parents[2] / "scenarios"
 

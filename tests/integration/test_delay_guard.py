@@ -4,9 +4,9 @@ and stays stable guarded at 200 ms; the cut keeps its depth at 1 s round trip wi
 import numpy as np
 import pytest
 
+from teleop.app.metrics import band_rms
 from teleop.app.plots import plot_log
 from teleop.app.runtime import run_scene
-from teleop.app.metrics import band_rms
 from teleop.scenario.schema import load_scene
 
 NOMINAL_N = 1.53  # the stiff contact's undelayed force: 400 N/m hand spring x 4 mm, by hand ~1.6 N

@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[2] / "tools"))
-import fault_campaign as fc  # noqa: E402  (a tool, not a package: imported from its folder)
+import fault_campaign as fc  # a tool, not a package: imported from its folder
 
 FAST = ("sensor_nan", "corrupted_frames", "slave_solver_failure", "slave_joint_limit", "link_loss")
 

@@ -6,15 +6,14 @@ issue 4's (the cut)."""
 import numpy as np
 import pytest
 
+from teleop.app.runtime import run_scene
 from teleop.dynamics import fixtures
 from teleop.dynamics.body import RigidBody
 from teleop.dynamics.tool import ReferenceTool
 from teleop.master import CobotConfig
-from tests.cobot_tick import make_cobot, tick
-
-from teleop.app.runtime import run_scene
 from teleop.scenario.schema import load_scene, parse_scene
 from teleop.util.typed import as_table
+from tests.cobot_tick import make_cobot, tick
 
 LIGHT = ["tool.mass_kg=0.05", "tool.inertia_kgm2=[0.0005, 0.0005, 0.0005]"]
 

@@ -4,7 +4,6 @@ out while the tool is held and ramps back in from zero after the resume, in one 
 the simulated channel alike (the same MasterSide and SlaveSide)."""
 
 import numpy as np
-import pytest
 
 from teleop.app.runtime import run_scene
 from teleop.scenario.schema import load_scene

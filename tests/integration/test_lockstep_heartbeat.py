@@ -7,9 +7,9 @@ slave's replies say link_lost; the run says link_lost."""
 import numpy as np
 import pytest
 
-from teleop.tick.loop import Hook
 from teleop.app.runtime import run_scene
 from teleop.scenario.schema import load_scene
+from teleop.tick.loop import Hook
 
 DT = 1e-3
 CUT_TICK = 400

@@ -8,12 +8,12 @@ import sys
 import numpy as np
 import pytest
 
-from teleop.master.cobot.database import DEFAULT_DBC
 from teleop.dynamics import fixtures
 from teleop.dynamics.body import RigidBody
 from teleop.dynamics.effects import AngularDamper, LinearDamper
 from teleop.dynamics.tool import ReferenceTool
 from teleop.master import CobotConfig
+from teleop.master.cobot.database import DEFAULT_DBC
 from tests.cobot_tick import make_cobot, tick
 
 

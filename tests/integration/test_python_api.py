@@ -10,10 +10,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from teleop.dynamics.registry import FIXTURE_TYPES, register_fixture
-from teleop.util.errors import SceneError
 from teleop.app.runtime import run_scene
+from teleop.dynamics.registry import FIXTURE_TYPES, register_fixture
 from teleop.scenario.schema import load_scene, parse_scene
+from teleop.util.errors import SceneError
 from teleop.util.typed import as_table
 
 README = Path(__file__).resolve().parents[2] / "README.md"
@@ -55,7 +55,7 @@ class Groove:
 #: the blade tip at a depth below a plane (the library's PointDepth row); the same source is the
 #: installed plug-in below, so the in-process type and the plug-in cannot drift apart
 _ns: dict = {}
-exec(PLUGIN, _ns)  # noqa: S102 - a literal of this file, the plug-in's own source
+exec(PLUGIN, _ns)  # a literal of this file, the plug-in's own source
 Groove = register_fixture("test_groove")(_ns["Groove"])
 
 

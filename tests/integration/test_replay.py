@@ -4,9 +4,9 @@ since deleted) with everything the live view drew."""
 import numpy as np
 
 from teleop.app.cli import main
-from teleop.util.resources import scenario_dir
-from teleop.scenario.schema import load_scene
 from teleop.app.view_bridge import FRAMES_FILE, load_run_scene, save_scene_copy
+from teleop.scenario.schema import load_scene
+from teleop.util.resources import scenario_dir
 
 
 def test_the_scene_copy_loads_back_equal(tmp_path):

@@ -5,10 +5,9 @@ from hypothesis import assume, given, settings
 from hypothesis import strategies as st
 
 from teleop.dynamics import fixtures
-from teleop.dynamics.body import RigidBody
+from teleop.dynamics.body import Kinematics, RigidBody
 from teleop.dynamics.constraints import KnifeEdge, RemoteCenter, stack_bias, stack_jacobian
 from teleop.dynamics.effects import AngularDamper, Gravity, LinearDamper
-from teleop.dynamics.body import Kinematics
 from teleop.dynamics.model import ConstrainedBody, evaluate_literal
 from teleop.dynamics.rotations import EulerChart, chart_conditioning
 from tests.pin_oracle import free_flyer_model, pin_constrained

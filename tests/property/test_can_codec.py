@@ -10,10 +10,10 @@ from crccheck.crc import Crc32
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from teleop.util.crc32 import crc32_continue
-from teleop.util.errors import CanError
 from teleop.master.cobot.codec import MessageCodec, compile_layout
 from teleop.master.cobot.database import FrameDatabase
+from teleop.util.crc32 import crc32_continue
+from teleop.util.errors import CanError
 
 DB = FrameDatabase()
 #: layouts the shipped protocol does not use: big-endian integers and floats (compiled), bit fields

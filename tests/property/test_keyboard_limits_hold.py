@@ -7,15 +7,16 @@ scalpel fixture."""
 
 import numpy as np
 import pytest
-from hypothesis import HealthCheck, Phase, example, given, settings, strategies as st
+from hypothesis import HealthCheck, Phase, example, given, settings
+from hypothesis import strategies as st
 from scipy.spatial.transform import Rotation
 
+from teleop.app.keyboard import FAST, SPEED_LIMIT_FACTOR, KeyboardOperator, KeyScale, hand_gains
+from teleop.app.limits import BRAKE_MIN_S, PAST_LIMIT_SHARE, LimitedOperator, Limits, Workspace
+from teleop.app.session import Session
 from teleop.master.ideal import IdealMaster
 from teleop.scenario.build import build_tool, master_fixture_spec
-from teleop.app.keyboard import FAST, SPEED_LIMIT_FACTOR, KeyboardOperator, KeyScale, hand_gains
-from teleop.app.limits import BRAKE_MIN_S, PAST_LIMIT_SHARE, Limits, LimitedOperator, Workspace
 from teleop.scenario.schema import load_scene
-from teleop.app.session import Session
 
 FREE_TOOL = """
 name = "free_tool"

@@ -9,8 +9,8 @@ from pathlib import Path
 import pytest
 
 from teleop.app.cli import main
-from teleop.util.errors import SceneError
 from teleop.scenario.schema import load_scene
+from teleop.util.errors import SceneError
 
 FILES = sorted((Path(__file__).parents[1] / "data" / "bad_scenes").glob("*.toml"))
 

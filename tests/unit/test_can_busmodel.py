@@ -2,8 +2,14 @@
 
 import pytest
 
-from teleop.can.busmodel import (BusModel, BusTiming, compute_classic_bits, compute_cycle_load_pct,
-                                 compute_fd_bits, compute_frame_time_s)
+from teleop.can.busmodel import (
+    BusModel,
+    BusTiming,
+    compute_classic_bits,
+    compute_cycle_load_pct,
+    compute_fd_bits,
+    compute_frame_time_s,
+)
 from teleop.util.errors import ConfigError
 
 CLASSIC = BusTiming(1e6, 1e6, fd=False)

@@ -7,11 +7,10 @@ import numpy as np
 import pytest
 
 from teleop.master.cobot.database import FrameDatabase
-from teleop.master.cobot.driver import CobotDriver
-from teleop.master.cobot.simulator import CobotSimulator
-from teleop.master.cobot.driver import CAN_ERR_ACK, CAN_ERR_BUSOFF, CAN_ERR_CNT, CAN_ERR_PROT
+from teleop.master.cobot.driver import CAN_ERR_ACK, CAN_ERR_BUSOFF, CAN_ERR_CNT, CAN_ERR_PROT, CobotDriver
 from teleop.master.cobot.model import CobotModel
 from teleop.master.cobot.plant import CobotPlant, DeviceParams
+from teleop.master.cobot.simulator import CobotSimulator
 
 
 class Link:

@@ -3,8 +3,8 @@
 import pytest
 
 from teleop.can.faults import Faults
-from teleop.util.errors import ConfigError, check_table
 from teleop.slave import SlaveConfig
+from teleop.util.errors import ConfigError, check_table
 
 
 def test_a_typo_names_the_table_the_key_and_the_closest_known_key():

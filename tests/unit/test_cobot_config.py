@@ -4,8 +4,8 @@ import numpy as np
 import pytest
 
 from teleop.can.faults import Faults
-from teleop.util.errors import ConfigError
 from teleop.master import CobotConfig, CobotMaster
+from teleop.util.errors import ConfigError
 
 
 def test_defaults():

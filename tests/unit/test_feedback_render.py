@@ -10,9 +10,9 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from scipy.spatial.transform import Rotation
 
-from teleop.tick.feedback import FeedbackPath
 from teleop.control.mapping import Registration
 from teleop.dynamics.effects import AngularDamper, LinearDamper
+from teleop.tick.feedback import FeedbackPath
 from teleop.tick.messages import ContactFeedback
 
 DT = 1e-3

@@ -3,8 +3,8 @@ residual, a nonholonomic one by its rate; the holonomic rows' rate is reported a
 
 import numpy as np
 
-from teleop.dynamics.constraints import KnifeEdge, PointDepth
 from teleop.app.metrics import FixtureRowMetrics
+from teleop.dynamics.constraints import KnifeEdge, PointDepth
 
 
 def _metrics():

@@ -13,7 +13,6 @@ from teleop.dynamics.model import ConstrainedBody
 from teleop.scenario.build import build_tool
 from teleop.scenario.operators import ScriptedWrench
 from teleop.scenario.schema import list_scenes, load_scene
-
 from tests.user_rows import SineRow
 
 FLAT = ["paper_rolling_disk", "tests/data/undamped/undamped_rolling_disk.toml"]

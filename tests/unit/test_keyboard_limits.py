@@ -6,9 +6,9 @@ import numpy as np
 import pinocchio as pin
 import pytest
 
+from teleop.app.limits import LimitedOperator, Limits, Workspace, device_workspace, limits_for
 from teleop.control.admittance import Phi
 from teleop.master.cobot.model import CobotModel
-from teleop.app.limits import Limits, LimitedOperator, Workspace, device_workspace, limits_for
 from teleop.scenario.operators import Operator
 from teleop.scenario.schema import load_scene
 

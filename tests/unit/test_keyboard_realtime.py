@@ -8,12 +8,21 @@ import time
 import numpy as np
 import pytest
 
+from teleop.app.keyboard import (
+    FAST,
+    KEY_CROSSING_S,
+    KEY_FORCE_SHARE,
+    KEY_STUCK_S,
+    KeyboardOperator,
+    KeyScale,
+    describe,
+    key_scale,
+    keyboard_operator,
+)
 from teleop.app.runtime import run_scene
-from teleop.app.keyboard import (FAST, KEY_CROSSING_S, KEY_FORCE_SHARE, KEY_STUCK_S, KeyboardOperator, KeyScale,
-                                      describe, key_scale, keyboard_operator)
-from teleop.scenario.schema import FixtureSpec, load_scene
 from teleop.app.session import MAX_TICKS
 from teleop.app.statusline import StatusLine, status_text
+from teleop.scenario.schema import FixtureSpec, load_scene
 
 SCALE = KeyScale(speed_m_s=0.05, angular_speed_rad_s=0.5, gain_Ns_per_m=1.0, gain_Nms_per_rad=0.004,
                  force_N=10.0, torque_Nm=0.5, integral_N_per_m=2.0, integral_Nm_per_rad=0.01)

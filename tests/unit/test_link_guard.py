@@ -4,14 +4,14 @@ energies and offsets, and the damping cap from the tool's mass."""
 import numpy as np
 import pytest
 
-from teleop.tick.feedback import FeedbackPath
-from teleop.control.mapping import Registration
-from teleop.util.errors import SceneError
-from teleop.link import ContactFeedback, LockstepLink, SimulatedChannel, ToolCommand
-from teleop.tick.guard import MasterGuard, SlaveGuard, tdpa_params
-from teleop.control.passivity import TdpaParams
 from teleop.app.runtime import make_guard, make_link
+from teleop.control.mapping import Registration
+from teleop.control.passivity import TdpaParams
+from teleop.link import ContactFeedback, LockstepLink, SimulatedChannel, ToolCommand
 from teleop.scenario.schema import load_scene
+from teleop.tick.feedback import FeedbackPath
+from teleop.tick.guard import MasterGuard, SlaveGuard, tdpa_params
+from teleop.util.errors import SceneError
 
 DT = 1e-3
 

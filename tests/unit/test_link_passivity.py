@@ -5,9 +5,9 @@ round trip without the guard and stable with it."""
 import numpy as np
 import pytest
 
-from teleop.util.errors import ConfigError
-from teleop.link import ChannelSpec, ContactFeedback, SimulatedChannel, ToolCommand
 from teleop.control.passivity import MasterPassivity, SlavePassivity, TdpaParams, compute_port_energy
+from teleop.link import ChannelSpec, ContactFeedback, SimulatedChannel, ToolCommand
+from teleop.util.errors import ConfigError
 
 DT = 1e-3
 E6 = np.eye(6)[0]

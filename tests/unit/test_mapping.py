@@ -6,8 +6,8 @@ import pytest
 
 from teleop.control.mapping import Registration
 from teleop.dynamics import constraints as C
-from teleop.util.errors import ConfigError
 from teleop.scenario.tables import FixtureSpec, MappingSpec
+from teleop.util.errors import ConfigError
 from teleop.util.typed import validate
 
 REG = Registration([0.5, -0.1, 0.2], pin.rpy.rpyToMatrix(0.1, -0.2, 0.7), scale=3.0, force_scale=0.5)

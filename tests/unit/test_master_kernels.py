@@ -13,10 +13,22 @@ from teleop.control.admittance import Phi
 from teleop.control.kernels import pid_step
 from teleop.dynamics.kernels.so3 import exp3, log3
 from teleop.master.cobot.frame_kernels import DRIVER_STATE
-from teleop.master.cobot.kernels import (HOST_CONSTS, HOST_STATE, advance_prediction, correct_kernel,
-                                         distal_wrench_H, dls_command, gantry_zxz_pose_jacobian, hand_wrench_W,
-                                         handle_command, host_command, host_feedback, host_sense, predict_kernel,
-                                         servo_advance)
+from teleop.master.cobot.kernels import (
+    HOST_CONSTS,
+    HOST_STATE,
+    advance_prediction,
+    correct_kernel,
+    distal_wrench_H,
+    dls_command,
+    gantry_zxz_pose_jacobian,
+    hand_wrench_W,
+    handle_command,
+    host_command,
+    host_feedback,
+    host_sense,
+    predict_kernel,
+    servo_advance,
+)
 from teleop.master.cobot.model import GRAVITY_W, CobotModel
 from teleop.master.cobot.observer import HISTORY, JointObserver
 

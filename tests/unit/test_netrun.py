@@ -4,16 +4,16 @@ and the slave's safe states and their resumption, and the merged summary's statu
 import numpy as np
 import pytest
 
-from teleop.tick.feedback import FeedbackPath
+from teleop.app.runtime import make_slave
 from teleop.link import ContactFeedback
 from teleop.master.ideal import IdealMaster
-from teleop.tick.heartbeat import HeartbeatState
-from teleop.tick.master_side import MasterSide
-from teleop.tick.verdict import run_summary
-from teleop.app.runtime import make_slave
 from teleop.scenario.build import build_fixture, build_registration, build_tool, master_fixture_spec
 from teleop.scenario.operators import make_operator
 from teleop.scenario.schema import load_scene
+from teleop.tick.feedback import FeedbackPath
+from teleop.tick.heartbeat import HeartbeatState
+from teleop.tick.master_side import MasterSide
+from teleop.tick.verdict import run_summary
 
 DT = 1e-3
 

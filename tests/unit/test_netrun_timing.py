@@ -11,8 +11,8 @@ import numpy as np
 import pytest
 
 from teleop.app import netrun
-from teleop.link import ToolCommand
 from teleop.app.session import _pace
+from teleop.link import ToolCommand
 
 
 def test_pace_returns_at_the_deadline_sleeping_or_spinning():

@@ -10,9 +10,9 @@ import pytest
 from teleop.app.assembly import build_master, build_slave
 from teleop.app.session import Session
 from teleop.link import LockstepLink
+from teleop.scenario.schema import load_scene
 from teleop.tick.loop import BilateralLoop
 from teleop.tick.messages import ContactFeedback, ToolCommand
-from teleop.scenario.schema import load_scene
 
 TAMPER_TICK = 300
 

@@ -12,8 +12,6 @@ import pytest
 from teleop.app import plots
 
 
-
-
 @pytest.mark.parametrize("values, unit, scale, shown", [
     ([1.25e-7], "rad", 1e9, "nrad"),    # 0.000125 mrad is 125 nrad
     ([2.0e-4, -3e-4], "rad", 1e6, "µrad"),

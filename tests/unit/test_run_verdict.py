@@ -8,8 +8,13 @@ import pytest
 from teleop.app import recorders, session
 from teleop.app.recorders import Columns
 from teleop.app.session import tick_count
-from teleop.tick.verdict import (FIXTURE_TOLERANCES, RELAXED_SHARE_MAX, SLAVE_FIXTURE_TOLERANCES, SLAVE_TARGET_MAX_M,
-                                 verdict)
+from teleop.tick.verdict import (
+    FIXTURE_TOLERANCES,
+    RELAXED_SHARE_MAX,
+    SLAVE_FIXTURE_TOLERANCES,
+    SLAVE_TARGET_MAX_M,
+    verdict,
+)
 
 GOOD = {"depth_error_max_m": 0.0, "cut_depth_error_max_m": 1e-9, "tip_tracking_max_m": 1e-5}
 

@@ -2,8 +2,8 @@
 
 import pytest
 
-from teleop.util.errors import SceneError
 from teleop.scenario.schema import list_scenes, load_scene
+from teleop.util.errors import SceneError
 
 BASE = """
 name = "x"

@@ -5,9 +5,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from teleop.util.errors import ConfigError, SolverError
 from teleop.slave import JointLimits, SlaveConfig, build_model, installed_solvers, make_solver
 from teleop.slave.arm import SCALPEL_URDF
+from teleop.util.errors import ConfigError, SolverError
 
 
 def test_defaults_build_a_panda_with_the_scalpel_frame():
@@ -91,9 +91,9 @@ def test_shipped_scenes_run_on_the_base_install():
 
 
 def test_scene_errors_name_the_key_once(tmp_path):
-    from teleop.util.errors import SceneError
     from teleop.scenario.schema import load_scene
     from teleop.tick.slave_side import SlaveSide
+    from teleop.util.errors import SceneError
 
     text = (Path(load_scene("straight_incision").path).read_text()
             .replace('arm = "panda"', 'arm = "panda"\nsolver = "gurobi"'))

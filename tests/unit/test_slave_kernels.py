@@ -204,9 +204,9 @@ def test_target_projection_lands_on_the_fixture(scene):
     own residual and Jacobian: the pose is on the fixture (|h| <= 1e-10), the twist is admissible
     (|G nu| <= 1e-10), and for targets off by up to 5 mm / 0.05 rad the move is small."""
     from teleop.app.runtime import make_slave
+    from teleop.dynamics.constraints import stack_jacobian, stack_residual
     from teleop.scenario.build import build_fixture, build_registration
     from teleop.scenario.schema import load_scene
-    from teleop.dynamics.constraints import stack_jacobian, stack_residual
 
     sc = load_scene(scene)
     cons = build_fixture(sc.fixture).constraints

@@ -9,8 +9,8 @@ from scipy.optimize import minimize
 
 from teleop.dynamics import constraints as C
 from teleop.dynamics import fixtures
-from teleop.slave.projection import project_onto_fixture
 from teleop.dynamics.rows import RowStack
+from teleop.slave.projection import project_onto_fixture
 from tests.user_rows import SineRow
 
 PLANE_O = np.array([0.5, 0.0, 0.2])

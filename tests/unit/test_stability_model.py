@@ -8,8 +8,7 @@ import math
 import numpy as np
 import pytest
 
-from teleop.control.stability import (LoopParams, _Loop, closed_loop_matrix, critical_mass, is_stable,
-                                      spectral_radius)
+from teleop.control.stability import LoopParams, _Loop, closed_loop_matrix, critical_mass, is_stable, spectral_radius
 from teleop.util.errors import ConfigError
 
 

@@ -8,9 +8,9 @@ import numpy as np
 import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
+from pinocchio import skew
 from scipy.linalg import expm
 from scipy.optimize import minimize
-from pinocchio import skew
 from scipy.spatial.transform import Rotation
 
 from teleop.contact import SurfaceTissue, TissueBlock

@@ -10,8 +10,8 @@ import pytest
 from PIL import Image
 
 from teleop.dynamics.registry import FrameMap
-from teleop.util.errors import ConfigError
 from teleop.master.cobot.model import DEFAULT_URDF
+from teleop.util.errors import ConfigError
 from teleop.viz import VizFrame, VizScene
 from teleop.viz import layout as L
 from teleop.viz import shapes as S

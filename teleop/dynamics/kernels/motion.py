@@ -26,6 +26,7 @@ from teleop.dynamics.kernels.rows import _cross3, _dot, _rv, _rv3
 from teleop.dynamics.kernels.small import cholesky
 from teleop.dynamics.kernels.wrench import add_compiled_effects
 
+
 @njit(cache=True, inline="always")
 def _chart_rates(R, Einv, nu, out):
     """out (6,) <- the chart rates of the world twist nu (6,): v, and E_B^-1 R^T w."""

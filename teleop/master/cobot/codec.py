@@ -27,9 +27,9 @@ from cantools.database.conversion import (
     LinearIntegerConversion,
 )
 
+from teleop.master.cobot import frame_kernels as FK
 from teleop.util.crc32 import crc32_continue
 from teleop.util.errors import CanError
-from teleop.master.cobot import frame_kernels as FK
 
 _INT_BYTES = (1, 2, 4, 8)
 _FLOAT_BYTES = (4, 8)

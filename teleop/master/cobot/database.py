@@ -23,10 +23,10 @@ from typing import NamedTuple
 import cantools
 import numpy as np
 
-from teleop.util.crc32 import crc32_continue
-from teleop.util.errors import CanError
 from teleop.master.cobot import frame_kernels as FK
 from teleop.master.cobot.codec import MessageCodec, layout_tables
+from teleop.util.crc32 import crc32_continue
+from teleop.util.errors import CanError
 
 #: The protocol shipped with the package.
 DEFAULT_DBC = Path(__file__).with_name("protocol.dbc")

@@ -25,9 +25,9 @@ import can
 import numpy as np
 
 from teleop.can.confinement import BUS_OFF, ErrorCounters
-from teleop.util.errors import CanError
 from teleop.master.cobot import frame_kernels as FK
 from teleop.master.cobot.database import FrameDatabase
+from teleop.util.errors import CanError
 from teleop.util.views import view
 
 #: SocketCAN error classes in an error frame's id (linux/can/error.h) and the protocol-error

@@ -29,17 +29,16 @@ from teleop.can import BusTiming, Capture, compute_cycle_load_pct
 from teleop.control.admittance import AdmittanceController, AdmittanceGains, Phi
 from teleop.control.clutch import Clutch
 from teleop.control.stability import LoopParams, critical_mass
-from teleop.util.errors import ConfigError
 from teleop.master.base import Master
 from teleop.master.cobot.database import FrameDatabase
 from teleop.master.cobot.driver import CobotDriver
-from teleop.master.cobot.kernels import (HOST_CONSTS, HOST_STATE, advance_prediction, host_command,
-                                         host_sense)
+from teleop.master.cobot.kernels import HOST_CONSTS, HOST_STATE, advance_prediction, host_command, host_sense
 from teleop.master.cobot.model import GRAVITY_W, CobotModel, compute_servo_lag_s
 from teleop.master.cobot.observer import JointObserver
 from teleop.master.cobot.plant import CobotPlant, DeviceParams
 from teleop.master.cobot.simulator import CobotSimulator
 from teleop.master.config import CobotConfig
+from teleop.util.errors import ConfigError
 
 #: damped least squares: no damping above this smallest singular value, up to this damping at 0
 DLS_SIGMA0, DLS_LAMBDA0 = 0.05, 0.02

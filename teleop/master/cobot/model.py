@@ -17,8 +17,8 @@ import numpy as np
 import pinocchio as pin
 from scipy.spatial.transform import Rotation
 
-from teleop.util.errors import ConfigError
 from teleop.master.cobot.kernels import distal_wrench_H, gantry_zxz_pose_jacobian
+from teleop.util.errors import ConfigError
 from teleop.util.resources import robot_file
 
 DEFAULT_URDF = robot_file("cobot/cobot.urdf")

@@ -17,11 +17,11 @@ import uuid
 import can
 import numpy as np
 
-from teleop.util.errors import ConfigError, FieldError
-from teleop.master.config import FaultSettings
 from teleop.master.cobot.model import CobotModel
 from teleop.master.cobot.plant import CobotPlant, DeviceParams
 from teleop.master.cobot.simulator import CobotSimulator
+from teleop.master.config import FaultSettings
+from teleop.util.errors import ConfigError, FieldError
 from teleop.util.typed import build
 
 
