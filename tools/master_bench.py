@@ -154,7 +154,7 @@ def measure(n_steps: int = 5000, yard=None) -> dict:
     payloads = []  # the device's two frames per recorded cycle, but for the counter
     for joints, wrench in frames:
         wrapped = np.r_[joints[:3], (joints[3:] + np.pi) % (2 * np.pi) - np.pi]  # the wire's angles
-        payloads.append((("DEV_JOINTS", _in_range(db, "DEV_JOINTS", wrapped.tolist()) + [2]),
+        payloads.append((("DEV_JOINTS", [*_in_range(db, "DEV_JOINTS", wrapped.tolist()), 2]),
                          ("DEV_WRENCH", _in_range(db, "DEV_WRENCH", wrench.tolist()))))
     for i in range(n_steps):
         if i % 500 == 0:

@@ -119,7 +119,7 @@ def demo_recording(path, duration_s: float = 1.0, dt_s: float = 0.002, fixture: 
                      tissue=tissue, master_robot=device_robot)
     trace = []
     with make_view("meshcat", scene, record=True) as view:
-        for k in range(int(round(duration_s / dt_s)) + 1):
+        for k in range(round(duration_s / dt_s) + 1):
             t = k * dt_s
             a = 0.6 * t / duration_s
             if fixture == "sphere":  # the tool's z axis along the sphere normal, origin on the sphere

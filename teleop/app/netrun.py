@@ -318,7 +318,7 @@ def _run_slave(scene, listen, connect, session, timeout_s, config_json5, pin, st
     core = claim_core("slave") if pin else None
     poll_s = 0.0 if core is not None else POLL_S
     n = tick_count(scene.duration_s, scene.dt_s)
-    cap = n + int(round(GRACE_S / scene.dt_s)) + 1
+    cap = n + round(GRACE_S / scene.dt_s) + 1
     warm_up(scene, "slave")
     sb = build_slave(scene, cap, networked=True, record=writer)
     side, dt = sb.side, scene.dt_s

@@ -235,7 +235,7 @@ def _frames_from_log(log: dict, fps: float):
     """VizFrame kwargs from a run's log.npz (runs written before view_frames.npz: no slave tool
     pose or contact vector in the log, so the slave tool is placed by the arm's kinematics)."""
     t = log["t"]
-    step = max(1, int(round((1.0 / fps) / max(t[1] - t[0], 1e-9)))) if t.size > 1 else 1
+    step = max(1, round((1.0 / fps) / max(t[1] - t[0], 1e-9))) if t.size > 1 else 1
     device = "master_q" in log and np.any(log["master_q"])
     for i in range(0, t.size, step):
         kw = dict(t=float(t[i]), reference_pose=(log["p_r"][i], log["R_r"][i]),

@@ -130,7 +130,7 @@ class _Loop:
         if n:
             for k, y in (("dx", g["x_h"]), ("dF", -p.handle_mass * a_h), ("da", (g["u"] - g["v_m"]) / self.tau_m),
                          ("dmove", nu * T)):
-                shifted = [y] + lines[k][:-1]
+                shifted = [y, *lines[k][:-1]]
                 vals.update({f"{k}{i}": shifted[i] for i in range(n)})
         for k, v in vals.items():
             out[ix[k]] = v

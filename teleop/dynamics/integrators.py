@@ -54,7 +54,7 @@ class ToolState:
 class Integrator(ABC):
     name: str = "integrator"
 
-    def reset(self, model: ConstrainedBody, state: ToolState, parametrization) -> None:
+    def reset(self, model: ConstrainedBody, state: ToolState, parametrization) -> None:  # noqa: B027 - optional hook
         """Prepare integrator-specific state (z for parametric, the pose for Lie group)."""
 
     @abstractmethod

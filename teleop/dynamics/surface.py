@@ -74,7 +74,7 @@ class HeightSurface:
 
     def height_partials(self, u: float, v: float, upto: int = 3) -> np.ndarray:
         """F (4, 4): F[a, b] = d^(a+b) f / du^a dv^b at (u, v) for a + b <= upto (m per m^(a+b))."""
-        o, kQ, tx, ty, c, k = self._geo
+        _o, _kQ, tx, ty, c, k = self._geo
         return SK.height_partials(tx, ty, c, k, float(u), float(v), int(upto), np.empty((4, 4)))
 
     def derivatives(self, u: float, v: float, upto: int = 3):

@@ -128,12 +128,12 @@ class SurfaceScalpel(Parametrization):
         return R, S - self.depth * F[:, 2] - R @ self.d, theta
 
     def psi(self, chart, z):
-        R, p, theta = self._pose(chart, z)
+        _R, p, theta = self._pose(chart, z)
         return np.concatenate([p, theta])
 
     def jacobian(self, chart, z):
         u, v, yaw = float(z[0]), float(z[1]), float(z[2])
-        F, S, S1, n, dF = self.surface.frame_derivatives(u, v)
+        F, _S, S1, _n, dF = self.surface.frame_derivatives(u, v)
         R = F @ _RX_PI @ axis_rotation(2, yaw)
         theta = euler_from_rotation(chart, R)
         _, E, _ = rate_map(chart, theta, np.zeros(3))

@@ -23,6 +23,7 @@ from __future__ import annotations
 import dataclasses
 import difflib
 import math
+import operator
 import types
 import typing
 import unicodedata
@@ -231,8 +232,8 @@ def _rules(out, meta, key, raw):
         [x for x in out if _is_number(x)] if isinstance(out, (tuple, np.ndarray)) else [])
     for b in (b for b in ("ge", "gt", "le", "lt") if b in meta):
         lim = meta[b]
-        ok = {"ge": lambda x: x >= lim, "gt": lambda x: x > lim, "le": lambda x: x <= lim, "lt": lambda x: x < lim}[b]
-        if not all(ok(x) for x in numbers):
+        ok = {"ge": operator.ge, "gt": operator.gt, "le": operator.le, "lt": operator.lt}[b]
+        if not all(ok(x, lim) for x in numbers):
             raise FieldError(key, f"{meta.get('why') or _range_text(meta)} (got {raw!r})")
     check = meta.get("check")
     if check is not None:

@@ -314,7 +314,7 @@ class MeshcatView:
         n = len(trace)
         ends = sorted({min(c, n) for _, _, c in self._frames if c >= 2} | {n})
         if len(ends) > most:
-            ends = [ends[int(round(i))] for i in np.linspace(0, len(ends) - 1, most)]
+            ends = [ends[round(i)] for i in np.linspace(0, len(ends) - 1, most)]
         chunks, start = [], 0
         for k, end in enumerate(ends):
             if end - start < 1:

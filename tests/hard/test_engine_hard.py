@@ -25,7 +25,7 @@ def test_disk_on_sphere_across_the_pole(integrator):
     tool = _sphere_tool(integrator)
     crossed = False
     for _ in range(4000):
-        p, R = tool.pose()
+        p, _R = tool.pose()
         up = np.array([0.0, 0.0, 1.0])
         # push along the meridian towards and over the north pole, keeping going past it
         n = p / np.linalg.norm(p)

@@ -168,7 +168,7 @@ def test_ctrl_c_leaves_a_summary_marked_interrupted(tmp_path):
             break
     time.sleep(1.0)
     proc.send_signal(signal.SIGINT)
-    stdout, stderr = proc.communicate(timeout=120)
+    _stdout, stderr = proc.communicate(timeout=120)
     assert proc.returncode == 130, stderr
     assert "Traceback" not in stderr
     s = json.loads((out / "metrics.json").read_text())

@@ -27,7 +27,7 @@ def test_stiff_contact_undelayed_settles():
 
 
 def test_stiff_contact_unguarded_at_100ms_is_unstable():
-    r_off, osc_off, F_off = _stiff(100, "off")
+    _r_off, osc_off, F_off = _stiff(100, "off")
     assert osc_off > 1e-3  # the master's tool shakes by more than a millimetre
     assert F_off.max() > 10 * NOMINAL_N  # the energy the delayed loop makes: a force blow-up
 

@@ -136,7 +136,7 @@ def test_flood_of_10000_garbage_frames_counted_and_bounded_per_poll():
         assert s["refused"]["malformed"] == 10_000 or s["flood"] > 0, s
         print(f"\nflood, paced: {s['refused']['malformed']} of 10000 counted, {s['flood']} full-ring polls, "
               f"longest poll {longest * 1e6:.0f} us")
-        for i in range(10_000):  # a burst with no poll: the ring keeps the newest RING
+        for _ in range(10_000):  # a burst with no poll: the ring keeps the newest RING
             pub.put(b"\xff" * 250)
         time.sleep(0.5)
         poll()

@@ -64,7 +64,7 @@ def run(tool, operator, n, cfg=None, seed=0, metric=None):
             st = tick(m, tool, operator(i * 1e-3, R), None)
             statuses.append(st)
             p, R = m.virtual_pose()
-            v, w = m.virtual_twist()
+            v, _w = m.virtual_twist()
             assert np.all(np.isfinite(p)) and np.all(np.isfinite(v)) and np.all(np.isfinite(tool.q))
             worst = np.maximum(worst, metric(p, R))
             if st != "ok":
@@ -83,7 +83,7 @@ def sphere_metric(p, R):
 
 def test_rolling_disk_parallel_parking_on_the_cobot():
     tool = paper_tool(fixtures.rolling_disk(0.03), [0, 0, 0.03, 0, np.pi / 2, 0])
-    statuses, worst, stats, m = run(tool, parallel_parking, 3000, metric=disk_metric)
+    statuses, worst, stats, _m = run(tool, parallel_parking, 3000, metric=disk_metric)
     print(f"\nrolling disk: height error {worst[0] * 1e6:.1f} um, upright error {worst[1] * 1e3:.2f} mrad, "
           f"bus load {stats['can_bus_load_pct']:.1f} %")
     assert set(statuses) == {"ok"}
@@ -94,7 +94,7 @@ def test_rolling_disk_parallel_parking_on_the_cobot():
 
 def test_disk_on_sphere_with_35N_push():
     tool = paper_tool(fixtures.sphere((0, 0, 0), 0.05), [0, -0.05, 0, 0, np.pi / 2, 0])
-    statuses, worst, stats, m = run(tool, sphere_push, 2500, metric=sphere_metric)
+    statuses, worst, stats, _m = run(tool, sphere_push, 2500, metric=sphere_metric)
     print(f"\nsphere: deviation {worst[0] * 1e6:.1f} um, normal angle {worst[1] * 1e3:.2f} mrad, "
           f"tracking {stats['tracking_error_max_m'] * 1e6:.1f} um")
     assert set(statuses) == {"ok"}

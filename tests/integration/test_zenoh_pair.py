@@ -44,7 +44,7 @@ def test_two_process_cut_over_zenoh_writes_one_summary(tmp_path):
     sets = ["duration_s=2.0", "link.heartbeat_ms=2000"]
     # a slow shared machine cannot hold 1 kHz in both processes: a wide heartbeat here, the 20 ms
     # one is tested below
-    rc = subprocess.run(PY + ["run", "straight_incision", "--link", "zenoh", *[a for x in sets for a in ("--set", x)],
+    rc = subprocess.run([*PY, "run", "straight_incision", "--link", "zenoh", *[a for x in sets for a in ("--set", x)],
                               "--json", str(out)],
                         env=ENV, timeout=400, capture_output=True, text=True)
     s = json.loads(out.read_text())
@@ -74,9 +74,9 @@ def _pair(tmp_path, seconds, extra=(), ep=None, keys=None):
     keys = keys or _keys(tmp_path)
     js, jm = tmp_path / "slave.json", tmp_path / "master.json"
     sets = ["--set", f"duration_s={seconds}", "--keys", keys, *extra]
-    slave = subprocess.Popen(PY + ["slave", "straight_incision", "--listen", ep, "--json", str(js), *sets],
+    slave = subprocess.Popen([*PY, "slave", "straight_incision", "--listen", ep, "--json", str(js), *sets],
                              env=ENV, stdout=subprocess.PIPE, text=True)
-    master = subprocess.Popen(PY + ["master", "straight_incision", "--connect", ep, "--json", str(jm), *sets],
+    master = subprocess.Popen([*PY, "master", "straight_incision", "--connect", ep, "--json", str(jm), *sets],
                               env=ENV, stdout=subprocess.PIPE, text=True)
     return slave, master, js, jm
 
@@ -112,7 +112,7 @@ def test_killing_one_side_puts_the_other_in_its_safe_state(tmp_path, victim):
 
 @pytest.mark.long
 def test_a_paused_slave_is_a_lost_link_and_the_master_resumes_without_a_jump(tmp_path):
-    slave, master, js, jm = _pair(tmp_path, 4.0)
+    slave, master, _js, jm = _pair(tmp_path, 4.0)
     try:
         _wait_line(master, "master: running")
         time.sleep(1.0)
@@ -130,7 +130,7 @@ def test_a_paused_slave_is_a_lost_link_and_the_master_resumes_without_a_jump(tmp
 
 
 def _run(args, tmp_path, timeout=400):
-    return subprocess.run(PY + ["run", *args], env=ENV, timeout=timeout, capture_output=True, text=True,
+    return subprocess.run([*PY, "run", *args], env=ENV, timeout=timeout, capture_output=True, text=True,
                           cwd=tmp_path)
 
 
@@ -178,7 +178,7 @@ def test_a_violated_fixture_is_reported_alike_in_one_process_and_over_zenoh(tmp_
 def test_a_slave_killed_mid_run_leaves_the_masters_summary_link_lost_and_exit_1(tmp_path):
     import psutil
 
-    parent = subprocess.Popen(PY + ["run", "straight_incision", "--link", "zenoh", "--duration", "4", "--json",
+    parent = subprocess.Popen([*PY, "run", "straight_incision", "--link", "zenoh", "--duration", "4", "--json",
                                     str(tmp_path / "k.json")], env=ENV, stdout=subprocess.PIPE, text=True)
     try:
         _wait_line(parent, "master: running")
@@ -201,7 +201,7 @@ def test_a_second_master_is_refused_in_one_line_and_the_first_keeps_control(tmp_
     slave, master, js, jm = _pair(tmp_path, 4.0, ep=ep, extra=["--set", "link.heartbeat_ms=2000"])
     try:
         _wait_line(master, "master: running")
-        second = subprocess.run(PY + ["master", "straight_incision", "--connect", ep, "--keys", str(tmp_path / "keys"),
+        second = subprocess.run([*PY, "master", "straight_incision", "--connect", ep, "--keys", str(tmp_path / "keys"),
                                       "--json", str(tmp_path / "second.json"), "--timeout", "20"],
                                 env=ENV, capture_output=True, text=True, timeout=200)
     finally:
@@ -225,11 +225,11 @@ def test_a_tls_pair_runs_the_cut_and_a_certificate_of_another_ca_is_refused(tmp_
     assert json.loads(jm.read_text())["status"] == "ok" and json.loads(js.read_text())["status"] == "ok"
     other = _keys(tmp_path, "other", tls=True)  # another CA
     ep = free_endpoint().replace("tcp/", "tls/")
-    slave = subprocess.Popen(PY + ["slave", "straight_incision", "--listen", ep, "--keys", keys, "--timeout", "30",
+    slave = subprocess.Popen([*PY, "slave", "straight_incision", "--listen", ep, "--keys", keys, "--timeout", "30",
                                    "--set", "duration_s=1"], env=ENV, stdout=subprocess.PIPE, text=True)
     try:
         time.sleep(3.0)  # the slave listening
-        rc = subprocess.run(PY + ["master", "straight_incision", "--connect", ep, "--keys", other, "--timeout", "15",
+        rc = subprocess.run([*PY, "master", "straight_incision", "--connect", ep, "--keys", other, "--timeout", "15",
                                   "--json", str(tmp_path / "bad.json")], env=ENV, capture_output=True, text=True,
                             timeout=200)
     finally:

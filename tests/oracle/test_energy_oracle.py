@@ -67,7 +67,7 @@ def test_the_force_free_motion_follows_scipy(name, tol_m):
     T = 2.0
     ref = solve_ivp(rhs, (0.0, T), y0, method="DOP853", rtol=1e-11, atol=1e-12)
     assert ref.success
-    for _ in range(int(round(T / scene.dt_s))):
+    for _ in range(round(T / scene.dt_s)):
         assert tool.step(scene.dt_s) == "ok"
     assert tool.state.chart is chart  # no re-chart: the two runs share coordinates
     p_ref = ref.y[:3, -1]

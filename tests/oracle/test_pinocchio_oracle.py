@@ -18,7 +18,7 @@ STACKS = {
     "rolling_disk": fixtures.rolling_disk(0.03).constraints,
     "sphere": fixtures.sphere((0.01, -0.02, 0.03), 0.05).constraints,
     "scalpel": fixtures.scalpel((0, 0, 0), (0.1, 0.2, 1.0), 0.005, (0.01, 0.0, 0.12)).constraints,
-    "sphere+knife": fixtures.sphere().constraints + (KnifeEdge(point_B=(0, 0, 0.02)),),
+    "sphere+knife": (*fixtures.sphere().constraints, KnifeEdge(point_B=(0, 0, 0.02))),
     "trocar": (RemoteCenter(center=(0.0, 0.0, 0.2), point_B=(0, 0, 0.3), axis_B=(0, 0, 1)),),
 }
 

@@ -34,9 +34,9 @@ def test_phi_round_trip_and_power_consistency():
 
 
 def test_phi_validation():
-    with pytest.raises(ConfigError, match="phi.scale"):
+    with pytest.raises(ConfigError, match=r"phi\.scale"):
         Phi(0.0)
-    with pytest.raises(ConfigError, match="phi.offset_R"):
+    with pytest.raises(ConfigError, match=r"phi\.offset_R"):
         Phi(1.0, np.zeros(3), np.diag([1, 1, -1.0]))
 
 

@@ -59,7 +59,7 @@ def test_coriolis_is_consistent_with_mass_matrix(seq, lopsided_body):
         q = np.concatenate([rng.normal(size=3), rng.uniform(-1, 1, 3) + [0, 0.7, 0]])
         qd = rng.normal(size=6)
 
-        def M_at(qq):
+        def M_at(qq, qd=qd):
             return compute_mass_matrix(lopsided_body, Kinematics(chart, qq, qd))
 
         Mdot = (M_at(q + eps * qd) - M_at(q - eps * qd)) / (2 * eps)

@@ -72,7 +72,7 @@ def test_crc_is_crccheck_crc32_over_the_frame_id_and_payload(db):
 
 def test_a_frame_under_another_id_fails_its_crc(db):
     """The frame id is in the CRC (E2E data id): DEV_JOINTS' payload sent as DEV_WRENCH fails."""
-    fid, data, _ = db.encode("DEV_JOINTS", joints())
+    _fid, data, _ = db.encode("DEV_JOINTS", joints())
     assert db.decode(0x041, data).reason == "checksum"
 
 

@@ -12,6 +12,8 @@ from teleop.master.cobot.model import CobotModel
 from teleop.master.cobot.plant import CobotPlant, DeviceParams
 from teleop.master.cobot.simulator import CobotSimulator
 
+STILL = np.zeros(6)  # the joint rates a cycle commands unless told
+
 
 class Link:
     """A driver and a simulated device on one private virtual channel, in simulated time."""
@@ -29,7 +31,7 @@ class Link:
         self.sim = CobotSimulator(self.dev_bus, self.device, np.random.default_rng(1))
         self.driver = CobotDriver(self.host, FrameDatabase(), clock=lambda: self.t, own_bus=True, **driver_kw)
 
-    def cycle(self, qd=np.zeros(6)):
+    def cycle(self, qd=STILL):
         self.driver.send_sync()
         self.driver.send_heartbeat()
         self.t += 3e-4
@@ -142,14 +144,17 @@ def test_error_counters_follow_iso_11898_fault_confinement():
     link = Link()
     link.driver.start(link.joints0)
     link.cycle()
-    err = lambda eid, d=bytes(8): can.Message(arbitration_id=eid, is_error_frame=True, data=d)
+
+    def err(eid, d=bytes(8)):
+        return can.Message(arbitration_id=eid, is_error_frame=True, data=d)
+
     for _ in range(200):  # receive errors: 200 error frames from other nodes
         link.dev_bus.send(err(CAN_ERR_PROT))
     link.driver.max_frames_per_read = 1000
     link.driver.read()
     d = link.driver
     assert d.errors.rec == 200 and d.errors.state == "error_passive" and d.fault is None
-    n, fault = link.cycle()  # valid frames: REC from above 127 drops back to 127, then counts down
+    _n, fault = link.cycle()  # valid frames: REC from above 127 drops back to 127, then counts down
     assert fault is None and d.errors.rec < 127
     for _ in range(15):  # 15 transmit errors (no ACK): TEC 120, error-active
         link.dev_bus.send(err(CAN_ERR_ACK))

@@ -111,7 +111,7 @@ def test_closed_form_kinematics_match_pinocchio_and_other_urdfs_fall_back(tmp_pa
     other.write_text(text)
     shifted = CobotModel(other)
     assert not shifted.closed_form
-    p, R, _ = shifted.compute_pose_and_jacobian(np.zeros(6))
+    p, _R, _ = shifted.compute_pose_and_jacobian(np.zeros(6))
     np.testing.assert_allclose(p, [0.0, 0.0, 0.05], atol=1e-12)
 
 

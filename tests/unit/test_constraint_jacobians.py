@@ -70,7 +70,7 @@ def test_chart_coordinates_A_and_Adot_qd(seq, c):
         qd = rng.normal(size=6)
         eps = 1e-6
 
-        def A_at(qq):
+        def A_at(qq, qd=qd):
             k = Kinematics(chart, qq, qd)
             return constraint_matrix(c.jacobian(k.p, k.R), k)
 

@@ -48,7 +48,7 @@ STACKS = {
     "scalpel": lambda: fixtures.scalpel(tip_B=(0.01, 0.0, 0.05)).constraints,
     "laparoscopic": lambda: fixtures.laparoscopic(tip_B=(0.0, 0.0, 0.02)).constraints,
     "duplicated_row": lambda: fixtures.scalpel().constraints + fixtures.scalpel().constraints[:1],
-    "user_and_knife": lambda: (_UserPlane(),) + fixtures.scalpel().constraints[2:],
+    "user_and_knife": lambda: (_UserPlane(), *fixtures.scalpel().constraints[2:]),
 }
 SEQUENCES = ("ZYX", "ZXZ", "XYZ", "YZY")
 seeds = st.integers(0, 2**32 - 1)

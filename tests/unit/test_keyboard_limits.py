@@ -38,7 +38,7 @@ def test_the_device_workspace_is_the_travel_through_phi():
     phi = Phi(cfg.scale, np.array(cfg.offset_m), pin.exp3(np.array(cfg.offset_rotvec_rad)))
     lo, hi = model.lower[:3] + m, model.upper[:3] - m
     for corner in ([lo[0], lo[1], lo[2]], [hi[0], lo[1], hi[2]], [hi[0], hi[1], hi[2]]):
-        p_H, R_H = model.compute_handle_pose(np.array(corner + [0.0, 1.0, 0.0]))
+        p_H, R_H = model.compute_handle_pose(np.array([*corner, 0.0, 1.0, 0.0]))
         p_V, _ = phi.compute_virtual_pose(p_H, R_H)
         assert abs(ws.margin(p_V)) < 1e-12
         assert np.all(np.sort(np.abs(ws.distances(p_V)))[:3] < 1e-12)  # a corner: on three faces

@@ -83,7 +83,7 @@ def test_certificate_errors_name_the_file(tmp_path):
     with pytest.raises(KeyFileError, match="does not match the certificate"):
         load_keys(tmp_path / "b", "slave")
     (tmp_path / "b" / "ca.pem").write_text("not a certificate")
-    with pytest.raises(KeyFileError, match="ca.pem: not a PEM certificate"):
+    with pytest.raises(KeyFileError, match=r"ca\.pem: not a PEM certificate"):
         load_keys(tmp_path / "b", "master")
     with pytest.raises(KeyFileError, match="no such keys folder"):
         load_keys(tmp_path / "nowhere", "master")
@@ -146,7 +146,7 @@ def test_make_config_applies_the_policy(tmp_path):
     pytest.importorskip("zenoh")
     from teleop.link.zenoh_link import make_config
 
-    with pytest.raises(ConfigError, match="tcp/10.0.0.2:7447"):
+    with pytest.raises(ConfigError, match=r"tcp/10\.0\.0\.2:7447"):
         make_config(connect="tcp/10.0.0.2:7447")
     with pytest.raises(ConfigError, match="pass the endpoints"):
         make_config(listen="tcp/127.0.0.1:7447", config_json5={"connect/endpoints": '["tcp/10.0.0.2:7447"]'})

@@ -1,5 +1,6 @@
 """The simulated channel: delay exact in ticks, loss rate, bursts, order, bandwidth, determinism."""
 
+import dataclasses
 import math
 
 import numpy as np
@@ -118,5 +119,5 @@ def test_spec_is_validated(kw):
 
 
 def test_spec_is_frozen():
-    with pytest.raises(Exception):
+    with pytest.raises(dataclasses.FrozenInstanceError):
         ChannelSpec().loss = 0.5

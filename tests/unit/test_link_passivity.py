@@ -157,7 +157,7 @@ def two_masses(rt_ms, guard, T=6.0, loss=0.0, seed=0, drift_gain=0.0, drift_k=0.
     the master, wall force, slave offset, the force the slave port counted, the velocity it
     commanded (s, m, m, N, N, m, N, m/s)."""
     ch = SimulatedChannel(ChannelSpec(round_trip_ms=rt_ms, loss=loss), np.random.default_rng(seed))
-    n = int(round(T / DT))
+    n = round(T / DT)
     prm = TdpaParams(dt_s=DT, enabled=guard, drift_gain=drift_gain, drift_stiffness=drift_k)
     mp, sp = MasterPassivity(prm, n), SlavePassivity(prm, n)
     m_m, b_m, m_s, K_h, B_h, Kp, Kd, k_w, x_w = 0.5, 0.5, 0.5, 300.0, 2.0, 2000.0, 40.0, 1e4, 0.01

@@ -71,11 +71,11 @@ def test_wrench_to_master_scales_and_rotates():
 
 
 def test_bad_settings_are_named():
-    with pytest.raises(ConfigError, match="mapping.scale"):
+    with pytest.raises(ConfigError, match=r"mapping\.scale"):
         Registration([0, 0, 0], np.eye(3), scale=0.0)
     with pytest.raises(ConfigError, match="X_PM_R"):
         Registration([0, 0, 0], 2 * np.eye(3))
-    with pytest.raises(ConfigError, match="mapping.bogus"):
+    with pytest.raises(ConfigError, match=r"mapping\.bogus"):
         validate(MappingSpec, {"bogus": 1}, "", "mapping")
     r = validate(MappingSpec, {"position_m": [0.5, 0, 0.2], "rpy_rad": [0, 0, 0.5], "scale": 3}, "", "mapping").registration()
     assert r.scale == 3.0 and np.isclose(r.torque_scale, 3.0)

@@ -135,7 +135,7 @@ def test_observer_prediction_matches_the_ode_over_a_period():
     x, qd, u = predict_kernel(x0, qd0, u_old, u_cmd, bias, vmax, np.full(6, 1e9), dt, window, tau)
     y = np.concatenate([x0, qd0])
     for cmd, h in ((u_old, window), (np.clip(u_cmd, -vmax, vmax), dt - window)):
-        y = solve_ivp(lambda t, y: np.concatenate([y[6:], (cmd - y[6:]) / tau]), (0.0, h), y, rtol=1e-12,
+        y = solve_ivp(lambda t, y, cmd=cmd: np.concatenate([y[6:], (cmd - y[6:]) / tau]), (0.0, h), y, rtol=1e-12,
                       atol=1e-14).y[:, -1]
     np.testing.assert_allclose(x, y[:6] + bias * dt, atol=1e-12)
     np.testing.assert_allclose(qd, y[6:], atol=1e-10)

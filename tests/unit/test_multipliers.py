@@ -36,7 +36,7 @@ def test_duplicated_constraint_row_still_solves(paper_body, scale):
     fx = fixtures.rolling_disk(0.03)
     dup = PlaneHeight(normal=(0.0, 0.0, scale), height=0.03, name="height_again")
     base = ConstrainedBody(paper_body, fx.constraints)
-    twice = ConstrainedBody(paper_body, fx.constraints + (dup,))
+    twice = ConstrainedBody(paper_body, (*fx.constraints, dup))
     chart = fx.parametrization.initial_chart()
     q = np.array([0.01, 0.02, 0.03, 0.3, np.pi / 2, 0.1])
     qd = np.array([-0.03 * 2.0 * np.cos(0.3), -0.03 * 2.0 * np.sin(0.3), 0, 0.5, 0, 2.0])

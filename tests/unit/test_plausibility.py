@@ -57,7 +57,7 @@ def _cmd(m: ToolCommand, **kw) -> ToolCommand:
     (lambda m: _cmd(m, t_s=m.t_s - 0.1), "time_ran_backwards"),
 ], ids=["1 km target", "jump", "sheared rotation", "energy 1e300", "time backwards"])
 def test_a_command_no_real_master_sends_is_refused_and_the_arm_holds(forge, reason):
-    s, _, slave = _run("command", forge)
+    s, _, _slave = _run("command", forge)
     assert s["commands_refused"] == {reason: 1}
     assert s["status"] == "slave_implausible_command", s["status_reason"]
     assert s["slave_statuses"]["implausible_command"] >= 1

@@ -57,7 +57,7 @@ def test_layout_and_dispatch():
     rs = RowStack(STACK)
     assert rs.m == sum(c.rows for c in STACK) == 14
     assert rs.compiled_mask.tolist() == [c is not STACK[1] for c in STACK]
-    assert rs.holonomic_mask.tolist() == sum(([c.holonomic] * c.rows for c in STACK), [])
+    assert rs.holonomic_mask.tolist() == [c.holonomic for c in STACK for _ in range(c.rows)]
     assert C.compiled_kind(LoudAxis()) is None and C.compiled_kind(C.AxisInPlane()) is not None
     assert C.compiled_kind(TiltedPoint()) is None
 

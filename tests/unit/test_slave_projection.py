@@ -130,5 +130,5 @@ def test_a_target_that_is_not_finite_passes_unchanged(bad):
     cons = FIXTURES["scalpel"]
     p = PLANE_O + [0.0, 0.0, -0.004]
     p[0] = bad
-    p1, R1, v1, w1 = project_onto_fixture(RowStack(cons), p, R_CUT, np.zeros(3), np.zeros(3))
+    p1, R1, _v1, _w1 = project_onto_fixture(RowStack(cons), p, R_CUT, np.zeros(3), np.zeros(3))
     assert np.array_equal(R1, R_CUT) and not np.isfinite(p1[0])

@@ -31,7 +31,7 @@ def test_fixture_rows_match_finite_differences_through_the_arm():
     """d/dt h(pose(q)) along a joint velocity, by central differences of Pinocchio's placement of E,
     equals the QP's row block A[:, :nv] qd = G J qd (rows of the holonomic fixtures)."""
     rcm = C.RemoteCenter(center=PLANE_O + [0, 0, 0.05], point_B=(0, 0, 0), axis_B=(0, 0, 1))
-    cons = fixtures.scalpel(plane_origin=PLANE_O, depth=0.005).holonomic + (rcm,)
+    cons = (*fixtures.scalpel(plane_origin=PLANE_O, depth=0.005).holonomic, rcm)
     arm = _arm(cons=cons)
     rng = np.random.default_rng(1)
     qd = rng.normal(size=arm.nv)
@@ -112,7 +112,7 @@ def test_a_users_own_constraint_enters_the_qp_and_holds():
     constraint next to built-in ones), and the arm, pulled off the user's row, stays on it while it
     follows the rest of the target."""
     start = PLANE_O + [-0.03, 0.0, -0.005]
-    cons = fixtures.scalpel(plane_origin=PLANE_O, depth=0.005).holonomic + (SineRow(start[0]),)
+    cons = (*fixtures.scalpel(plane_origin=PLANE_O, depth=0.005).holonomic, SineRow(start[0]))
     arm = _arm("daqp", cons=cons)
     qp = arm.qp
     lb, ub = -arm.limits.v_max, arm.limits.v_max

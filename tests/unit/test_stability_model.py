@@ -72,7 +72,7 @@ def test_a_slow_period_is_unstable_at_the_default_gains():
 
 
 def test_bad_settings_name_the_field():
-    with pytest.raises(ConfigError, match="LoopParams.mass"):
+    with pytest.raises(ConfigError, match=r"LoopParams\.mass"):
         LoopParams(mass=0.0)
     with pytest.raises(ConfigError, match="compensation"):
         LoopParams(mass=1.0, compensation="magic")

@@ -99,7 +99,7 @@ def test_foot_and_depth_against_scipy_minimizer_on_the_dome():
     for _ in range(20):
         x, y = rng.uniform(-0.04, 0.04), rng.uniform(-0.03, 0.03)
         p = np.array([0.5 + x, y, 0.2 + dome(x, y) + rng.uniform(-0.008, 0.008)])
-        res = minimize(lambda c: np.sum((p - [0.5 + c[0], c[1], 0.2 + dome(*c)]) ** 2), [x, y],
+        res = minimize(lambda c, p=p: np.sum((p - [0.5 + c[0], c[1], 0.2 + dome(*c)]) ** 2), [x, y],
                        method="Nelder-Mead", options={"xatol": 1e-12, "fatol": 1e-20, "maxiter": 4000})
         u, v, ok = s.closest(p)
         assert ok and abs(u - res.x[0]) < 1e-7 and abs(v - res.x[1]) < 1e-7
@@ -205,9 +205,9 @@ def _run(integrator, h, seconds, push=0.1):
     par = fx.parametrization
     tool.reset(par.psi(par.initial_chart(), np.array([-0.03, 0.005, 0.3])), np.zeros(6))
     work, E0, path = 0.0, tool.energy(), []
-    every = int(round(1e-3 / h))
-    for k in range(int(round(seconds / h))):
-        p, R = tool.pose()
+    every = round(1e-3 / h)
+    for k in range(round(seconds / h)):
+        _p, R = tool.pose()
         W = np.concatenate([push * R[:, 0], [0.0, 0.0, 0.0]])  # along the cut
         v, _ = tool.twist()
         assert tool.step(h, W) == "ok"
@@ -223,7 +223,7 @@ def test_parametric_dynamics_converge_to_rk4_and_keep_the_work_energy_balance():
     forces, the knife edge's included, do none)."""
     ref, path_r, work_r, dE_r = _run("rk4", 1e-3, 0.3)
     p1, path_1, work_1, dE_1 = _run("parametric", 1e-3, 0.3)
-    p2, path_2, _, _ = _run("parametric", 5e-4, 0.3)
+    _p2, path_2, _, _ = _run("parametric", 5e-4, 0.3)
     assert np.linalg.norm(path_r[-1] - path_r[0]) > 0.003  # it moved over the dome
     assert np.abs(p1.residual()).max() < 1e-9 and np.abs(ref.residual()).max() < 1e-7
     e1, e2 = np.abs(path_1 - path_r).max(), np.abs(path_2 - path_r).max()

@@ -107,7 +107,7 @@ class Groove:
 def test_a_user_fixture_draws_itself_in_the_master_frame():
     frame = FrameMap(R0, np.array([0.1, 0.0, 0.0]), 0.5)
     d = L.Drawing(VizScene("bowl", {}, "box", fixture_object=Bowl(), fixture_frame=frame))
-    name, obj, M = next(x for x in d.parts if x[0] == "master/fixture/bowl")
+    _name, obj, M = next(x for x in d.parts if x[0] == "master/fixture/bowl")
     assert obj.geometry.radius == pytest.approx(0.02) and np.allclose(M[:3, 3], [0.05, 0, 0])
     assert d.trace_master is None
 
@@ -125,12 +125,12 @@ def test_a_bad_user_drawing_is_named():
         def draw(self, frame):
             return [("x", None)]
 
-    with pytest.raises(ConfigError, match="Bad.draw: item 0"):
+    with pytest.raises(ConfigError, match=r"Bad\.draw: item 0"):
         L.Drawing(VizScene("bad", {}, "box", fixture_object=Bad()))
 
 
 def test_scene_refuses_an_unknown_type_without_its_object_and_a_bad_view():
     with pytest.raises(ConfigError, match="fixture_object"):
         VizScene("groove", {})
-    with pytest.raises(ConfigError, match="VizScene.view"):
+    with pytest.raises(ConfigError, match=r"VizScene\.view"):
         VizScene("free", {}, view="fisheye")
