@@ -72,8 +72,8 @@ def make_slave(scene: Scene, registration, constraints_P, guard: SlaveGuard | No
     except ConfigError as e:
         key, _, reason = str(e).partition(": ")
         raise SceneError(scene.path, key, reason) from None
-    return SlaveSide(arm, registration, tissue, scene.fixture.tip_m, guard=guard, heartbeat_s=scene.link.heartbeat_ms * 1e-3,
-                     limits=command_limits(arm, tool, scale))
+    return SlaveSide(arm, registration, tissue, scene.fixture.tip_m, guard=guard,
+                     heartbeat_s=scene.link.heartbeat_ms * 1e-3, limits=command_limits(arm, tool, scale))
 
 
 def command_limits(arm: SlaveArm, tool=None, scale: float = 1.0) -> CommandLimits:

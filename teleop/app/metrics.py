@@ -379,9 +379,10 @@ class SlaveMetrics(Hook):
 
 
 class TremorProbe(Hook):
-    """A loop hook (it needs both sides in one process): how much physiological tremor the fixtures remove: the hand's tremor and the slave tip's
-    motion, both across the cut (the plane normal and the blade's side axis, in slave units), in the
-    tremor band. ``tremor_removed_pct`` = 100 (1 - out / in)."""
+    """A loop hook (it needs both sides in one process): how much physiological tremor the fixtures
+    remove: the hand's tremor and the slave tip's motion, both across the cut (the plane normal and
+    the blade's side axis, in slave units), in the tremor band. ``tremor_removed_pct`` =
+    100 (1 - out / in)."""
 
     def __init__(self, hand, n: int, scale: float, R_PM: np.ndarray, normal_P):
         self.hand, self.scale, self.R_PM = hand, scale, R_PM

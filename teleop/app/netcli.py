@@ -24,8 +24,9 @@ PAIR_MARGIN_S = 240.0
 
 def add_subcommands(sub) -> None:
     """Register ``teleop master`` and ``teleop slave`` on the CLI's subparsers."""
-    for role, flag, default_help in (("slave", "--listen", "listen on this Zenoh endpoint (default tcp/127.0.0.1:7447)"),
-                                     ("master", "--connect", "connect to the slave's endpoint (default tcp/127.0.0.1:7447)")):
+    for role, flag, default_help in (
+            ("slave", "--listen", "listen on this Zenoh endpoint (default tcp/127.0.0.1:7447)"),
+            ("master", "--connect", "connect to the slave's endpoint (default tcp/127.0.0.1:7447)")):
         p = sub.add_parser(role, help=f"run the {role} side of a scene over Zenoh (wall clock, the scene's rate)")
         add_scene_flags(p)
         p.add_argument(flag, dest="endpoint", default="tcp/127.0.0.1:7447", help=default_help)
@@ -169,7 +170,8 @@ def cmd_run_zenoh(scene, quiet: bool = False, record_dir=None):
         path = save_scene_copy(scene, tmp)
         py = [sys.executable, "-m", "teleop"]
         common = ["--part", tmp, "-q", "--pairing-key", str(key_file)]  # the parent prints the one summary
-        rec = {r: (["--record", str(Path(record_dir) / f"{r}.mcap")] if record_dir else []) for r in ("slave", "master")}
+        rec = {r: (["--record", str(Path(record_dir) / f"{r}.mcap")] if record_dir else [])
+               for r in ("slave", "master")}
         slave = subprocess.Popen(py + ["slave", str(path), "--listen", ep] + common + rec["slave"])
         master = subprocess.Popen(py + ["master", str(path), "--connect", ep] + common + rec["master"])
         codes = _wait_pair(master, slave, scene.duration_s + PAIR_MARGIN_S)

@@ -62,7 +62,8 @@ def load_run_scene(folder) -> Scene:
         with np.load(log) as z:
             name = json.loads(str(z["summary"]))["scenario"]
         if not (isinstance(name, str) and re.fullmatch(r"[A-Za-z0-9_-]{1,100}", name)):
-            raise ConfigError(f"{log}: summary.scenario: {plain(str(name))!r} is not a scene name (the shipped scenes' names only)")
+            raise ConfigError(f"{log}: summary.scenario: {plain(str(name))!r} is not a scene name "
+                              "(the shipped scenes' names only)")
         try:
             return load_scene(name)
         except ConfigError:

@@ -11,9 +11,10 @@ tool's body frame maps onto the slave's tool frame E, so body points scale by 1/
 
 ``master_frame`` is the one map of patient-frame geometry into M (points through the inverse map,
 directions rotated by R_PM', lengths and body points times ``scale``): a fixture type builds the
-master's fixture through it and the slave's through the identity, so one definition serves both. ``wrench_to_master`` scales the slave's contact wrench back to the master:
-forces by ``force_scale`` and torques by ``torque_scale`` (default force_scale * scale, since lever
-arms at the master are ``scale`` times longer).
+master's fixture through it and the slave's through the identity, so one definition serves both.
+``wrench_to_master`` scales the slave's contact wrench back to the master: forces by ``force_scale``
+and torques by ``torque_scale`` (default force_scale * scale, since lever arms at the master are
+``scale`` times longer).
 """
 
 from __future__ import annotations

@@ -112,7 +112,8 @@ class TdpaParams:
     def __post_init__(self):
         a = self.alpha_max
         if isinstance(a, (tuple, list, np.ndarray)):
-            if len(a) != 6 or not all(isinstance(x, (int, float, np.floating)) and math.isfinite(x) and x > 0 for x in a):
+            if len(a) != 6 or not all(isinstance(x, (int, float, np.floating)) and math.isfinite(x) and x > 0
+                                      for x in a):
                 raise ConfigError(f"TdpaParams.alpha_max: expected one or six finite numbers > 0, got {a!r}")
             object.__setattr__(self, "alpha_max", tuple(float(x) for x in a))
         for name, lo in (("dt_s", 0.0), ("alpha_max", 0.0), ("v_floor", 0.0), ("f_floor", 0.0), ("dv_max", 0.0),

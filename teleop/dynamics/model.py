@@ -308,7 +308,8 @@ class ConstrainedBody:
         return K.project_twist(R, self.body.J_inv, self._inv_m, G, nu, RANK_RTOL)
 
 
-def evaluate_literal(model: ConstrainedBody, chart: EulerChart, q, qd, t: float, operator_W=None) -> ConstrainedAcceleration:
+def evaluate_literal(model: ConstrainedBody, chart: EulerChart, q, qd, t: float,
+                     operator_W=None) -> ConstrainedAcceleration:
     """Eqs. 8-9 exactly as printed, in chart coordinates: M(q), C(q,qd)qd, A(q), Adot qd.
 
     Not a production path: an independent formulation (chart-coordinate inertia, Coriolis vector

@@ -41,7 +41,8 @@ class HeightSurface:
         if not (np.all(np.isfinite(H)) and np.all(np.isfinite(x)) and np.all(np.isfinite(y))):
             raise ConfigError("surface: grid and heights must be finite")
         if degree not in (4, 5):
-            raise ConfigError(f"surface.degree: expected 4 or 5 (third derivatives need a degree above 3), got {degree}")
+            raise ConfigError("surface.degree: expected 4 or 5 (third derivatives need a degree above 3), "
+                              f"got {degree}")
         if x.size <= degree or y.size <= degree:
             raise ConfigError(f"surface: a degree-{degree} spline needs more than {degree} grid points "
                               f"each way, got {x.size} x {y.size}")

@@ -56,7 +56,8 @@ class LinkAuth:
         self.refused = dict.fromkeys(REASONS, 0)
         self.missed = self.unsent = 0
         self.outbox: list[bytes] = []
-        self._in = (wire.TYPE_FEEDBACK, wire.TYPE_ACCEPT) if role == "master" else (wire.TYPE_COMMAND, wire.TYPE_CONFIRM)
+        self._in = ((wire.TYPE_FEEDBACK, wire.TYPE_ACCEPT) if role == "master"
+                    else (wire.TYPE_COMMAND, wire.TYPE_CONFIRM))
         self._sid = 0         # the session the counters below belong to
         self._last = 0        # the peer's counter in the last frame taken
         self._count = 0       # this side's counter in the last frame sent

@@ -56,7 +56,8 @@ def _pair(x, name: str, lo: float, hi: float) -> tuple[float, float]:
         raise ConfigError(f"ChannelSpec.{name}: expected a number or a (command, feedback) pair, got {x!r}")
     out = []
     for a in v:
-        if isinstance(a, bool) or not isinstance(a, (int, float)) or math.isnan(a) or not lo <= a <= hi or (math.isinf(a) and hi != math.inf):
+        if (isinstance(a, bool) or not isinstance(a, (int, float)) or math.isnan(a) or not lo <= a <= hi
+                or (math.isinf(a) and hi != math.inf)):
             raise ConfigError(f"ChannelSpec.{name}: expected a number in [{lo}, {hi}], got {a!r}")
         out.append(float(a))
     return out[0], out[1]
@@ -185,8 +186,8 @@ class _Way:
     def stats(self) -> dict:
         d = self.box.delivered
         return {"sent": self.sent, "delivered": d, "lost": self.lost, "dropped_queue": self.dropped_queue,
-                "dropped_old": self.box.dropped_old, "superseded": self.superseded, "in_flight": len(self.flight), "bursts": self.bursts,
-                "cut": self.cut,
+                "dropped_old": self.box.dropped_old, "superseded": self.superseded, "in_flight": len(self.flight),
+                "bursts": self.bursts, "cut": self.cut,
                 "max_age_s": self.max_age_s, "mean_age_s": self.age_sum_s / d if d else 0.0}
 
 
@@ -238,9 +239,8 @@ class SimulatedChannel(Link):
 
     def stats(self) -> dict:
         """``{"command": {...}, "feedback": {...}}``: sent, delivered, lost (loss and bursts), cut
-        (lost to :meth:`cut`),
-        dropped_queue (bandwidth queue full), dropped_old (reordered or stale), superseded (arrived in the same receive as a newer one),
-        in_flight, bursts
-        (times the bad state was entered), max_age_s and mean_age_s (receive time - send time of
-        the delivered messages, s)."""
+        (lost to :meth:`cut`), dropped_queue (bandwidth queue full), dropped_old (reordered or
+        stale), superseded (arrived in the same receive as a newer one), in_flight, bursts (times
+        the bad state was entered), max_age_s and mean_age_s (receive time - send time of the
+        delivered messages, s)."""
         return {"command": self._cmd.stats(), "feedback": self._fb.stats()}

@@ -42,7 +42,8 @@ class CobotConfig(Checked):
     kp: Vec = setting(40000.0, n=6, broadcast=True, ge=0.0, doc="1/s^2, scalar or 6-vector (x y z, rx ry rz)")
     ki: Vec = setting(400000.0, n=6, broadcast=True, ge=0.0, doc="1/s^3")
     kd: Vec = setting(400.0, n=6, broadcast=True, ge=0.0, doc="1/s")
-    integral_limit: Vec = setting(2e-6, n=6, broadcast=True, ge=0.0, doc="anti-windup clamp of the error integral, m*s / rad*s")
+    integral_limit: Vec = setting(2e-6, n=6, broadcast=True, ge=0.0,
+                                  doc="anti-windup clamp of the error integral, m*s / rad*s")
     servo_bandwidth_hz: float = setting(200.0, gt=0.0, le=1e4, doc="velocity servo bandwidth (first-order lag), Hz")
     max_velocity: Vec = setting((0.5, 0.5, 0.5, 10.0, 10.0, 10.0), n=6, broadcast=True, gt=0.0,
                                 doc="joint velocity limits, m/s, rad/s")
@@ -56,7 +57,8 @@ class CobotConfig(Checked):
     torque_bias_Nm: Vec = setting((0.001, -0.0005, 0.0), n=3, doc="N*m")
     max_force_N: float = setting(100.0, gt=0.0, le=1e3, doc="saturation of the sensed hand force, N")
     max_torque_Nm: float = setting(5.0, gt=0.0, le=1e3, doc="saturation of the sensed hand torque, N*m")
-    workspace_margin_m: float = setting(0.005, ge=0.0, le=10.0, doc="commands stop this close to a travel limit, m / rad")
+    workspace_margin_m: float = setting(0.005, ge=0.0, le=10.0,
+                                        doc="commands stop this close to a travel limit, m / rad")
     fd: bool = setting(True, check=_fd_only, doc="CAN FD (the 1 kHz cycle needs it; classic CAN does not fit 60 %)")
     bitrate_bps: float = setting(1_000_000.0, gt=0.0, le=20e6, doc="nominal bit rate, bit/s")
     data_bitrate_bps: float = setting(5_000_000.0, gt=0.0, le=20e6, doc="CAN FD data-phase bit rate, bit/s")

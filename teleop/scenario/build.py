@@ -83,6 +83,7 @@ def build_tool(scene: Scene) -> ReferenceTool:
     except (np.linalg.LinAlgError, DynamicsError, FloatingPointError, ZeroDivisionError):
         ok = False
     if not ok:
-        raise SceneError(scene.path, "tool.q0", f"the {scene.fixture.type!r} fixture cannot be met from q0 = "
-                                                f"{list(scene.tool.q0)} (a singular point of its chart); choose another q0")
+        raise SceneError(scene.path, "tool.q0",
+                         f"the {scene.fixture.type!r} fixture cannot be met from q0 = {list(scene.tool.q0)} "
+                         "(a singular point of its chart); choose another q0")
     return tool

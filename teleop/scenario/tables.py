@@ -294,7 +294,8 @@ class HandSpec(Checked):
         doc=f"[t_s, x_m, y_m, z_m] each: t in [0, {MAX_TIME_S:g}] s increasing, x y z within +-{MAX_POSITION_M:g} m, "
             f"at most {MAX_HAND_SPEED_M_S:g} m/s between waypoints")
     stiffness_N_per_m: float = setting(200.0, gt=0.0, le=MAX_HAND_STIFFNESS_N_PER_M,
-                                       why=f"must be positive and at most {MAX_HAND_STIFFNESS_N_PER_M:g} N/m (a hand's grip)",
+                                       why=f"must be positive and at most {MAX_HAND_STIFFNESS_N_PER_M:g} N/m "
+                                           "(a hand's grip)",
                                        doc=f"N/m, in (0, {MAX_HAND_STIFFNESS_N_PER_M:g}]")
     damping_Ns_per_m: float = setting(5.0, **_damping(MAX_DAMPING_NS_PER_M, "N*s/m"))
     angular_damping_Nms_per_rad: float = setting(0.0, **_damping(MAX_DAMPING_NMS_PER_RAD, "N*m*s/rad"))
@@ -376,15 +377,17 @@ class MappingSpec(Checked):
     scale: float = setting(1.0, ge=SCALE[0], le=SCALE[1],
                            why=f"expected a value > 0: a motion scale in [{SCALE[0]:g}, {SCALE[1]:g}]",
                            doc=f"motion scale master : slave, in [{SCALE[0]:g}, {SCALE[1]:g}]")
-    force_scale: float = setting(1.0, gt=0.0, le=MAX_FEEDBACK_GAIN, doc=f"force feedback gain, in (0, {MAX_FEEDBACK_GAIN:g}]")
+    force_scale: float = setting(1.0, gt=0.0, le=MAX_FEEDBACK_GAIN,
+                                 doc=f"force feedback gain, in (0, {MAX_FEEDBACK_GAIN:g}]")
     torque_scale: float | None = setting(None, gt=0.0, le=MAX_FEEDBACK_GAIN * SCALE[1],
                                          doc="torque feedback gain (default force_scale * scale), in "
                                              f"(0, {MAX_FEEDBACK_GAIN * SCALE[1]:g}]")
     feedback_cutoff_hz: float = setting(20.0, ge=0.0, le=MAX_CUTOFF_HZ,
                                         doc=f"force feedback low-pass cut-off, Hz (0: off); below the Nyquist rate "
                                             f"1 / (2 dt_s) with a slave, at most {MAX_CUTOFF_HZ:g}")
-    feedback_local_damping: bool = setting(True, doc="render the contact's damping at the master, implicitly and without "
-                                           "the link's delay (teleop.tick.feedback); false: the wrench alone")
+    feedback_local_damping: bool = setting(True, doc="render the contact's damping at the master, implicitly and "
+                                                     "without the link's delay (teleop.tick.feedback); false: the "
+                                                     "wrench alone")
 
     def registration(self) -> Registration:
         return Registration(np.array(self.position_m), rpy_matrix(*self.rpy_rad), self.scale, self.force_scale,
@@ -397,7 +400,8 @@ class ViewerSpec(Checked):
 
     tissue_size_m: tuple[float, ...] = setting((0.12, 0.08), n=2, gt=0.0, le=MAX_POSITION_M,
                                                doc=f"drawn tissue block, m, each in (0, {MAX_POSITION_M:g}]")
-    tool_radius_m: float | None = setting(None, gt=0.0, le=RADIUS_M[1], why=f"must be positive and at most {RADIUS_M[1]:g} m",
+    tool_radius_m: float | None = setting(None, gt=0.0, le=RADIUS_M[1],
+                                          why=f"must be positive and at most {RADIUS_M[1]:g} m",
                                           doc="drawn disk radius, m (default: the fixture's; a fifth of a sphere's), "
                                               f"in (0, {RADIUS_M[1]:g}]")
 
@@ -411,7 +415,8 @@ class LinkSpec(Checked):
     round_trip_ms: float = setting(0.0, ge=0.0, le=10_000.0, doc="constant round-trip delay, ms (half each way)")
     jitter_ms: float = setting(0.0, ge=0.0, le=10_000.0, doc="mean of the exponential extra one-way delay, ms")
     loss: float = setting(0.0, ge=0.0, lt=1.0, doc="fraction of messages lost (good state), in [0, 1)")
-    burst_enter: float = setting(0.0, ge=0.0, le=1.0, doc="Gilbert-Elliott good->bad probability per message (0: no bursts)")
+    burst_enter: float = setting(0.0, ge=0.0, le=1.0,
+                                 doc="Gilbert-Elliott good->bad probability per message (0: no bursts)")
     burst_exit: float = setting(0.5, gt=0.0, le=1.0, doc="bad->good probability per message (mean burst 1/burst_exit)")
     burst_loss: float = setting(1.0, ge=0.0, le=1.0, doc="loss probability in the bad state")
     bandwidth_kBps: float = setting(0.0, ge=0.0, doc="wire rate each way, kB/s (0: no limit)")

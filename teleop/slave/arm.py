@@ -129,8 +129,9 @@ class SlaveConfig(Checked):
     impedance_Ns_per_m: float = setting(200.0, gt=0.0, doc="row multipliers to forces, N*s/m")
     relaxed_tol_mps: float = setting(1e-6, gt=0.0, doc="slack above which fixtures count as relaxed, m/s")
     tracking_alarm_m: float = setting(0.01, gt=0.0, doc="tip tracking error that raises the alarm, m")
-    fallback: Literal["dls", "hold"] = setting("hold", doc="what the follower does when the QP fails: hold "
-                                               "(stop the joints, the blade stays) or dls (toward the target, no fixture rows)")
+    fallback: Literal["dls", "hold"] = setting("hold", doc="what the follower does when the QP fails: hold (stop "
+                                                           "the joints, the blade stays) or dls (toward the target, "
+                                                           "no fixture rows)")
     kkt_shortcut: bool = setting(True, doc="try the bound-free KKT solve first")
 
     @classmethod

@@ -119,7 +119,8 @@ class FollowerQP:
         # (the slack weight against the damping: cond(H) ~ 1e10) when a tight acceleration box
         # binds; then the same problem goes to DAQP, a dense active-set solver that ends at the
         # exact solution in finitely many steps. Only when both fail does the arm fall back.
-        self.exact = None if cfg.solver == "daqp" else make_solver("daqp", n, m, eps=cfg.eps, max_iter=max(cfg.max_iter, 1000))
+        self.exact = (None if cfg.solver == "daqp"
+                      else make_solver("daqp", n, m, eps=cfg.eps, max_iter=max(cfg.max_iter, 1000)))
         self.used_solver = False  # whether the last solve() ran the QP solver
         self.used_fixtures_first = False  # whether the last solve() took the fixture-first stages
         self.retries = 0  # solves the exact solver finished after cfg.solver failed

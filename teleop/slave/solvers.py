@@ -9,12 +9,12 @@ values every tick through ``solve(H, g, A_eq, b_eq, lb, ub)``. It returns a :cla
 whose equality duals ``y_eq`` follow one sign convention for all solvers (OSQP's):
 ``H x + g + A_eq' y_eq + (bound terms) = 0``. Infinite bounds are given as +-inf.
 
-osqp and daqp are base dependencies and imported here (daqp finishes exactly what OSQP leaves at
-its iteration cap); proxsuite and quadprog are optional (the test extras) and imported by their
-wrappers on demand. The OSQP wrapper builds its sparse structures
-once (fixed sparsity pattern with explicit zeros) and afterwards updates only the values of P, q, A, l, u, warm-starting from the previous tick; the
-DAQP wrapper keeps one model and its active set from tick to tick. The follower calls a solver
-only on ticks where a joint bound binds (see ``teleop.slave.follower``), unless its
+osqp and daqp are base dependencies and imported here (daqp finishes exactly what OSQP leaves at its
+iteration cap); proxsuite and quadprog are optional (the test extras) and imported by their wrappers
+on demand. The OSQP wrapper builds its sparse structures once (fixed sparsity pattern with explicit
+zeros) and afterwards updates only the values of P, q, A, l, u, warm-starting from the previous
+tick; the DAQP wrapper keeps one model and its active set from tick to tick. The follower calls a
+solver only on ticks where a joint bound binds (see ``teleop.slave.follower``), unless its
 ``kkt_shortcut`` is off.
 """
 

@@ -69,7 +69,8 @@ class MasterGuard:
         """The remote force is dropped (a lost link's safe state): nothing rendered any more."""
         self.port.f_channel = self.port.f_rendered = np.zeros(6)
 
-    def feedback(self, wrench_M: np.ndarray, twist_M: np.ndarray, msg: ContactFeedback | None, t_s: float) -> np.ndarray:
+    def feedback(self, wrench_M: np.ndarray, twist_M: np.ndarray, msg: ContactFeedback | None,
+                 t_s: float) -> np.ndarray:
         """The felt wrench (6,: N, N*m, M) after damping, from the filtered feedback ``wrench_M``,
         the reference tool's ``twist_M`` (6,: m/s, rad/s) and the newest feedback ``msg`` (its
         ``energy_J``; None: hold the last)."""

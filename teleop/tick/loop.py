@@ -23,7 +23,8 @@ from teleop.tick.slave_side import SlaveSide
 from teleop.util.errors import ConfigError
 
 #: what a loop hook reads of the master side through the loop
-MASTER_READOUTS = frozenset(("dt", "tool", "master", "operator", "feedback", "hand_W", "felt_W", "feedback_W", "status"))
+MASTER_READOUTS = frozenset(("dt", "tool", "master", "operator", "feedback", "hand_W", "felt_W", "feedback_W",
+                             "status"))
 
 
 class Link(MasterEnd, SlaveEnd, Protocol):

@@ -9,14 +9,14 @@ in-process loop (:mod:`teleop.tick.loop`) and the slave process over Zenoh
 same fixture rows, evaluates the tissue at the blade tip and answers with a
 :class:`~teleop.tick.messages.ContactFeedback`: the contact wrench at the slave tool frame's origin,
 in the patient frame, with the contact's local damping (:mod:`teleop.contact.damping`) and the
-tool's twist it was taken at, for the master to render. No command (a late or lost message) holds the last target; a command with the
-clutch out holds the arm where it is. A tick the arm ends with a joint at a position limit
-(:meth:`teleop.slave.limits.JointLimits.at_limit`) it reached during the run (a joint the start
-pose put on its stop is not reported while it stays there; once it leaves, it is watched like the
-others) says ``joint_limit`` instead of what the
-follower reported, unless that was worse (a solver fallback, an invalid target); when the stop made
-the follower relax its fixture rows, the slave holds its joints from the next tick (the safe
-state, as on a lost link) until a command comes with the clutch open.
+tool's twist it was taken at, for the master to render. No command (a late or lost message) holds
+the last target; a command with the clutch out holds the arm where it is. A tick the arm ends with a
+joint at a position limit (:meth:`teleop.slave.limits.JointLimits.at_limit`) it reached during the
+run (a joint the start pose put on its stop is not reported while it stays there; once it leaves, it
+is watched like the others) says ``joint_limit`` instead of what the follower reported, unless that
+was worse (a solver fallback, an invalid target); when the stop made the follower relax its fixture
+rows, the slave holds its joints from the next tick (the safe state, as on a lost link) until a
+command comes with the clutch open.
 While the heartbeat (:mod:`teleop.tick.heartbeat`) says the master is lost, no command is
 followed: the joints are commanded to stop where they are (:meth:`teleop.slave.qp.SlaveArm.hold`,
 no QP) and the reply says ``link_lost``; when commands come again it follows from where it held.

@@ -28,7 +28,8 @@ FIXTURE_TOLERANCES = {
     "depth_error_max_m": 1e-3, "blade_tilt_max_rad": 0.1, "sideslip_max_m_per_s": 0.01,
     "height_error_max_m": 1e-3, "upright_error_max_rad": 0.1,
     "sphere_deviation_max_m": 1e-3, "normal_angle_error_max_rad": 0.1,
-    "fixture_residual_max": 1e-3, "fixture_rate_max": 0.01,  # a user's type: holonomic rows by residual, the others by rate
+    # a user's type: holonomic rows by residual, the others by rate
+    "fixture_residual_max": 1e-3, "fixture_rate_max": 0.01,
 }
 SLAVE_FIXTURE_TOLERANCES = {"cut_depth_error_max_m": 1e-3, "rcm_error_max_m": 2e-3, "slave_fixture_residual_max": 1e-3}
 
@@ -36,13 +37,14 @@ SLAVE_FIXTURE_TOLERANCES = {"cut_depth_error_max_m": 1e-3, "rcm_error_max_m": 2e
 def verdict(master_status: str, steps: int, slave_counts: dict | None = None, metrics: dict | None = None,
             nan: bool = False, exempt: Iterable[str] = (), master_link_lost: int = 0) -> tuple[str, str]:
     """The run's one-word status and a one-line reason, first match wins: "interrupted" (Ctrl-C),
-    the master side's fault (``link_refused`` included), "no_ticks", "nan", "link_lost" (either side lost the link and held),
-    "slave_<status>" (the worst slave fault, see SLAVE_FAULTS), "fixture_violated" (the master side past FIXTURE_TOLERANCES),
-    "slave_fixture_violated" (SLAVE_FIXTURE_TOLERANCES), "slave_off_target" (the slave's tool
-    farther than SLAVE_TARGET_MAX_M from its target), else "ok". ``exempt``: metric names the
-    scene's fixture does not hold (a trocar's fixture lets the blade tilt). ``master_link_lost``:
-    the ticks the master spent in its lost-link safe state (:mod:`teleop.tick.heartbeat`): the run
-    is "link_lost" unless the slave did worse than ``link_lost``."""
+    the master side's fault (``link_refused`` included), "no_ticks", "nan", "link_lost" (either side
+    lost the link and held), "slave_<status>" (the worst slave fault, see SLAVE_FAULTS),
+    "fixture_violated" (the master side past FIXTURE_TOLERANCES), "slave_fixture_violated"
+    (SLAVE_FIXTURE_TOLERANCES), "slave_off_target" (the slave's tool farther than SLAVE_TARGET_MAX_M
+    from its target), else "ok". ``exempt``: metric names the scene's fixture does not hold (a
+    trocar's fixture lets the blade tilt). ``master_link_lost``: the ticks the master spent in its
+    lost-link safe state (:mod:`teleop.tick.heartbeat`): the run is "link_lost" unless the slave did
+    worse than ``link_lost``."""
     counts, metrics = slave_counts or {}, metrics or {}
     if master_status == "interrupted":
         return "interrupted", f"stopped by Ctrl-C or SIGTERM after {steps} ticks: a partial run"
@@ -56,13 +58,15 @@ def verdict(master_status: str, steps: int, slave_counts: dict | None = None, me
     worst = [s for s in SLAVE_FAULTS if counts.get(s, 0) and (
         s not in DEGRADED or counts[s] / total > RELAXED_SHARE_MAX)]
     if master_link_lost and (not worst or SLAVE_FAULTS.index(worst[-1]) <= SLAVE_FAULTS.index("link_lost")):
-        return "link_lost", f"the master lost the link to the slave on {master_link_lost} ticks (held in its safe state)"
+        return "link_lost", (f"the master lost the link to the slave on {master_link_lost} ticks "
+                             "(held in its safe state)")
     if worst and worst[-1] == "link_lost":  # the link's fault, not the slave's: the same word either side
         return "link_lost", f"the slave lost the link to the master on {counts['link_lost']} of {total} ticks (held)"
     if worst:
         s = worst[-1]
         return f"slave_{s}", f"the slave was {s!r} on {counts[s]} of {total} ticks"
-    for status, tols in (("fixture_violated", FIXTURE_TOLERANCES), ("slave_fixture_violated", SLAVE_FIXTURE_TOLERANCES)):
+    for status, tols in (("fixture_violated", FIXTURE_TOLERANCES),
+                         ("slave_fixture_violated", SLAVE_FIXTURE_TOLERANCES)):
         for key, tol in tols.items():
             if key not in exempt and metrics.get(key, 0.0) > tol:
                 return status, f"{key} = {metrics[key]:.3g}, past its tolerance {tol:g}"
@@ -93,7 +97,8 @@ def run_summary(master_status: str, steps: int, dt_s: float, master: dict | None
     lost_m = m.get("heartbeat", {}).get("lost_ticks", 0)
     status, reason = verdict(master_status, steps, counts, metrics, nan, tuple(exempt), lost_m)
     if status == "ok" and slave is not None and s.get("heartbeat", {}).get("lost_ticks", 0):
-        status, reason = "link_lost", f"the slave lost the link on {s['heartbeat']['lost_ticks']} ticks (held its joints)"
+        status, reason = "link_lost", (f"the slave lost the link on {s['heartbeat']['lost_ticks']} ticks "
+                                       "(held its joints)")
     if status == "ok" and m.get("pushes_refused"):
         status, reason = "push_refused", (f"the hand's wrench could not be applied on {m['pushes_refused']} ticks "
                                           "(not 6 finite numbers, or past a hand's strength)")

@@ -40,9 +40,9 @@ def setting(default=MISSING, *, factory=MISSING, ge=None, gt=None, le=None, lt=N
     """A dataclass field with its rules: bounds ``ge gt le lt`` (each number, elementwise for
     lists), ``n`` the length of a list (``lens`` the allowed lengths), ``broadcast`` a number
     accepted for a list of ``n``, ``choices`` the allowed values (for lists: of each item),
-    ``check(value) -> reason or None`` any further rule (its reason is given as is), ``why`` the reason given when a bound or
-    choice fails, ``finite`` False to allow inf, ``internal`` a field set by the program (never
-    read from a table), ``doc`` a description for the JSON Schema."""
+    ``check(value) -> reason or None`` any further rule (its reason is given as is), ``why`` the
+    reason given when a bound or choice fails, ``finite`` False to allow inf, ``internal`` a field
+    set by the program (never read from a table), ``doc`` a description for the JSON Schema."""
     meta = {k: v for k, v in dict(ge=ge, gt=gt, le=le, lt=lt, n=n, lens=lens, choices=choices, check=check,
                                    why=why, doc=doc).items() if v not in (None, "")}
     meta.update(broadcast=broadcast, finite=finite, internal=internal)
@@ -136,7 +136,8 @@ def _pick(value, options):
     """The union member a value's kind selects."""
     for o in options:
         origin = typing.get_origin(o)
-        if (isinstance(value, dict) and dataclasses.is_dataclass(o)) or (dataclasses.is_dataclass(o) and isinstance(value, o)):
+        if ((isinstance(value, dict) and dataclasses.is_dataclass(o))
+                or (dataclasses.is_dataclass(o) and isinstance(value, o))):
             return o
         if isinstance(value, str) and (o is str or origin is typing.Literal):
             return o
@@ -314,7 +315,8 @@ def _value_schema(hint, meta) -> dict:
             out["prefixItems"] = [_value_schema(a, {}) for a in args]
             out["minItems"] = out["maxItems"] = len(args)
         else:
-            out["items"] = _value_schema(item, {k: v for k, v in meta.items() if k in ("choices", "ge", "gt", "le", "lt")})
+            out["items"] = _value_schema(item, {k: v for k, v in meta.items()
+                                                if k in ("choices", "ge", "gt", "le", "lt")})
         lens = meta.get("lens") or ((meta["n"],) if meta.get("n") is not None else None)
         if lens:
             out["minItems"], out["maxItems"] = min(lens), max(lens)

@@ -192,7 +192,8 @@ class VizScene:
         if self.tissue is not None:
             object.__setattr__(self, "tissue", _tissue(self.tissue))
         object.__setattr__(self, "slave_offset_m", tuple(_vector("VizScene.slave_offset_m", self.slave_offset_m, 3)))
-        object.__setattr__(self, "force_scale_m_per_N", _positive("VizScene.force_scale_m_per_N", self.force_scale_m_per_N))
+        object.__setattr__(self, "force_scale_m_per_N",
+                           _positive("VizScene.force_scale_m_per_N", self.force_scale_m_per_N))
         if self.master_zoom is not None:
             object.__setattr__(self, "master_zoom", _positive("VizScene.master_zoom", self.master_zoom))
         if self.slave_robot is not None:
@@ -200,7 +201,8 @@ class VizScene:
                 if not hasattr(self.slave_robot, attr):
                     raise ConfigError(f"VizScene.slave_robot: has no .{attr} (give a RobotWrapper-like object)")
             if self.slave_tool_frame is not None and not self.slave_robot.model.existFrame(self.slave_tool_frame):
-                raise ConfigError(f"VizScene.slave_tool_frame: {self.slave_tool_frame!r} is not a frame of the slave model")
+                raise ConfigError(f"VizScene.slave_tool_frame: {self.slave_tool_frame!r} is not a frame of the "
+                                  "slave model")
         if self.master_model is not None and not hasattr(self.master_model, "njoints"):
             raise ConfigError("VizScene.master_model: expected a pinocchio Model")
 

@@ -99,11 +99,13 @@ class Drawing:
         self.anchor = {"master": np.zeros(3), "slave": np.asarray(scene.slave_offset_m, dtype=float)}
         self.turn = {"master": np.eye(3), "slave": self._arm_behind(pin)}
         self.fixed = {side: self._side_matrix(side) for side in ("master", "slave")}
-        self.n_per_m = {"master": self.zoom / scene.force_scale_m_per_N, "slave": self.slave_zoom / scene.force_scale_m_per_N}
+        self.n_per_m = {"master": self.zoom / scene.force_scale_m_per_N,
+                        "slave": self.slave_zoom / scene.force_scale_m_per_N}
         if ft in FIXTURE_DRAWN:
             parts = [(f"master/fixture/{n}", o, M) for n, o, M in fixture_parts(ft, p, 1.3 * self.size)]
         else:
-            parts = [(f"master/fixture/{n}", o, M) for n, o, M in custom_fixture_parts(scene.fixture_object, scene.fixture_frame)]
+            parts = [(f"master/fixture/{n}", o, M)
+                     for n, o, M in custom_fixture_parts(scene.fixture_object, scene.fixture_frame)]
         for name, ghost in (("reference", False), ("virtual", True)):
             parts += [(f"master/{name}/{n}", o, M) for n, o, M in tool_parts(scene.tool_shape, tool_r, tip, ghost)]
         self.generic = ft not in FIXTURE_DRAWN and not hasattr(scene.fixture_object, "draw")
@@ -134,14 +136,17 @@ class Drawing:
             self.mdata = m.createData()
             self.handle_fid = m.getFrameId("handle") if m.existFrame("handle") else None
             for j in range(1, m.njoints):
-                parts.append((f"master/device/link{j}", g.Mesh(g.Cylinder(1.0, 0.004), material(COLORS["device"])), np.eye(4)))
+                parts.append((f"master/device/link{j}", g.Mesh(g.Cylinder(1.0, 0.004), material(COLORS["device"])),
+                              np.eye(4)))
                 o, M = device_joint_part(j, m.joints[j])
                 parts.append((f"master/device/joint{j}/marker", o, M))
-            parts.append(("master/device/link_handle", g.Mesh(g.Cylinder(1.0, 0.004), material(COLORS["device"])), np.eye(4)))
+            parts.append(("master/device/link_handle", g.Mesh(g.Cylinder(1.0, 0.004), material(COLORS["device"])),
+                          np.eye(4)))
         if self.master is not None:
             knob, grip = g.Sphere(0.006), g.Cylinder(0.05, 0.004)  # the handle H: knob at H, grip along -z
             parts += [("master/handle/knob", g.Mesh(knob, material(COLORS["handle"])), np.eye(4)),
-                      ("master/handle/grip", g.Mesh(grip, material(COLORS["handle"])), pose_matrix((0, 0, -0.025), Y_TO_Z))]
+                      ("master/handle/grip", g.Mesh(grip, material(COLORS["handle"])),
+                       pose_matrix((0, 0, -0.025), Y_TO_Z))]
         self.arm = scene.slave_robot
         self.arm_parts = []
         if self.arm is not None:
@@ -160,7 +165,8 @@ class Drawing:
         groups = {p.rsplit("/", 1)[0] for p, _, _ in parts}
         self.moving = sorted(p for p, _, _ in parts if "/arrows/" in p)
         self.moving += sorted(p for p in groups if (p.count("/") == 1 and p.split("/")[1] in (
-            "reference", "virtual", "contact", "handle", "tool")) or p.startswith(("slave/arm/", "master/device/visuals/")))
+            "reference", "virtual", "contact", "handle", "tool"))
+            or p.startswith(("slave/arm/", "master/device/visuals/")))
         self.moving += sorted(p for p, _, _ in parts if p.startswith("master/device/link"))
         self.moving += sorted(p for p in groups if p.startswith("master/device/joint"))
         self.followed = ("master", "slave") if scene.follow else ()
@@ -248,7 +254,8 @@ class Drawing:
         if q.shape[0] == m.nq:
             return np.asarray(q, dtype=float)
         if q.shape[0] != m.nv:
-            raise ConfigError(f"VizFrame.master_q: expected {m.nq} (pinocchio) or {m.nv} joint values, got {q.shape[0]}")
+            raise ConfigError(f"VizFrame.master_q: expected {m.nq} (pinocchio) or {m.nv} joint values, "
+                              f"got {q.shape[0]}")
         out = self.pin.neutral(m)
         for j in range(1, m.njoints):
             jt = m.joints[j]

@@ -56,7 +56,8 @@ def text_png(lines, px: int = 56, pad: int = 12, arrows: dict | None = None) -> 
     """A transparent PNG of text ``lines`` [(text, colour)], one per row, through Pillow with
     matplotlib's DejaVu Sans; a row whose key is in ``arrows`` ({row: (colour, length px)}) starts
     with an arrow of that colour and length. Returns (PNG bytes, width / height)."""
-    font = ImageFont.truetype(font_manager.findfont(font_manager.FontProperties(family="DejaVu Sans", weight="bold")), px)
+    font = ImageFont.truetype(
+        font_manager.findfont(font_manager.FontProperties(family="DejaVu Sans", weight="bold")), px)
     arrows = arrows or {}
     lead = {k: int(v[1]) + px // 2 for k, v in arrows.items()}
     widths = [font.getbbox(t)[2] + lead.get(k, 0) for k, (t, _) in enumerate(lines)]
@@ -260,7 +261,8 @@ def custom_fixture_parts(fixture, frame=None) -> list:
             name, obj, M = item
             M = np.asarray(M, dtype=float).reshape(4, 4)
         except (TypeError, ValueError):
-            raise ConfigError(f"{type(fixture).__name__}.draw: item {k} is not (name, meshcat object, 4x4 transform)") from None
+            raise ConfigError(f"{type(fixture).__name__}.draw: item {k} is not "
+                              "(name, meshcat object, 4x4 transform)") from None
         out.append((str(name), obj, M))
     return out
 

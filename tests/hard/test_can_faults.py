@@ -52,8 +52,8 @@ def run(faults, n, stale_cycles=3):
 ])
 def test_degraded_link_stays_accurate(faults, stale):
     statuses, dev, stats, _ = run(faults, 1600, stale)
-    print(f"\n{faults}: sphere deviation {dev * 1e6:.1f} um, tracking {stats['tracking_error_max_m'] * 1e6:.1f} um, lost {stats['can_frames_lost']}, "
-          f"rejected {stats['can_frames_rejected']}")
+    print(f"\n{faults}: sphere deviation {dev * 1e6:.1f} um, tracking {stats['tracking_error_max_m'] * 1e6:.1f} um, "
+          f"lost {stats['can_frames_lost']}, rejected {stats['can_frames_rejected']}")
     assert set(statuses) == {"ok"}
     assert dev < 200e-6 and stats["tracking_error_max_m"] < 200e-6
     if faults.get("loss_pct"):

@@ -124,15 +124,18 @@ def test_singular_step_goes_to_safe_state():
     assert np.all(np.isfinite(tool.q)) and np.all(tool.qd == 0)
 
 
-@pytest.mark.parametrize("mass, inertia", [(1e-4, [1e-8, 1e-8, 1e-4]), (1e4, [1e2, 1e4, 1e6]), (0.25, [1e-6, 1e-2, 1e-2])])
+@pytest.mark.parametrize("mass, inertia", [(1e-4, [1e-8, 1e-8, 1e-4]), (1e4, [1e2, 1e4, 1e6]),
+                                           (0.25, [1e-6, 1e-2, 1e-2])])
 def test_extreme_masses_and_inertia_ratios_on_the_sphere(mass, inertia):
     body = RigidBody(mass, inertia)
     # dampers with a 0.25 s time constant on the lightest axis: stiff ratios, stable step
-    tool = ReferenceTool(body, fixtures.sphere((0, 0, 0), 0.05), [LinearDamper(mass * 4), AngularDamper(min(inertia) * 4)], "parametric")
+    tool = ReferenceTool(body, fixtures.sphere((0, 0, 0), 0.05),
+                         [LinearDamper(mass * 4), AngularDamper(min(inertia) * 4)], "parametric")
     tool.reset([0, -0.05, 0, 0, np.pi / 2, 0])
     for _ in range(2000):
         p, R = tool.pose()
-        tool.step(1e-3, np.concatenate([R @ (mass * np.array([1.0, 0.5, -9.0])), R @ (min(inertia) * np.array([0, 0, 2.0]))]))
+        tool.step(1e-3, np.concatenate([R @ (mass * np.array([1.0, 0.5, -9.0])),
+                                        R @ (min(inertia) * np.array([0, 0, 2.0]))]))
         assert tool.status == "ok"
     p, _ = tool.pose()
     assert abs(np.linalg.norm(p) - 0.05) < 1e-9

@@ -72,7 +72,8 @@ def test_non_finite_sensor_values_never_reach_the_math():
     with master:
         statuses = []
         for i in range(300):
-            w = np.full(6, np.nan) if 50 <= i < 60 else np.array([np.inf, 0, 0, 0, 0, 0]) if 100 <= i < 103 else np.array([1.0, 0, 0, 0, 0, 0])
+            w = (np.full(6, np.nan) if 50 <= i < 60 else np.array([np.inf, 0, 0, 0, 0, 0]) if 100 <= i < 103
+                 else np.array([1.0, 0, 0, 0, 0, 0]))
             statuses.append(tick(master, tool, w))
             assert np.all(np.isfinite(tool.q)) and np.all(np.isfinite(master.virtual_pose()[0]))
         assert all(isinstance(s, str) for s in statuses) and statuses[-1] == "ok"

@@ -33,7 +33,8 @@ def test_kernels_import_from_a_read_only_package_with_no_home(tmp_path):
               f"{sys.executable} -c \"{code}\"")
     env = {**os.environ, "HOME": "/proc/no-home", "XDG_CACHE_HOME": "", "TMPDIR": str(tmp), "PYTHONPATH": str(copy)}
     env.pop("NUMBA_CACHE_DIR", None)
-    r = subprocess.run(["unshare", "-m", "sh", "-c", script], capture_output=True, text=True, env=env, timeout=120, cwd=tmp)
+    r = subprocess.run(["unshare", "-m", "sh", "-c", script], capture_output=True, text=True, env=env, timeout=120,
+                       cwd=tmp)
     assert r.returncode == 0, r.stderr[-2000:]
     assert r.stdout.strip().startswith(str(tmp)), r.stdout
 

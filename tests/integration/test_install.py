@@ -32,7 +32,8 @@ def test_resources_find_the_shipped_data():
 
 
 def test_python_dash_m_teleop_and_version():
-    r = subprocess.run([sys.executable, "-m", "teleop", "--version"], cwd=ROOT, capture_output=True, text=True, check=True)
+    r = subprocess.run([sys.executable, "-m", "teleop", "--version"], cwd=ROOT, capture_output=True, text=True,
+                       check=True)
     assert r.stdout.startswith("teleop ")
     r = subprocess.run([sys.executable, "-m", "teleop", "list"], cwd=ROOT, capture_output=True, text=True, check=True)
     assert "straight_incision" in r.stdout

@@ -91,7 +91,8 @@ def test_bad_user_fixture_tables_name_file_key_and_reason():
         parse_scene(groove_scene(deph_m=0.1), "groove.toml")
     bad = groove_scene()
     bad["fixture"]["type"] = "test_grove"
-    with pytest.raises(SceneError, match=r"fixture.type: unknown fixture type 'test_grove'; did you mean 'test_groove'"):
+    with pytest.raises(SceneError,
+                       match=r"fixture.type: unknown fixture type 'test_grove'; did you mean 'test_groove'"):
         parse_scene(bad, "groove.toml")
 
 
@@ -123,7 +124,8 @@ def test_the_master_fixture_is_the_patient_fixture_through_the_one_map():
     from teleop.dynamics.registry import FrameMap
     from teleop.dynamics.rotations import axis_rotation
 
-    reg = Registration(X_PM_p=np.array([0.4, -0.1, 0.2]), X_PM_R=axis_rotation(2, 0.7) @ axis_rotation(0, 0.3), scale=2.5)
+    reg = Registration(X_PM_p=np.array([0.4, -0.1, 0.2]), X_PM_R=axis_rotation(2, 0.7) @ axis_rotation(0, 0.3),
+                       scale=2.5)
     g = Groove(tip_m=(0.0, 0.0, 0.01))
     slave_row = g.build(FrameMap.identity()).constraints[0]
     master_row = g.build(reg.master_frame()).constraints[0]
@@ -143,8 +145,9 @@ def _installed_plugin(tmp_path) -> Path:
     root = tmp_path / "site"
     (root / "groove_plugin-0.1.dist-info").mkdir(parents=True)
     (root / "groove_plugin.py").write_text(PLUGIN)
-    (root / "groove_plugin-0.1.dist-info" / "METADATA").write_text("Metadata-Version: 2.1\nName: groove-plugin\nVersion: 0.1\n")
-    (root / "groove_plugin-0.1.dist-info" / "entry_points.txt").write_text("[teleop.fixtures]\ntest_groove = groove_plugin:Groove\n")
+    info = root / "groove_plugin-0.1.dist-info"
+    (info / "METADATA").write_text("Metadata-Version: 2.1\nName: groove-plugin\nVersion: 0.1\n")
+    (info / "entry_points.txt").write_text("[teleop.fixtures]\ntest_groove = groove_plugin:Groove\n")
     return root
 
 
@@ -159,7 +162,8 @@ def test_an_installed_fixture_type_runs_from_the_command_line_and_is_drawn(tmp_p
     scene = parse_scene(groove_scene(), "groove.toml")
     vs = viz_scene_for(scene)
     assert vs.fixture_type == "test_groove" and isinstance(vs.fixture_object, Groove)
-    env = dict(os.environ, PYTHONPATH=os.pathsep.join([str(_installed_plugin(tmp_path)), os.environ.get("PYTHONPATH", "")]))
+    env = dict(os.environ,
+               PYTHONPATH=os.pathsep.join([str(_installed_plugin(tmp_path)), os.environ.get("PYTHONPATH", "")]))
     out = tmp_path / "run"
     r = subprocess.run([sys.executable, "-m", "teleop", "run", str(_write(tmp_path, scene)), "--duration", "0.3",
                         "--out", str(out), "--json", str(tmp_path / "s.json")],

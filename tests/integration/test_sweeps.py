@@ -118,4 +118,5 @@ def test_delay_study_rows_are_the_same_with_1_and_2_workers(tmp_path):
 
     one, two = rows(tmp_path / "w1" / "delay.csv"), rows(tmp_path / "w2" / "delay.csv")
     assert len(one) == 4 and one == two
-    assert [(r["delay_ms"], r["guard"]) for r in one] == [("0.0", "off"), ("0.0", "tdpa"), ("50.0", "off"), ("50.0", "tdpa")]
+    assert [(r["delay_ms"], r["guard"]) for r in one] == [("0.0", "off"), ("0.0", "tdpa"), ("50.0", "off"),
+                                                          ("50.0", "tdpa")]

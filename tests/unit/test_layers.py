@@ -11,4 +11,5 @@ ROOT = Path(__file__).resolve().parents[2]
 
 def test_the_layer_contracts_are_kept(monkeypatch):
     monkeypatch.chdir(ROOT)
-    assert lint_imports(config_filename=str(ROOT / "pyproject.toml"), no_cache=True, no_logo=True) == 0  # 0: every contract kept
+    # 0: every contract kept
+    assert lint_imports(config_filename=str(ROOT / "pyproject.toml"), no_cache=True, no_logo=True) == 0

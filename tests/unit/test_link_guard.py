@@ -55,8 +55,9 @@ def test_the_default_is_auto_and_a_delayed_run_is_guarded():
     assert "passivity" in s and s["status"] == "ok"
 
 
-@pytest.mark.parametrize("setting, key", [("link.loss=1.0", "link.loss"), ("link.round_trip_ms=-1", "link.round_trip_ms"),
-                                          ('link.passivity="on"', "link.passivity"), ("link.delay_ms=5", "link.delay_ms")])
+@pytest.mark.parametrize("setting, key", [
+    ("link.loss=1.0", "link.loss"), ("link.round_trip_ms=-1", "link.round_trip_ms"),
+    ('link.passivity="on"', "link.passivity"), ("link.delay_ms=5", "link.delay_ms")])
 def test_bad_link_settings_name_the_key(setting, key):
     with pytest.raises(SceneError, match=key.replace(".", r"\.")):
         load_scene("straight_incision", sets=[setting])

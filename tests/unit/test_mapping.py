@@ -17,8 +17,10 @@ REG = Registration([0.5, -0.1, 0.2], pin.rpy.rpyToMatrix(0.1, -0.2, 0.7), scale=
 SPECS = [
     FixtureSpec(type="rolling_disk", radius_m=0.01, plane_origin_m=(0.5, 0, 0.2), plane_normal=(0, 0.3, 1)),
     FixtureSpec(type="sphere", center_m=(0.5, 0, 0.2), radius_m=0.02),
-    FixtureSpec(type="scalpel", plane_origin_m=(0.5, 0, 0.2), plane_normal=(0, 0.2, 1), depth_m=0.005, tip_m=(0, 0, 0.01)),
-    FixtureSpec(type="scalpel", plane_origin_m=(0.5, 0, 0.2), depth_m=0.005, tip_m=(0, 0, 0.01), trocar_m=(0.5, 0, 0.25)),
+    FixtureSpec(type="scalpel", plane_origin_m=(0.5, 0, 0.2), plane_normal=(0, 0.2, 1), depth_m=0.005,
+                tip_m=(0, 0, 0.01)),
+    FixtureSpec(type="scalpel", plane_origin_m=(0.5, 0, 0.2), depth_m=0.005, tip_m=(0, 0, 0.01),
+                trocar_m=(0.5, 0, 0.25)),
 ]
 #: constraints whose residual is a length (m): it scales with the registration
 LENGTH_UNITS = {C.PlaneHeight: True, C.SphereContact: True, C.PointDepth: True, C.RemoteCenter: True}
@@ -77,7 +79,8 @@ def test_bad_settings_are_named():
         Registration([0, 0, 0], 2 * np.eye(3))
     with pytest.raises(ConfigError, match=r"mapping\.bogus"):
         validate(MappingSpec, {"bogus": 1}, "", "mapping")
-    r = validate(MappingSpec, {"position_m": [0.5, 0, 0.2], "rpy_rad": [0, 0, 0.5], "scale": 3}, "", "mapping").registration()
+    r = validate(MappingSpec, {"position_m": [0.5, 0, 0.2], "rpy_rad": [0, 0, 0.5], "scale": 3}, "",
+                 "mapping").registration()
     assert r.scale == 3.0 and np.isclose(r.torque_scale, 3.0)
 
 

@@ -130,7 +130,8 @@ def test_observer_prediction_matches_the_ode_over_a_period():
     """The command changes ``window`` s after SYNC: the prediction is the ODE under the old
     command, then the new one clipped to vmax, plus the rate bias over the period."""
     rng = np.random.default_rng(2)
-    x0, qd0, u_old, bias = rng.normal(size=6), rng.normal(size=6) * 0.1, rng.normal(size=6) * 0.1, rng.normal(size=6) * 1e-3
+    x0, qd0 = rng.normal(size=6), rng.normal(size=6) * 0.1
+    u_old, bias = rng.normal(size=6) * 0.1, rng.normal(size=6) * 1e-3
     u_cmd, vmax, tau, dt, window = np.array([0.7, -0.1, 0.2, -0.9, 0.0, 0.3]), np.full(6, 0.5), 8e-4, 1e-3, 3e-4
     x, qd, u = predict_kernel(x0, qd0, u_old, u_cmd, bias, vmax, np.full(6, 1e9), dt, window, tau)
     y = np.concatenate([x0, qd0])

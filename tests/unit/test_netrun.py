@@ -32,7 +32,8 @@ class FakeLink:
         return self.last_receive_s
 
     def alive(self, now_s=None, timeout_s=0.02):
-        return self.last_receive_s is not None and (self.now if now_s is None else now_s) - self.last_receive_s <= timeout_s
+        return (self.last_receive_s is not None
+                and (self.now if now_s is None else now_s) - self.last_receive_s <= timeout_s)
 
     def deliver(self, msg):
         if self.up:
@@ -173,8 +174,10 @@ def test_frames_only_an_attacker_sends_make_the_run_say_so():
     hb = {"lost_ticks": 0}
     m, s = {"heartbeat": hb}, {"heartbeat": hb, "slave_statuses": {"ok": 10}}
     clean = {"zenoh_master": {"refused": {"stale": 1, "bad_mac": 0}}, "zenoh_slave": {"refused": {}}}
-    assert run_summary("ok", 10, DT, m, s, {}, False, link=clean)["status"] == "ok"  # a stale frame may be the network's
+    # a stale frame may be the network's
+    assert run_summary("ok", 10, DT, m, s, {}, False, link=clean)["status"] == "ok"
     forged = {"zenoh_master": {"refused": {"bad_mac": 3}}, "zenoh_slave": {"refused": {"other_session": 2}}}
     out = run_summary("ok", 10, DT, m, s, {}, False, link=forged)
-    assert out["status"] == "link_attacked" and "bad_mac 3" in out["status_reason"] and "other_session 2" in out["status_reason"]
+    assert (out["status"] == "link_attacked" and "bad_mac 3" in out["status_reason"]
+            and "other_session 2" in out["status_reason"])
     assert run_summary("tracking_error", 10, DT, m, s, {}, False, link=forged)["status"] == "tracking_error"

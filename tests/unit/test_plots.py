@@ -58,7 +58,8 @@ def _figures(monkeypatch, tmp_path, master="cobot"):
 def test_every_line_is_in_a_legend_and_every_title_names_its_side(monkeypatch, tmp_path):
     figs = _figures(monkeypatch, tmp_path)
     assert set(figs) == {"figure10.png", "incision.png", "tick_time.png"}
-    for name, side in (("figure10.png", "MASTER side"), ("incision.png", "SLAVE side"), ("tick_time.png", "BOTH sides")):
+    for name, side in (("figure10.png", "MASTER side"), ("incision.png", "SLAVE side"),
+                       ("tick_time.png", "BOTH sides")):
         fig = figs[name]
         assert side in fig._suptitle.get_text(), name
         legend_labels = {t.get_text() for lg in fig.legends for t in lg.get_texts()}

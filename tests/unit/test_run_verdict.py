@@ -50,7 +50,8 @@ def test_the_bounds_are_where_stated():
     share = int(RELAXED_SHARE_MAX * 1000)
     assert verdict("ok", 1000, {"ok": 1000 - share, "fixtures_relaxed": share}, GOOD)[0] == "ok"
     assert verdict("ok", 1000, {"ok": 999 - share, "fixtures_relaxed": share + 1}, GOOD)[0] != "ok"
-    for tols, status in ((FIXTURE_TOLERANCES, "fixture_violated"), (SLAVE_FIXTURE_TOLERANCES, "slave_fixture_violated")):
+    for tols, status in ((FIXTURE_TOLERANCES, "fixture_violated"),
+                         (SLAVE_FIXTURE_TOLERANCES, "slave_fixture_violated")):
         for key, tol in tols.items():
             assert verdict("ok", 10, None, {key: tol})[0] == "ok"
             assert verdict("ok", 10, None, {key: tol * 1.01})[0] == status, key

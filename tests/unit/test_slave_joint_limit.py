@@ -22,7 +22,8 @@ def test_at_limit_by_hand():
     # joint 0: room above = 1 - 0.05 - q; one tick at 2 rad/s is 2 mrad
     assert not LIM.at_limit(np.array([0.9479, 0.0, 1.0]), DT).any()  # 2.1 mrad of room
     assert LIM.at_limit(np.array([0.9481, 0.0, 1.0]), DT).tolist() == [True, False, False]  # 1.9 mrad
-    assert LIM.at_limit(np.array([0.0, -1.9495, 1.0]), DT).tolist() == [False, True, False]  # joint 1: 0.5 mrad above its floor, 1 mrad a tick
+    # joint 1: 0.5 mrad above its floor, 1 mrad a tick
+    assert LIM.at_limit(np.array([0.0, -1.9495, 1.0]), DT).tolist() == [False, True, False]
     assert LIM.at_limit(np.array([0.0, 0.0, 3.2]), DT)[2]  # past the limit
     assert not LIM.at_limit(np.zeros(3) + [0.0, 0.0, 1.5], DT).any()
 

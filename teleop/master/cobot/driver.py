@@ -5,13 +5,13 @@ what is left waits for the next read, and stale feedback trips the watchdog) and
 SI values; ``send_*`` encode and transmit. Each frame's bytes go through one compiled call
 (:func:`.frame_kernels.rx_period_frame`: the checks, the decoding, and for the period's two device
 frames the counter checks, the wrist unwrapping and the encoder check into the driver's state
-record); each frame sent is encoded and sealed by one (:func:`.frame_kernels.pack_frame`). Every frame that fails its id, id type, FD flag,
-length, CRC, counter or DBC range is rejected, counted by reason and logged; only finite, in-range
-values reach :attr:`joints_rad_m` and :attr:`wrench_S`. Error frames feed the host's own error
-counters (:mod:`teleop.can.confinement`: TEC/REC, error-passive at 128, bus-off at 256), never a
-fault by themselves. The watchdog latches a fault (``watchdog`` for stale feedback, ``heartbeat``,
-``bus_off``, ``device_emergency``, ``encoder_fault``, ``send_failed``); after a fault
-:meth:`send_command` sends zero velocity only.
+record); each frame sent is encoded and sealed by one (:func:`.frame_kernels.pack_frame`). Every
+frame that fails its id, id type, FD flag, length, CRC, counter or DBC range is rejected, counted by
+reason and logged; only finite, in-range values reach :attr:`joints_rad_m` and :attr:`wrench_S`.
+Error frames feed the host's own error counters (:mod:`teleop.can.confinement`: TEC/REC,
+error-passive at 128, bus-off at 256), never a fault by themselves. The watchdog latches a fault
+(``watchdog`` for stale feedback, ``heartbeat``, ``bus_off``, ``device_emergency``,
+``encoder_fault``, ``send_failed``); after a fault :meth:`send_command` sends zero velocity only.
 """
 
 from __future__ import annotations
@@ -272,7 +272,8 @@ class CobotDriver:
             return
         self.rejected["encoder_jump"] += 1
         i, size, gap = self._rs["jump"].tolist()
-        self._trip("encoder_fault", f"joint {int(i)} moved {size:.4g} in {int(gap)} cycle(s), beyond what the device can")
+        self._trip("encoder_fault",
+                   f"joint {int(i)} moved {size:.4g} in {int(gap)} cycle(s), beyond what the device can")
 
     def _on_error_frame(self, msg: can.Message) -> None:
         """An error frame (SocketCAN's error classes in its id) through the error counters: the

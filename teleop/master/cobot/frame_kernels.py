@@ -200,8 +200,8 @@ def pack_frame(tab, mi, values, out, seal):
 #: device state, late frames, the encoder check's limits (6,: m, rad per SYNC; negative:
 #: off) and, after an encoder jump, its joint, size and gap in SYNCs (``jump``).
 DRIVER_STATE = np.dtype([
-    ("rows", "i8", 2), ("joints", "f8", 6), ("wrench", "f8", 6), ("jc", "i8"), ("wc", "i8"), ("fresh_j", "i8"), ("fresh_w", "i8"),
-    ("since_j", "i8"), ("since_w", "i8"), ("dev_state", "i8"), ("late", "i8"),
+    ("rows", "i8", 2), ("joints", "f8", 6), ("wrench", "f8", 6), ("jc", "i8"), ("wc", "i8"), ("fresh_j", "i8"),
+    ("fresh_w", "i8"), ("since_j", "i8"), ("since_w", "i8"), ("dev_state", "i8"), ("late", "i8"),
     ("step_max", "f8", 6), ("jump", "f8", 3)])
 
 
@@ -214,12 +214,12 @@ def _newer(counter, last):
 def rx_period_frame(tab, ds, syncs, frame_id, extended, fd, data, vals):
     """One received frame through :func:`check_frame` and, for the period's two device frames, into
     the driver state ``ds`` (:data:`DRIVER_STATE`): DEV_JOINTS (row ``ds.rows[0]``: six joints, the
-    device state, the counter) and DEV_WRENCH (``ds.rows[1]``: six wrench values, the counter).
-    A counter the host has not sent yet (``syncs``: the SYNCs sent so far) is rejected (FUTURE), an older one than the last applied is
-    LATE; the wrist angles are unwrapped next to the previous reading; a joint that moved more
-    than ``step_max`` times the SYNCs between readings is an ENCODER_JUMP (``ds.jump`` says which,
-    how far, over how many). Returns (verdict, message row); any other valid message is OTHER with
-    its values in ``vals``."""
+    device state, the counter) and DEV_WRENCH (``ds.rows[1]``: six wrench values, the counter). A
+    counter the host has not sent yet (``syncs``: the SYNCs sent so far) is rejected (FUTURE), an
+    older one than the last applied is LATE; the wrist angles are unwrapped next to the previous
+    reading; a joint that moved more than ``step_max`` times the SYNCs between readings is an
+    ENCODER_JUMP (``ds.jump`` says which, how far, over how many). Returns (verdict, message row);
+    any other valid message is OTHER with its values in ``vals``."""
     verdict, mi = check_frame(tab, frame_id, extended, fd, data, vals)
     if verdict != OK:
         return verdict, mi
