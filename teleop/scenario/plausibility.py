@@ -125,8 +125,9 @@ def cross_rules(scene):
         radius = math.sqrt(J[2] / tool.mass_kg)
         if radius > MAX_GYRATION_M:
             yield (("tool.inertia_kgm2", "tool.mass_kg"),
-                   f"a {tool.mass_kg:g} kg tool with a {J[2]:g} kg*m^2 moment has a radius of gyration of {radius:.3g} m; "
-                   f"a hand-held tool's is at most {MAX_GYRATION_M:g} m (J <= m * {MAX_GYRATION_M:g}^2)")
+                   f"a {tool.mass_kg:g} kg tool with a {J[2]:g} kg*m^2 moment has a radius of gyration of "
+                   f"{radius:.3g} m; a hand-held tool's is at most {MAX_GYRATION_M:g} m "
+                   f"(J <= m * {MAX_GYRATION_M:g}^2)")
     fixture = scene.fixture
     depth = getattr(fixture, "depth_m", None) if fixture.type == "scalpel" else (
         getattr(getattr(fixture, "params", None), "depth_m", None))
@@ -137,7 +138,8 @@ def cross_rules(scene):
                "the blade's depth must be less than the tissue's thickness")
     if fixture.type == "scalpel" and getattr(fixture, "trocar_m", None) is not None:
         n = np.asarray(fixture.plane_normal, dtype=float)
-        height = float(n @ (np.asarray(fixture.trocar_m) - np.asarray(fixture.plane_origin_m))) / float(np.linalg.norm(n))
+        height = (float(n @ (np.asarray(fixture.trocar_m) - np.asarray(fixture.plane_origin_m)))
+                  / float(np.linalg.norm(n)))
         if not height > 0.0:
             yield (("fixture.trocar_m", "fixture.plane_origin_m", "fixture.plane_normal"),
                    f"the trocar is {-height * 1e3:g} mm inside the tissue (below the fixture's plane along "

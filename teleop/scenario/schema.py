@@ -13,32 +13,46 @@ import copy
 import difflib
 import re
 import tomllib
-from pathlib import PurePath
 from dataclasses import dataclass, field
-from pathlib import Path
+from pathlib import Path, PurePath
 from typing import Literal
 
 from teleop.contact.tissue import TissueBlock
+from teleop.dynamics import surface_fixture  # noqa: F401 - registers the built-in 'surface_scalpel' type
 from teleop.dynamics.integrators import INTEGRATORS
-from teleop.util.errors import ConfigError, FieldError, SceneError
-from teleop.util.inputs import read_text
-from teleop.util.resources import robot_dir, scenario_dir
+from teleop.dynamics.registry import FIXTURE_TYPES
 from teleop.master.config import CobotConfig
 from teleop.scenario.overrides import apply_settings, parse_setting
 from teleop.scenario.plausibility import annotate_schema, cross_rules, pick_key, range_problems
 from teleop.scenario.tables import (
-    DT_S, FIXTURE_KEYS, FIXTURES, CustomFixture, FRAMES, DampingSpec, FixtureSpec, GravitySpec, HandSpec,
-    LinkSpec, MappingSpec, OperatorSpec, Phase, SpringSpec, ToolSpec, ViewerSpec,
+    DT_S,
+    FIXTURE_KEYS,
+    FIXTURES,
+    FRAMES,
+    CustomFixture,
+    DampingSpec,
+    FixtureSpec,
+    GravitySpec,
+    HandSpec,
+    LinkSpec,
+    MappingSpec,
+    OperatorSpec,
+    Phase,
+    SpringSpec,
+    ToolSpec,
+    ViewerSpec,
 )
 from teleop.slave.arm import SlaveConfig
-from teleop.dynamics import surface_fixture  # noqa: F401 - registers the built-in 'surface_scalpel' type
-from teleop.dynamics.registry import FIXTURE_TYPES
+from teleop.util.errors import ConfigError, FieldError, SceneError
+from teleop.util.inputs import read_text
+from teleop.util.resources import robot_dir, scenario_dir
 from teleop.util.typed import Checked, as_table, json_schema, setting, validate
 
 __all__ = [
-    "EFFECTS", "FIXTURES", "FRAMES", "MASTERS", "Scene", "ToolSpec", "FixtureSpec", "Phase", "HandSpec",
-    "OperatorSpec", "SpringSpec", "DampingSpec", "GravitySpec", "MappingSpec", "ViewerSpec", "LinkSpec",
-    "find_scene", "list_scenes", "load_scene", "parse_scene", "scene_schema",
+    "EFFECTS", "FIXTURES", "FRAMES", "MASTERS", "DampingSpec", "FixtureSpec", "GravitySpec",
+    "HandSpec", "LinkSpec", "MappingSpec", "OperatorSpec", "Phase", "Scene", "SpringSpec",
+    "ToolSpec", "ViewerSpec", "find_scene", "list_scenes", "load_scene", "parse_scene",
+    "scene_schema",
 ]
 
 #: Effects a scene may call for. The runtime assembles only the ones a scene names.
@@ -95,13 +109,14 @@ class Scene(Checked):
                               why="unknown integrator; choose one of", doc="the reference tool's integrator")
     effects: tuple[str, ...] = setting((), check=_effects, choices=EFFECTS, doc="effects to build")
     tool: ToolSpec = setting(doc="the reference tool")
-    fixture: FixtureSpec | CustomFixture = setting(doc="the virtual fixture (patient frame when the scene has a slave); "
-                                       "a registered type's name gives a CustomFixture")
+    fixture: FixtureSpec | CustomFixture = setting(doc="the virtual fixture (patient frame when the scene has a "
+                                                       "slave); a registered type's name gives a CustomFixture")
     operator: OperatorSpec = setting(factory=OperatorSpec, doc="scripted wrenches and/or a virtual hand")
     damping: DampingSpec | None = setting(None, doc="needs effect 'damping'")
     gravity: GravitySpec | None = setting(None, doc="needs effect 'gravity'")
     springs: tuple[SpringSpec, ...] = setting((), doc="needs effect 'springs'")
-    master: Literal["ideal", "cobot"] = setting("ideal", doc="ideal: wrench straight to the tool; cobot: the CAN device")
+    master: Literal["ideal", "cobot"] = setting("ideal",
+                                                doc="ideal: wrench straight to the tool; cobot: the CAN device")
     cobot: CobotConfig = setting(factory=CobotConfig, doc="the cobot master (checked whichever master runs)")
     slave: SlaveConfig | None = setting(None, doc="the slave arm; none: the master alone")
     mapping: MappingSpec = setting(factory=MappingSpec, doc="master-to-patient registration and feedback")
@@ -130,7 +145,7 @@ class Scene(Checked):
             keys, reason = broken
             raise FieldError(pick_key(keys, self.overridden), reason)
 
-    def with_overrides(self, sets=(), **kw) -> "Scene":
+    def with_overrides(self, sets=(), **kw) -> Scene:
         """A copy with settings changed and validated again like the file: ``sets`` a list of
         "dotted.key=TOML value" strings, ``kw`` top-level keys (duration_s, seed, master,
         integrator, dt_s; None leaves a key as it is)."""
@@ -153,7 +168,8 @@ def find_scene(name_or_path: str) -> Path:
             raise SceneError(str(p), "<file>", "no such scene file" if not p.exists() else "not a regular file")
         return p
     if not re.fullmatch(r"[A-Za-z0-9_-]{1,100}", name_or_path):
-        raise SceneError(repr(name_or_path), "<name>", "a scene name is letters, digits, '_' and '-' (or give a .toml path)")
+        raise SceneError(repr(name_or_path), "<name>",
+                         "a scene name is letters, digits, '_' and '-' (or give a .toml path)")
     candidate = SCENARIO_DIR / f"{name_or_path}.toml"
     if not candidate.is_file():
         known = ", ".join(list_scenes()) or "none"
