@@ -42,14 +42,12 @@ import numpy as np
 from teleop.control.kernels import render_local_damping
 from teleop.control.mapping import Registration
 from teleop.dynamics.effects import total_wrench
-from teleop.dynamics.kernels.small import is_positive_definite
-from teleop.tick.kernels import lowpass
+from teleop.tick.kernels import damper_ok, lowpass
 from teleop.tick.messages import ContactFeedback
 from teleop.tick.ports import ToolState
 
 _ZERO66 = np.zeros((6, 6))
 _ZERO66.flags.writeable = False
-_EYE6 = np.eye(6)
 _D_FLOOR = 1e-9  # N*s/m: a filtered damping below this after the contact ended is zero
 
 
@@ -103,9 +101,7 @@ class FeedbackPath:
         with np.errstate(over="ignore", invalid="ignore"):  # a hostile size is refused just below
             D = self.reg.damping_to_master(msg.damping_P)
             offset = self.reg.wrench_to_master(msg.model_offset_P)
-            scale = max(1.0, float(np.abs(D).max()))
-            finite = math.isfinite(scale) and math.isfinite(float(offset @ offset))
-        if not (finite and is_positive_definite(D + (1e-9 * scale) * _EYE6)):
+        if not damper_ok(D, offset):
             self.refused += 1  # not a damper, or so large its products overflow: the wrench alone
             return
         self._D, self._offset = D, offset

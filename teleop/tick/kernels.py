@@ -14,6 +14,8 @@ import math
 import numpy as np
 from numba import njit
 
+from teleop.dynamics.kernels.small import is_positive_definite
+
 #: energy may run backwards by round-off only (J)
 ENERGY_TOL_J = 1e-9
 #: |R^T R - I| beyond this is not a rotation (the message check only looks at the determinant)
@@ -93,3 +95,24 @@ def lowpass(y, target, alpha):
     for i in range(yf.size):
         of[i] = yf[i] + alpha * (tf[i] - yf[i])
     return out
+
+
+@njit(cache=True)
+def damper_ok(D, offset):
+    """Whether a contact model may be rendered: its damping ``D`` (6, 6) and offset ``offset``
+    (6,) finite (the offset's squares too), and D positive semidefinite, tested as D + 1e-9
+    max(1, max|D|) I positive definite (its Cholesky factor exists)."""
+    scale, sq = 1.0, 0.0
+    for i in range(6):
+        sq += offset[i] * offset[i]
+        for j in range(6):
+            a = abs(D[i, j])
+            if not math.isfinite(a):
+                return False
+            scale = max(scale, a)
+    if not math.isfinite(sq):
+        return False
+    A = D.copy()
+    for i in range(6):
+        A[i, i] += 1e-9 * scale
+    return is_positive_definite(A)
