@@ -2,7 +2,9 @@
 
 * :func:`check_json_target` - ``--json PATH`` ("-": stdout): its folder exists (or is made) and is
   writable, the path is not a folder; :func:`write_json` writes through a temporary file renamed
-  into place.
+  into place, with the mode a new file gets (0644 under the usual umask 022), not mkstemp's 0600.
+* :func:`study_folder` - where a study tool (``tools/*.py``) writes when its ``--out`` is not
+  given: a new ``runs/<tool>-<date>-<time>/`` of the current folder, never a tracked file.
 * :class:`RunFolder` - ``--out DIR``: locked (a second run on the same folder refuses: an
   ``flock`` on ``.DIR.lock`` beside it, released when the process ends however it ends), written
   into a temporary folder beside it and renamed into place by :meth:`RunFolder.commit` once every
@@ -17,6 +19,7 @@ import json
 import os
 import shutil
 import tempfile
+import time
 from pathlib import Path
 
 from teleop.util.errors import ConfigError
@@ -48,16 +51,62 @@ def check_json_target(path: str, flag: str = "--json") -> Path | None:
     return p
 
 
+def _umask() -> int:
+    """The process's umask: read from /proc on Linux (setting it to read it back is not thread-safe)."""
+    try:
+        with open("/proc/self/status", encoding="ascii") as f:
+            for line in f:
+                if line.startswith("Umask:"):
+                    return int(line.split()[1], 8)
+    except (OSError, ValueError, IndexError):
+        pass
+    mask = os.umask(0o022)
+    os.umask(mask)
+    return mask
+
+
 def write_json(path: Path, data: dict) -> None:
-    """Write JSON whole: a temporary file in the same folder, renamed over ``path``."""
+    """Write JSON whole: a temporary file in the same folder, renamed over ``path``; the file gets
+    the mode ``open`` would have given it (0666 less the umask), not mkstemp's private 0600."""
     fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
     try:
+        os.fchmod(fd, 0o666 & ~_umask())
         with os.fdopen(fd, "w", encoding="utf-8") as f:
             f.write(json.dumps(data, indent=2) + "\n")
         os.replace(tmp, path)
     except BaseException:
         Path(tmp).unlink(missing_ok=True)
         raise
+
+
+#: where the study tools write by default (relative to the current folder; ``/runs/`` is ignored by git)
+RUNS_DIR = "runs"
+
+
+def study_folder(tool: str, out: str | None = None, now: float | None = None) -> Path:
+    """The folder a study tool writes: ``out`` when given (made if missing), else a new
+    ``runs/<tool>-YYYYmmdd-HHMMSS/`` of the current folder (``-2``, ``-3``, ... when two runs start
+    in the same second). Study results go into ``docs/`` only when ``--out`` says so."""
+    if out:
+        folder = Path(out)
+        folder.mkdir(parents=True, exist_ok=True)
+        return folder
+    stamp = time.strftime("%Y%m%d-%H%M%S", time.localtime(now))
+    base = Path(RUNS_DIR) / f"{tool}-{stamp}"
+    for k in range(1, 1000):
+        folder = base if k == 1 else base.with_name(f"{base.name}-{k}")
+        try:
+            folder.mkdir(parents=True)
+            return folder
+        except FileExistsError:
+            continue
+    raise ConfigError(f"{base}: cannot make a new run folder there (999 taken)")
+
+
+def out_help(tool: str, what: str) -> str:
+    """The ``--out`` help of a study tool: what it writes and the default folder."""
+    return (f"folder for {what} (default: a new {RUNS_DIR}/{tool}-DATE-TIME/ here; the published "
+            f"results in docs/ are rewritten only when --out names them)")
 
 
 class RunFolder:
@@ -89,9 +138,7 @@ class RunFolder:
                               "choose a new or empty folder")
         try:
             self.tmp = Path(tempfile.mkdtemp(prefix=f".{self.out.name}.partial-", dir=parent))
-            umask = os.umask(0)
-            os.umask(umask)
-            self.tmp.chmod(0o777 & ~umask)  # mkdtemp's 0700 -> what mkdir would have given
+            self.tmp.chmod(0o777 & ~_umask())  # mkdtemp's 0700 -> what mkdir would have given
         except OSError as e:
             self._release()
             raise ConfigError(f"{flag} {out}: cannot write beside it ({e.strerror})") from None
