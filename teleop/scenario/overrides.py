@@ -29,16 +29,20 @@ def parse_setting(text: str, path: str = "--set") -> tuple[str, object]:
     return key, value
 
 
-def apply_settings(data: dict, path: str, sets=(), pairs=()) -> dict:
-    """Set each override into the scene table ``data`` (changed in place, returned)."""
+def apply_settings(data: dict, path: str, sets=(), pairs=(), optional=frozenset()) -> dict:
+    """Set each override into the scene table ``data`` (changed in place, returned); ``optional``
+    as :func:`set_key`'s."""
     for key, value in [parse_setting(s, path) for s in sets or ()] + list(pairs):
-        set_key(data, key, value, path)
+        set_key(data, key, value, path, optional)
     return data
 
 
-def set_key(data: dict, key: str, value, path: str) -> None:
+def set_key(data: dict, key: str, value, path: str, optional=frozenset()) -> None:
     """data[a][b][i]... = value for key "a.b[i]"; missing tables are created (the validator then
-    names a key that does not exist)."""
+    names a key that does not exist), except the ``optional`` ones (dotted keys of tables whose
+    absence turns a part off, such as "slave"): a key inside one the scene does not have is
+    refused, since creating the table would add the part with every other key at its default
+    (the table itself may be set: ``slave={}``)."""
     steps: list = []
     for part in key.split("."):
         m = _PART.fullmatch(part)
@@ -56,6 +60,10 @@ def set_key(data: dict, key: str, value, path: str) -> None:
         else:
             if not isinstance(node, dict):
                 raise SceneError(path, _where(steps[:i]), "is not a table")
+            if step not in node and where in optional:
+                raise SceneError(path, key, f"the scene has no [{where}] table, and setting one of its keys would "
+                                            f"add one with every other key at its default; add the table to the "
+                                            f"scene file (or --set '{where}={{}}' first to mean it)")
             node = node.setdefault(step, {} if not isinstance(steps[i + 1], int) else [])
     last = steps[-1]
     if isinstance(last, int):

@@ -165,15 +165,18 @@ def find_scene(name_or_path: str) -> Path:
     p = Path(name_or_path)
     if p.suffix == ".toml" or p.exists():
         if not p.is_file():
-            raise SceneError(str(p), "<file>", "no such scene file" if not p.exists() else "not a regular file")
+            raise SceneError("", str(p), "no such scene file" if not p.exists() else "not a regular file")
         return p
     if not re.fullmatch(r"[A-Za-z0-9_-]{1,100}", name_or_path):
-        raise SceneError(repr(name_or_path), "<name>",
+        raise SceneError("", repr(name_or_path),
                          "a scene name is letters, digits, '_' and '-' (or give a .toml path)")
     candidate = SCENARIO_DIR / f"{name_or_path}.toml"
     if not candidate.is_file():
-        known = ", ".join(list_scenes()) or "none"
-        raise SceneError(name_or_path, "<name>", f"no such scene; known scenes: {known}")
+        known = list_scenes()
+        close = difflib.get_close_matches(name_or_path, known, n=1, cutoff=0.6)
+        hint = (f"did you mean {close[0]!r}? ('teleop list' shows the known scenes)" if close
+                else f"known scenes: {', '.join(known) or 'none'}")
+        raise SceneError("", name_or_path, f"no such scene; {hint}")
     return candidate
 
 
@@ -245,11 +248,40 @@ def hardware_interface(scene: Scene) -> str | None:
     return None if scene.cobot.interface in SIMULATED_INTERFACES else scene.cobot.interface
 
 
+def _optional_tables(cls, prefix: str = "") -> set[str]:
+    """The dotted keys of the tables of ``cls`` (a settings dataclass) whose absence turns a part
+    off (their default is None: [slave], [tissue], [damping], [gravity], [operator.hand], ...),
+    through the tables that are always there."""
+    import dataclasses
+    import typing
+
+    from teleop.util.typed import _is_table, _options
+
+    out: set[str] = set()
+    hints = typing.get_type_hints(cls)
+    for f in dataclasses.fields(cls):
+        if not f.init or f.metadata.get("internal") or not _is_table(hints.get(f.name)):
+            continue
+        key = prefix + f.name
+        if f.default is None:
+            out.add(key)
+        for option in _options(hints[f.name]):
+            if dataclasses.is_dataclass(option):
+                out |= _optional_tables(option, key + ".")
+    return out
+
+
+#: tables a ``--set`` of one of their keys may not create (:func:`_optional_tables` of a Scene)
+OPTIONAL_TABLES = frozenset(_optional_tables(Scene))
+
+
 def parse_scene(data: dict, path: str = "<scene>", sets=(), pairs=()) -> Scene:
     """Validate a scene table (a parsed TOML file), after applying overrides: ``sets`` as
-    "dotted.key=TOML value" strings, ``pairs`` as (dotted key, value)."""
+    "dotted.key=TOML value" strings, ``pairs`` as (dotted key, value). A key of a table the scene
+    does not have and whose absence turns a part off (OPTIONAL_TABLES: a ``slave.solver`` on a
+    scene without a slave) is refused rather than adding the part."""
     if sets or pairs:
-        data = apply_settings(copy.deepcopy(data), path, sets, pairs)
+        data = apply_settings(copy.deepcopy(data), path, sets, pairs, optional=OPTIONAL_TABLES)
     overridden = tuple(parse_setting(s, path)[0] for s in sets or ()) + tuple(k for k, _ in pairs or ())
     given = {"path": path, "overridden": overridden}
     custom = _custom_fixture(data, path)
