@@ -1,7 +1,8 @@
 """``teleop replay RUN_DIR``: draw a run folder again from what it keeps (the scene it ran, the
 frames its view drew), into a new ``replay.html`` or live in Meshcat. The run's own files are never
-written; ``--out`` names another .html file, and an existing one (the run's recording.html
-included) is replaced only with ``--force``; the run's data files never are."""
+written; ``--out`` names another .html file. An existing page (an earlier replay's ``replay.html``,
+the run's recording.html, any ``--out``) is replaced only with ``--force``; the run's data files
+never are."""
 
 from __future__ import annotations
 
@@ -30,8 +31,9 @@ def replay_command(source, viewer: bool = False, out=None, force: bool = False, 
             raise ConfigError(f"--out {target}: expected a new .html file, not one of the run's data files")
         if target.resolve() == (folder / "recording.html").resolve() and not force:
             raise ConfigError(f"--out {target}: that is the run's own recording; pick another name (or --force)")
-        if out and target.exists() and not force:
-            raise ConfigError(f"--out {target}: exists; pick another name or add --force")
+        if target.exists() and not force:  # an earlier replay's page, or any file: replaced only when asked
+            what = f"--out {target}" if out else f"{target}"
+            raise ConfigError(f"{what}: exists (an earlier replay?); add --force to replace it, or --out another .html")
     scene = load_run_scene(folder)
     with make_view("meshcat", viz_scene_for(scene, view=view), record=not viewer, host=host) as v:
         if viewer:
