@@ -53,6 +53,9 @@ def scene_for(args):
     from teleop.scenario.schema import hardware_interface, load_scene
     from teleop.app.session import tick_count
 
+    if getattr(args, "hold", False) and not getattr(args, "viewer", False):
+        raise ConfigError("--hold: keeps the live viewer's page up after the run; add --viewer (a run's "
+                          "--out DIR keeps recording.html to open later)")
     base = load_scene(args.scene or DEFAULT_SCENE)
     given = dict(duration_s=args.duration, seed=args.seed, master=args.master, integrator=args.integrator,
                  dt_s=args.dt)
@@ -67,6 +70,7 @@ def scene_for(args):
         if e.key in FLAGS and given.get(e.key) is not None:
             raise ConfigError(f"{FLAGS[e.key]} {given[e.key]}: {e.reason}") from None
         raise
+    check_slave_gains(scene, given)
     where = "--duration" if args.duration is not None else "--dt" if args.dt is not None else f"{scene.path}: duration_s"
     try:
         n = tick_count(scene.duration_s, scene.dt_s, where)
@@ -85,6 +89,31 @@ def scene_for(args):
         raise ConfigError(f"{scene.path}: cobot.capture_path: a scene's capture is written inside its run's "
                           "folder; add --out DIR")
     return scene, (cap if from_file else None)
+
+
+def check_slave_gains(scene, given: dict | None = None) -> None:
+    """The slave's follower corrects its error within one tick: its task and fixture gains (1/s)
+    times dt stay below 1 (:class:`teleop.slave.arm.SlaveArm` refuses otherwise, once built). Said
+    before anything runs, naming what changed it: the flag (``--dt``), a ``--set`` key, or the file's
+    key; ``given`` the flags' values by scene key (FLAGS)."""
+    from teleop.scenario.plausibility import pick_key
+
+    slave = scene.slave
+    if slave is None:
+        return
+    for gain, what in (("k_task_1ps", "task"), ("k_fixture_1ps", "fixture")):
+        k = float(getattr(slave, gain))
+        if k * scene.dt_s < 1.0:
+            continue
+        why = (f"the slave's {what} gain {k:g} /s (slave.{gain}) times dt must stay below 1 (the follower corrects "
+               f"within one tick): it needs dt < {1.0 / k:.3g} s")
+        key = pick_key(("dt_s", f"slave.{gain}", "slave"), scene.overridden)
+        flag = FLAGS.get(key)
+        if flag is not None and (given or {}).get(key) is not None:
+            raise ConfigError(f"{flag} {given[key]:g}: {why}, or a lower slave.{gain}")
+        if key in scene.overridden:
+            raise ConfigError(f"--set {key}: {why} (dt is {scene.dt_s:g} s)")
+        raise ConfigError(f"{scene.path}: dt_s: {why} (got {scene.dt_s:g} s), or a lower slave.{gain}")
 
 
 def with_capture(scene, folder, cap: str):

@@ -36,6 +36,8 @@ from teleop.app.netcli import add_keys_command, add_run_flags, add_subcommands, 
 #: exit codes: the run's status "ok"; any other status; bad input (nothing run, nothing written);
 #: Ctrl-C (the summary, if a run had started, says "interrupted")
 EXIT_OK, EXIT_FAILED, EXIT_BAD_INPUT, EXIT_INTERRUPTED = 0, 1, 2, 130
+#: stdout's reader went away before the output ended (a pipe into ``head``): 128 + SIGPIPE, no message
+EXIT_READER_GONE = 141
 
 log = logging.getLogger("teleop")
 
@@ -46,7 +48,8 @@ def _summary_text(s: dict) -> str:
         f"status     {s['status']}   steps={s['steps']}  dt={s['dt_s'] * 1e3:g} ms  simulated={s['duration_s']:g} s  nan={s['nan']}",
         f"           {s.get('status_reason', '')}",
         f"tick       median {s['tick_us']['median']:.1f} us   p99 {s['tick_us']['p99']:.1f} us   "
-        f"{s.get('realtime_factor', 0):.2f}x real time",
+        f"{s.get('realtime_factor', 0):.2f}x real time"
+        + (f" (not counting {s['compile_s']:.1f} s compiling the kernels, once)" if s.get("compile_s") else ""),
     ]
     for k, v in s["metrics"].items():
         lines.append(f"  {k:34s} {v:.4g}" if v is not None else f"  {k:34s} null")
@@ -81,10 +84,11 @@ def _write_run(result, view, rv, scene, folder) -> list[str]:
 
 def cmd_run(args) -> int:
     from teleop.app.outputs import RunFolder, check_json_target, write_json
-    from teleop.app.progress import RunBar, notice_compile
+    from teleop.app.progress import RunBar, compile_clock, notice_compile
     from teleop.app.runtime import run_scene
 
     scene, capture = scene_for(args)
+    _debug_scene(scene, args)
     if args.link == "zenoh":
         refuse_over_zenoh(args)
     if args.operator == "keyboard":
@@ -111,16 +115,18 @@ def cmd_run(args) -> int:
         from teleop.app.view_bridge import RunView
 
         rv = RunView(view) if view is not None else None
-        if args.link == "zenoh":  # two processes on loopback, wall clock
-            result = cmd_run_zenoh(scene, quiet=args.quiet)
-        elif args.operator == "keyboard":  # real time, limited, until the person stops it
-            from teleop.app.keyboard import run_at_keyboard
+        with compile_clock() as clock:  # the kernels' compile time kept out of the real-time factor
+            if args.link == "zenoh":  # two processes on loopback, wall clock
+                result = cmd_run_zenoh(scene, quiet=args.quiet)
+            elif args.operator == "keyboard":  # real time, limited, until the person stops it
+                from teleop.app.keyboard import run_at_keyboard
 
-            result = run_at_keyboard(scene, view=rv, quiet=args.quiet)
-        else:
-            bar = RunBar(scene.duration_s, scene.dt_s, enabled=not args.quiet)
-            result = run_scene(scene, progress=bar, realtime=args.realtime, view=rv)
-            bar.close()
+                result = run_at_keyboard(scene, view=rv, quiet=args.quiet, hooks=[clock])
+            else:
+                bar = RunBar(scene.duration_s, scene.dt_s, enabled=not args.quiet, clock=clock)
+                result = run_scene(scene, progress=bar, realtime=args.realtime, view=rv, hooks=[clock])
+                bar.close()
+        clock.discount(result.summary)
         with _deferred_interrupts() as late:  # the run is over: its files are written whole, then told
             written = _write_run(result, view, rv, scene, folder) if folder is not None else []
             if folder is not None and args.link == "zenoh":  # the recording drawn from the merged log
@@ -161,6 +167,26 @@ def cmd_run(args) -> int:
     return EXIT_OK if s["status"] == "ok" else EXIT_FAILED
 
 
+def _debug_scene(scene, args) -> None:
+    """-vv: what the command line resolved to, and where the compiled kernels are kept."""
+    if not log.isEnabledFor(logging.DEBUG):
+        return
+    from teleop.app.progress import kernels_cold, numba_cache_dir
+
+    slave = "none" if scene.slave is None else f"{scene.slave.arm if isinstance(scene.slave.arm, str) else 'urdf'}"
+    log.debug("scene %s from %s: %g s at dt %g s (%d ticks), master %s, slave %s, integrator %s, seed %d, "
+              "effects %s", scene.name, scene.path, scene.duration_s, scene.dt_s,
+              round(scene.duration_s / scene.dt_s), scene.master, slave, scene.integrator, scene.seed,
+              ", ".join(scene.effects) or "none")
+    if scene.overridden:
+        log.debug("changed on the command line: %s", ", ".join(scene.overridden))
+    log.debug("link: %s; operator: %s; pacing: %s", getattr(args, "link", "sim"), args.operator,
+              "wall clock" if args.realtime or args.operator == "keyboard" else "simulated time")
+    log.debug("numba kernels cached in %s (%s)", numba_cache_dir(),
+              "cold: the first tick compiles them" if kernels_cold() else "warm")
+    log.debug("writes: --out %s, --json %s", args.out or "none", args.json or "none")
+
+
 @contextmanager
 def _deferred_interrupts():
     """Ctrl-C and SIGTERM wait while the block runs (a run's files being written and committed):
@@ -196,6 +222,8 @@ def cmd_replay(args) -> int:
     (the run's own recording.html is never touched). The log is checked whole first."""
     from teleop.app.replay import replay_command
 
+    if args.hold and not args.viewer:
+        raise ConfigError("--hold: keeps the live viewer's page up after the replay; add --viewer")
     log_path, _, _ = _run_log(args.log)
     return replay_command(log_path.parent, viewer=args.viewer, out=args.out, force=args.force, view=args.view,
                           hold=args.hold, host=args.host)
@@ -264,7 +292,8 @@ def build_parser() -> argparse.ArgumentParser:
     rp.add_argument("--viewer", action="store_true", help="replay live in Meshcat instead of writing HTML")
     rp.add_argument("--host", default="127.0.0.1", help="address the viewer's web server binds (default 127.0.0.1)")
     rp.add_argument("--out", help="write the replay to this .html file (default: replay.html in the run folder)")
-    rp.add_argument("--force", action="store_true", help="replace --out if it exists (never the run's data files)")
+    rp.add_argument("--force", action="store_true",
+                    help="replace the page if it exists (replay.html, or --out; never the run's data files)")
     rp.add_argument("--view", choices=["perspective", "side"], default="perspective", help="viewer camera")
     rp.add_argument("--hold", action="store_true", help="with --viewer: keep the page served until Ctrl-C")
     rp.set_defaults(func=cmd_replay)
@@ -278,12 +307,21 @@ def build_parser() -> argparse.ArgumentParser:
     return ap
 
 
+class _Lines(logging.Formatter):
+    """``teleop: message``; a debug message says so (``teleop: debug: message``)."""
+
+    def format(self, record) -> str:
+        text = super().format(record)
+        return f"teleop: debug: {text}" if record.levelno <= logging.DEBUG else f"teleop: {text}"
+
+
 def configure_logging(verbose: int, quiet: bool) -> None:
-    """teleop's messages on stderr, one line each: warnings by default, -v info, -vv debug,
+    """teleop's messages on stderr, one line each: warnings by default, -v info, -vv debug (the
+    scene resolved, the kernels' cache, what is written, the CAN frames the cobot's host refused),
     -q errors only."""
     level = logging.ERROR if quiet else logging.DEBUG if verbose > 1 else logging.INFO if verbose else logging.WARNING
     handler = logging.StreamHandler(sys.stderr)
-    handler.setFormatter(logging.Formatter("teleop: %(message)s"))
+    handler.setFormatter(_Lines("%(message)s"))
     root = logging.getLogger("teleop")
     root.handlers[:] = [handler]
     root.setLevel(level)
@@ -294,6 +332,21 @@ def _error(message) -> int:
     """One line on stderr, control characters escaped; the bad-input exit code."""
     print(f"teleop: error: {plain(str(message).splitlines()[0] if str(message) else message)}", file=sys.stderr)
     return EXIT_BAD_INPUT
+
+
+def _reader_gone() -> int:
+    """stdout's reader closed the pipe (``teleop list | head -1``): nothing more to say, no
+    traceback; stdout is pointed at /dev/null so that the interpreter's last flush is quiet too.
+    Exit 141, as a process ended by SIGPIPE shows in a shell (128 + 13)."""
+    import os
+
+    try:
+        devnull = os.open(os.devnull, os.O_WRONLY)
+        os.dup2(devnull, sys.stdout.fileno())
+        os.close(devnull)
+    except (OSError, ValueError):  # stdout without a file descriptor (a test's capture)
+        pass
+    return EXIT_READER_GONE
 
 
 def _caused_by_interrupt(e: BaseException) -> bool:
@@ -317,7 +370,11 @@ def main(argv=None) -> int:
     main_thread = threading.current_thread() is threading.main_thread()
     previous = signal.signal(signal.SIGTERM, _terminate) if main_thread else None
     try:
-        return args.func(args)
+        code = args.func(args)
+        sys.stdout.flush()  # a reader gone away is told here, not at the interpreter's exit
+        return code
+    except BrokenPipeError:
+        return _reader_gone()
     except TeleopError as e:
         return _error(e)
     except OSError as e:  # a file the command was pointed at: its name and the system's reason

@@ -3,12 +3,21 @@ its ETA and real-time factor (tqdm), both on stderr and only where a person is l
 
 ``kernels_cold()`` asks numba's own on-disk cache whether the engine's largest kernel has a valid
 entry; a cold cache means the first tick compiles every kernel (about 30-60 s once).
+
+:class:`CompileClock` times what numba spends compiling during the run's ticks (numba's own
+``numba:compile`` events), so that the real-time factor a first run reports is the loop's, not the
+compiler's: :meth:`CompileClock.discount` takes that time out of the summary's
+``realtime_factor`` and reports it apart (``compile_s``).
 """
 
 from __future__ import annotations
 
 import logging
 import sys
+import time
+from contextlib import contextmanager
+
+from teleop.tick.ports import Hook
 
 log = logging.getLogger("teleop")
 
@@ -35,14 +44,117 @@ def notice_compile(stream=None) -> None:
         log.warning("compiling kernels, once, about 30-60 s (cached for the next runs)")
 
 
+def numba_cache_dir() -> str:
+    """Where numba keeps the compiled kernels (for -vv): its cache folder, or beside the sources."""
+    import os
+
+    folder = os.environ.get("NUMBA_CACHE_DIR")
+    if folder:
+        return folder
+    try:
+        from teleop.dynamics.kernels import motion
+
+        return str(motion.evaluate._cache._cache_path)  # numba's private API: the folder it caches in
+    except Exception:  # unknown: say where numba's default puts it
+        return "__pycache__ beside the kernels' sources"
+
+
+class CompileClock(Hook):
+    """The wall time numba spends compiling during a run's ticks (see the module docstring). Use
+    as a context manager around the run (it listens to numba's compile events while open) and as
+    a loop hook of the run (it marks the first tick's start). ``seconds`` is the compile time
+    since the first tick started (so far; whole after the run)."""
+
+    def __init__(self):
+        self.spans: list[tuple[float, float]] = []  # (start, end) of each outermost compile, perf_counter
+        self.first_tick = None  # perf_counter at the start of tick 0
+        self._depth, self._t0 = 0, 0.0
+        self._installed = None
+
+    def _started(self) -> None:
+        if self._depth == 0:
+            self._t0 = time.perf_counter()
+        self._depth += 1
+
+    def _ended(self) -> None:
+        if self._depth > 0:
+            self._depth -= 1
+            if self._depth == 0:
+                self.spans.append((self._t0, time.perf_counter()))
+
+    def __enter__(self):
+        try:
+            from numba.core import event
+        except ImportError:  # no numba events: nothing discounted
+            return self
+        clock = self
+
+        class _Listener(event.Listener):
+            def on_start(self, e):
+                clock._started()
+
+            def on_end(self, e):
+                clock._ended()
+
+        listener = _Listener()
+        event.register("numba:compile", listener)
+        self._installed = (event, listener)
+        return self
+
+    def __exit__(self, *exc) -> None:
+        if self._installed is not None:
+            event, listener = self._installed
+            event.unregister("numba:compile", listener)
+            self._installed = None
+
+    def before_tick(self, i, t_s, side) -> None:
+        if self.first_tick is None:
+            self.first_tick = time.perf_counter()
+
+    def seconds_between(self, start: float, end: float = float("inf")) -> float:
+        """Compile time (s) inside [start, end] (perf_counter)."""
+        return sum(max(0.0, min(b, end) - max(a, start)) for a, b in self.spans)
+
+    @property
+    def seconds(self) -> float:
+        return 0.0 if self.first_tick is None else self.seconds_between(self.first_tick)
+
+    def discount(self, summary: dict) -> dict:
+        """``summary`` with the compile time inside its run's wall time taken out of its
+        ``realtime_factor`` and reported as ``compile_s`` (changed in place, returned); a run that
+        compiled nothing is left as it is."""
+        wall = summary.get("wall_s")
+        if self.first_tick is None or not wall:
+            return summary
+        spent = self.seconds_between(self.first_tick, self.first_tick + wall)
+        if spent <= 0.0:
+            return summary
+        summary["compile_s"] = round(spent, 3)
+        left = wall - spent
+        if left > 0:
+            summary["realtime_factor"] = round(summary["steps"] * summary["dt_s"] / left, 3)
+        log.info("the kernels compiled for %.1f s during the run; the real-time factor leaves that out", spent)
+        return summary
+
+
+@contextmanager
+def compile_clock():
+    """A :class:`CompileClock` listening for the block."""
+    clock = CompileClock()
+    with clock:
+        yield clock
+
+
 class RunBar:
     """A progress bar in simulated seconds: ``update(i, n)`` from the session every 1000 ticks; the
-    rate tqdm shows is simulated s per wall s, the real-time factor. Off when ``enabled`` is false
-    or stderr is not a terminal; appears only after BAR_DELAY_S of wall time."""
+    rate tqdm shows is simulated s per wall s, the real-time factor (less the time ``clock``, a
+    :class:`CompileClock`, saw numba compile). Off when ``enabled`` is false or stderr is not a
+    terminal; appears only after BAR_DELAY_S of wall time."""
 
-    def __init__(self, duration_s: float, dt_s: float, enabled: bool = True, stream=None):
+    def __init__(self, duration_s: float, dt_s: float, enabled: bool = True, stream=None, clock=None):
         stream = stream or sys.stderr
         self.dt = dt_s
+        self.clock = clock
         self.bar = None
         if enabled and getattr(stream, "isatty", lambda: False)():
             from tqdm import tqdm
@@ -55,7 +167,7 @@ class RunBar:
     def __call__(self, i: int, n: int) -> None:
         if self.bar is not None:
             self.bar.update(round(i * self.dt, 6) - self.bar.n)
-            elapsed = self.bar.format_dict["elapsed"]
+            elapsed = self.bar.format_dict["elapsed"] - (self.clock.seconds if self.clock is not None else 0.0)
             if elapsed > 0:
                 self.bar.set_postfix_str(f"{i * self.dt / elapsed:.2f}x real time", refresh=False)
 
