@@ -1,9 +1,14 @@
 """What delay does to bilateral teleoperation, and what the passivity guard (TDPA) buys back.
 
-    python tools/delay_study.py [--out docs/delay] [--delays 0 10 50 100 200 500 1000]
+    python tools/delay_study.py [--out DIR] [--delays 0 10 50 100 200 500 1000]
                                 [--losses 0 0.05] [--scenes straight_incision stiff_contact]
-                                [--guards off tdpa] [--reuse CSV ...]
+                                [--guards off tdpa] [--seconds S] [--reuse CSV ...]
                                 [--workers N | --scheduler ADDRESS]
+
+Writes into a new ``runs/delay_study-DATE-TIME/`` unless ``--out`` names a folder (the published
+study: ``--out docs/delay``). ``--seconds 2`` is the quick mode: every run cut to 2 s; it gives
+the full study's verdicts where a 2 s run can tell (no delay up to 100 ms round trip), and says
+"cannot judge" where the start-up outlasts the run (see ``stable`` below).
 
 For each scene, round-trip delay (ms), message loss and guard (off / tdpa) it runs the scene in
 simulated time through the [link] channel (``--set link.*``, the same path as the command line)
@@ -11,8 +16,16 @@ and records:
 
 * ``stable``: no NaN, no fault (master or slave tracking), contact force below 10x the
   undelayed run's peak and no oscillation: the tool's 2-50 Hz motion in the last second below
-  ``OSC_LIMIT_M`` (energy that keeps growing shows as both);
-* ``osc_mm``: that 2-50 Hz RMS of the reference tool's position over the last second (mm);
+  ``OSC_LIMIT_M`` (energy that keeps growing shows as both). ``cannot judge`` (None) when the
+  run has none of the first three and is too short to judge the oscillation: the start-up (the
+  hand's start and the first feedback coming back: ``SETTLE_S`` plus ``SETTLE_ROUND_TRIPS``
+  round trips, measured on both scenes) leaves less than ``OSC_MIN_WINDOW_S`` of it;
+* ``osc_mm``: that 2-50 Hz RMS of the reference tool's position over the last second after the
+  start-up (mm; nan: cannot judge), the window's straight-line trend taken out first
+  (:func:`oscillation`): the hand drags the tool at a steady 30 mm/s through most of a cut, and a
+  ramp seen through an FFT window is a sawtooth whose harmonics fill the band (a 2 s run, whose
+  last second is mid-cut, read 5.3 mm at zero delay against 0.3 mm for the full run, whose last
+  second is at rest: the quick mode said "unstable" where the full study said "stable");
 * ``track_mm``: RMS distance of the slave's tip from the master's tip mapped to the patient
   frame, at the same instant (delay, drift and all; mm);
 * ``follow_um``: RMS distance of the slave from its own (delayed, corrected) target (µm);
@@ -40,6 +53,7 @@ from pathlib import Path
 import numpy as np
 
 from teleop.tick.loop import Hook
+from teleop.app.outputs import out_help, study_folder
 from teleop.app.plots import plot_passivity
 from teleop.app.runtime import run_scene
 from teleop.app.metrics import band_rms
@@ -50,6 +64,29 @@ DELAYS_MS = (0, 10, 50, 100, 200, 500, 1000)
 LOSSES = (0.0, 0.05)
 SCENES = ("straight_incision", "stiff_contact")
 OSC_LIMIT_M = 1e-3  # 2-50 Hz motion of the master's tool beyond this in the last second: oscillating
+OSC_BAND_HZ = (2.0, 50.0)  #: the oscillation band, Hz
+OSC_WINDOW_S = 1.0  #: the oscillation is measured over the run's last this-many seconds ...
+OSC_MIN_WINDOW_S = 0.5  #: ... after the start-up, and over at least this long, or not judged
+#: the start-up: SETTLE_S plus this many round trips (the straight cut's hand starts at 0.5 s; its
+#: transient is gone 1.0 s + 3 round trips in, at 0 to 1000 ms, measured in 0.25 s steps)
+SETTLE_S, SETTLE_ROUND_TRIPS = 1.0, 3.0
+
+
+def settle_s(delay_ms: float) -> float:
+    """When the start-up of a run with this round trip (ms) is over, s of run time."""
+    return SETTLE_S + SETTLE_ROUND_TRIPS * delay_ms * 1e-3
+
+
+def oscillation(p: np.ndarray, dt_s: float) -> float:
+    """RMS (m) of the positions ``p`` (n, 3) in OSC_BAND_HZ, after each axis's least-squares straight
+    line is taken out (a steady drag is no oscillation; see the module docstring)."""
+    p = np.asarray(p, dtype=float)
+    if len(p) < 8:
+        return 0.0
+    t = np.arange(len(p), dtype=float)
+    A = np.column_stack([t, np.ones_like(t)])
+    coef, *_ = np.linalg.lstsq(A, p, rcond=None)
+    return band_rms(p - A @ coef, dt_s, *OSC_BAND_HZ)
 
 
 class FeltForce(Hook):
@@ -75,8 +112,9 @@ def run_point(name: str, delay_ms: float, loss: float, guard: bool, seconds: flo
     wall = time.perf_counter() - t0
     s, log, m = r.summary, r.log, r.summary["metrics"]
     k = s["steps"]
-    last = slice(max(0, k - int(round(1.0 / scene.dt_s))), k)
-    osc = band_rms(log["p_r"][last], scene.dt_s, 2.0, 50.0) if k > 8 else 0.0
+    start = max(k - round(OSC_WINDOW_S / scene.dt_s), math.ceil(settle_s(delay_ms) / scene.dt_s - 1e-9))
+    judged = k - start >= round(OSC_MIN_WINDOW_S / scene.dt_s)
+    osc = oscillation(log["p_r"][start:k], scene.dt_s) if judged else math.nan
     reg = scene.mapping.registration()
     tip = np.asarray(scene.fixture.tip_m if scene.fixture.type == "scalpel" else (0.0, 0.0, 0.0))
     master_tip_P = np.array([reg.point_to_patient(p) for p in log["p_r"][:k]]) + \
@@ -100,11 +138,15 @@ def run_point(name: str, delay_ms: float, loss: float, guard: bool, seconds: flo
     return row, (log if guard else {})
 
 
-def verdict(row: dict, ref_force_max: float) -> bool:
-    """Stable: no NaN, no fault, no force blow-up, no oscillation (see the module docstring)."""
+def verdict(row: dict, ref_force_max: float) -> bool | None:
+    """Stable: no NaN, no fault, no force blow-up, no oscillation; None: none of the first three,
+    and the run too short to judge the oscillation (osc_mm nan; see the module docstring)."""
     fault = row["status"] not in ("ok",) and row["status"] != "slave_saturated"
-    return (not row["nan"] and not fault and row["F_tissue_max"] <= 10.0 * max(ref_force_max, 0.1)
-            and row["osc_mm"] * 1e-3 < OSC_LIMIT_M)
+    if row["nan"] or fault or not row["F_tissue_max"] <= 10.0 * max(ref_force_max, 0.1):
+        return False
+    if math.isnan(row["osc_mm"]):
+        return None
+    return row["osc_mm"] * 1e-3 < OSC_LIMIT_M
 
 
 COLUMNS = ("scene", "delay_ms", "loss", "guard", "stable", "status", "osc_mm", "track_mm", "follow_um",
@@ -112,6 +154,8 @@ COLUMNS = ("scene", "delay_ms", "loss", "guard", "stable", "status", "osc_mm", "
 
 
 def _fmt(v) -> str:
+    if v is None:  # a verdict the run cannot give
+        return "cannot judge"
     if isinstance(v, float):
         return "-" if math.isnan(v) else f"{v:.3g}"
     return str(v)
@@ -141,13 +185,14 @@ def plot(rows: list[dict], out: Path) -> None:
         for scene in sorted({r["scene"] for r in rows}):
             for guard, ls in (("off", "--"), ("tdpa", "-")):
                 for loss, mk in ((0.0, "o"), (0.05, "x")):
-                    pts = [r for r in rows if r["scene"] == scene and r["guard"] == guard and r["loss"] == loss]
+                    pts = [r for r in rows if r["scene"] == scene and r["guard"] == guard and r["loss"] == loss
+                           and math.isfinite(r[key])]  # an osc_mm not judged (nan) is not drawn
                     if not pts:
                         continue
                     x = [max(r["delay_ms"], 1.0) for r in pts]
                     ax.plot(x, [max(r[key], 1e-6) for r in pts], ls, marker=mk, ms=4, lw=1,
                             label=f"{scene} {guard} loss {loss:g}")
-                    bad = [(xx, max(r[key], 1e-6)) for xx, r in zip(x, pts) if not r["stable"]]
+                    bad = [(xx, max(r[key], 1e-6)) for xx, r in zip(x, pts) if r["stable"] is False]
                     if bad:
                         ax.scatter(*zip(*bad), s=60, facecolors="none", edgecolors="r")
         ax.set_xscale("log")
@@ -155,7 +200,9 @@ def plot(rows: list[dict], out: Path) -> None:
         ax.set_xlabel("round-trip delay [ms] (0 drawn at 1)")
         ax.set_ylabel(label, fontsize=8)
         ax.grid(alpha=0.3, which="both")
-    axes[0, 0].legend(fontsize=6)
+    drawn = next((ax for ax in axes.flat if ax.get_legend_handles_labels()[0]), None)
+    if drawn is not None:  # the first panel that has points (osc_mm has none when no run could be judged)
+        drawn.legend(fontsize=6)
     fig.suptitle("delay study: dashed unguarded, solid TDPA; red circles: unstable", fontsize=9)
     fig.tight_layout()
     fig.savefig(out / "delay.png", dpi=110)
@@ -188,7 +235,7 @@ def read_rows(paths) -> dict:
                     if k in ("scene", "guard", "status"):
                         row[k] = v
                     elif k in ("nan", "stable"):
-                        row[k] = v == "True"
+                        row[k] = None if v in ("None", "") else v == "True"
                     else:
                         row[k] = float(v) if v not in ("", None) else float("nan")
                 row.setdefault("drift_end_mm", float("nan"))
@@ -198,19 +245,39 @@ def read_rows(paths) -> dict:
 
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--out", default="docs/delay")
-    ap.add_argument("--delays", type=float, nargs="+", default=DELAYS_MS)
-    ap.add_argument("--losses", type=float, nargs="+", default=LOSSES)
-    ap.add_argument("--scenes", nargs="+", default=SCENES)
-    ap.add_argument("--seconds", type=float, help="shorten every run to this (s)")
-    ap.add_argument("--guards", nargs="+", choices=("off", "tdpa"), default=("off", "tdpa"))
+    ap.add_argument("--out", metavar="DIR", help=out_help("delay_study", "delay.csv, delay.md, delay.png and "
+                                                                        "passivity.png"))
+    ap.add_argument("--delays", type=float, nargs="+", default=DELAYS_MS, metavar="MS",
+                    help=f"round-trip delays, ms (default: {' '.join(map(str, DELAYS_MS))})")
+    ap.add_argument("--losses", type=float, nargs="+", default=LOSSES, metavar="FRACTION",
+                    help=f"the share of messages the link loses, a fraction in [0, 1) (default: "
+                         f"{' '.join(map(str, LOSSES))})")
+    ap.add_argument("--scenes", nargs="+", default=SCENES, metavar="NAME",
+                    help=f"scene names or .toml paths (default: {' '.join(SCENES)})")
+    ap.add_argument("--seconds", type=float, metavar="S",
+                    help=f"simulated seconds of every run, s (default: each scene's duration_s; 2: the quick "
+                         f"mode). The oscillation is judged over the last {OSC_WINDOW_S:g} s after the start-up "
+                         f"({SETTLE_S:g} s + {SETTLE_ROUND_TRIPS:g} round trips), over at least "
+                         f"{OSC_MIN_WINDOW_S:g} s: a shorter run says 'cannot judge'")
+    ap.add_argument("--guards", nargs="+", choices=("off", "tdpa"), default=("off", "tdpa"),
+                    help="the passivity guard: off, tdpa (the time-domain passivity approach), or both (default)")
     ap.add_argument("--reuse", nargs="+", default=(), metavar="CSV",
                     help="take the rows of these earlier delay.csv files instead of running their points")
     add_sweep_args(ap)
     args = ap.parse_args(argv)
     check_sweep_args(ap, args)
-    out = Path(args.out)
-    out.mkdir(parents=True, exist_ok=True)
+    if args.seconds is not None and not args.seconds > 0:
+        ap.error(f"--seconds: expected a positive duration, s, got {args.seconds:g}")
+    if min(args.delays) < 0:
+        ap.error(f"--delays: expected delays >= 0 ms, got {args.delays}")
+    if not all(0 <= x < 1 for x in args.losses):
+        ap.error(f"--losses: expected fractions in [0, 1), got {args.losses}")
+    for name in args.scenes:
+        try:
+            load_scene(name)
+        except ValueError as e:  # a SceneError: one line
+            ap.error(f"--scenes: {e}")
+    out = study_folder("delay_study", args.out)
     import matplotlib
 
     matplotlib.use("Agg")
@@ -236,6 +303,12 @@ def main(argv=None) -> int:
             plot_passivity(plt, log, "stiff_contact, 200 ms round trip, TDPA", out / "passivity.png")
     write_table(rows, out)
     plot(rows, out)
+    unjudged = [(p, r) for p, r in zip(points, rows) if r["stable"] is None]
+    if unjudged:
+        need = max(settle_s(p[1]) + OSC_WINDOW_S for p, _ in unjudged)
+        print(f"cannot judge {len(unjudged)} of {len(rows)} points: their runs end before the start-up "
+              f"({SETTLE_S:g} s + {SETTLE_ROUND_TRIPS:g} round trips) leaves {OSC_MIN_WINDOW_S:g} s to judge the "
+              f"oscillation; --seconds {need:g} judges them all")
     print(out / "delay.md")
     return 0
 
