@@ -1,7 +1,11 @@
 """What accuracy costs in time: sweep integrators, control periods and effect sets.
 
-    python tools/accuracy_vs_time.py [--out docs/accuracy] [--seconds 2.0] [--incision-seconds 2.0]
+    python tools/accuracy_vs_time.py [--out DIR] [--seconds 2.0] [--incision-seconds 2.0] [--quick]
                                      [--workers N | --scheduler ADDRESS] [--replot accuracy.csv]
+
+Writes into a new ``runs/accuracy_vs_time-DATE-TIME/`` unless ``--out`` names a folder (the
+published study: ``--out docs/accuracy``). ``--quick`` is a smoke run: one paper scene, two
+periods, the default and shipped integrators, 0.5 s per point, no incision points.
 
 It also runs straight_incision over the master's integrator and period and the slave's QP solver
 and tolerance (tracking and depth error). For every point it records the constraint drift (holonomic position residual, velocity residual
@@ -35,6 +39,7 @@ from teleop.dynamics.constraints import stack_jacobian, stack_residual
 from teleop.dynamics.integrators import INTEGRATORS
 from teleop.scenario.build import build_tool
 from teleop.app.metrics import EnergyDrift
+from teleop.app.outputs import out_help, study_folder
 from teleop.scenario.operators import make_operator
 from teleop.scenario.schema import load_scene
 from teleop.app.sweep import add_sweep_args, check_sweep_args, run_sweep
@@ -435,23 +440,37 @@ def _plot_incision(axes, col, inc, markers, plt) -> None:
 
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("--out", default="docs/accuracy")
-    ap.add_argument("--seconds", type=float, default=2.0, help="simulated seconds per paper-scene point")
-    ap.add_argument("--incision-seconds", type=float, default=2.0,
-                    help="simulated seconds per straight_incision point (0: no incision points)")
-    ap.add_argument("--scenes", nargs="+", choices=SCENES, help="a subset of the scenes (default: all)")
-    ap.add_argument("--integrators", nargs="+", choices=tuple(INTEGRATORS), help="a subset of the integrators")
-    ap.add_argument("--periods", nargs="+", type=float, help="control periods, ms (default: 0.1 0.25 0.5 1 2)")
-    ap.add_argument("--replot", help="redraw the table and plot from an accuracy.csv, no runs")
+    ap.add_argument("--out", metavar="DIR", help=out_help("accuracy_vs_time", "accuracy.csv, accuracy.md and "
+                                                                             "pareto.png"))
+    ap.add_argument("--seconds", type=float, default=2.0, metavar="S",
+                    help="simulated seconds per paper-scene point, s (default 2)")
+    ap.add_argument("--incision-seconds", type=float, default=2.0, metavar="S",
+                    help="simulated seconds per straight_incision point, s (default 2; 0: no incision points)")
+    ap.add_argument("--scenes", nargs="+", choices=SCENES, metavar="NAME",
+                    help=f"a subset of the scenes (default: all: {', '.join(SCENES)})")
+    ap.add_argument("--integrators", nargs="+", choices=tuple(INTEGRATORS), metavar="NAME",
+                    help=f"a subset of the integrators (default: all: {', '.join(INTEGRATORS)})")
+    ap.add_argument("--periods", nargs="+", type=float, metavar="MS",
+                    help=f"control periods, ms (default: {' '.join(f'{x:g}' for x in PERIODS_MS)})")
+    ap.add_argument("--quick", action="store_true",
+                    help="a smoke run: paper_rolling_disk, periods 1 and 2 ms, the default and shipped integrators, "
+                         "0.5 s per point, no incision points (the options above narrow it further)")
+    ap.add_argument("--replot", metavar="CSV", help="redraw the table and plot from an accuracy.csv, no runs")
     add_sweep_args(ap)
     args = ap.parse_args(argv)
     check_sweep_args(ap, args)
+    if args.quick:
+        args.scenes = args.scenes or ["paper_rolling_disk"]
+        args.integrators = args.integrators or sorted({DEFAULT[0], SHIPPED[0]})
+        args.periods = args.periods or [1.0, 2.0]
+        args.seconds, args.incision_seconds = min(args.seconds, 0.5), 0.0
     if args.seconds <= 0 or args.incision_seconds < 0:
         ap.error("--seconds must be > 0 and --incision-seconds >= 0")
     if args.periods and min(args.periods) <= 0:
         ap.error(f"--periods: expected periods > 0 ms, got {args.periods}")
     if args.replot and not Path(args.replot).is_file():
         ap.error(f"--replot: no such file {args.replot}")
+    out = study_folder("accuracy_vs_time", args.out)
     if args.replot:
         rows = read_csv(Path(args.replot))
     else:
@@ -459,8 +478,8 @@ def main(argv=None) -> int:
         results = run_sweep(run_point, points, args.workers, args.scheduler, desc="accuracy study")
         rows = assemble(points, results)
         print_rows(rows)
-    write_outputs(rows, Path(args.out))
-    print(f"wrote {args.out}/accuracy.csv, accuracy.md, pareto.png ({len(rows)} points)")
+    write_outputs(rows, out)
+    print(f"wrote {out}/accuracy.csv, accuracy.md, pareto.png ({len(rows)} points)")
     return 0
 
 

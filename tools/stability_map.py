@@ -12,10 +12,11 @@ own energy is no criterion here: under the load cell's 0.02 N of noise a free 10
 by as much as the kick gave it, stable or not.) Every point is seeded from (seed, point
 index), so the results do not depend on the number of workers.
 
-    python tools/stability_map.py [--workers N | --scheduler ADDRESS] [--out docs/stability]
+    python tools/stability_map.py [--workers N | --scheduler ADDRESS] [--out DIR]
                                   [--quick] [--from-json docs/stability/map.json]
 
-Writes map.json (every point), table.md and zwidth.png under --out. Points run through Dask
+Writes map.json (every point), table.md and zwidth.png into a new ``runs/stability_map-DATE-TIME/``,
+or into ``--out`` (the published map: ``--out docs/stability``). Points run through Dask
 (teleop.app.sweep: a local cluster of N single-threaded processes by default, or the scheduler at
 ADDRESS).
 """
@@ -39,6 +40,7 @@ from teleop.dynamics.body import RigidBody
 from teleop.dynamics.effects import AngularDamper, LinearDamper, Spring
 from teleop.dynamics.tool import ReferenceTool
 from teleop.master import CobotConfig, CobotMaster
+from teleop.app.outputs import out_help, study_folder
 from teleop.app.sweep import add_sweep_args, check_sweep_args, run_sweep
 
 PULSE_S, DURATION_S, TAIL_S = 0.02, 0.5, 0.2
@@ -240,20 +242,26 @@ def plot_stability_map(results: list[dict], params_of, path: Path) -> None:
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     add_sweep_args(ap)
-    ap.add_argument("--out", default="docs/stability", help="output folder")
-    ap.add_argument("--quick", action="store_true", help="a coarse map (for a smoke run)")
-    ap.add_argument("--seed", type=int, default=0)
-    ap.add_argument("--from-json", default=None, help="redraw the table and plot from a map.json")
+    ap.add_argument("--out", metavar="DIR", help=out_help("stability_map", "map.json, table.md and zwidth.png"))
+    ap.add_argument("--quick", action="store_true",
+                    help=f"a coarse map for a smoke run: every other mass (kg) and inertia (kg*m^2) of the ladders, "
+                         f"dampings {DAMPINGS[0]:g} and {DAMPINGS[1]:g} N*s/m, the default device and {ROWS[1][0]}; "
+                         f"each point still runs {DURATION_S:g} s")
+    ap.add_argument("--seed", type=int, default=0, help="seed of the load cell's noise, per point (default 0)")
+    ap.add_argument("--from-json", default=None, metavar="MAP_JSON",
+                    help="redraw the table and plot from a map.json, no runs")
     a = ap.parse_args(argv)
     check_sweep_args(ap, a)
     if a.from_json and not Path(a.from_json).is_file():
         ap.error(f"--from-json: no such file {a.from_json}")
+    out = study_folder("stability_map", a.out)
     if a.from_json:
         results = json.loads(Path(a.from_json).read_text())
     else:
         results = run_points(sweep_points(a.quick, a.seed), a.workers, a.scheduler)
-    write_outputs(results, Path(a.out))
-    print((Path(a.out) / "table.md").read_text())
+    write_outputs(results, out)
+    print((out / "table.md").read_text())
+    print(f"wrote {out}/map.json, table.md, zwidth.png")
     return 0
 
 
