@@ -5,12 +5,18 @@
 
 The machine is shared and noisy, so every figure is taken in interleaved blocks with the
 yardstick, one ``pinocchio.aba`` of example-robot-data's Panda (``pin_aba_us``); compare ratios.
+
+What the runs log (a cobot's latched fault when a scene without its heavy effects runs off its
+device's tracking, ...) is held out of the table and printed after it, each line with the run it
+came from; a scene run whose status is not ok says so on its table line (its tick_us covers the
+ticks up to the fault).
 """
 
 from __future__ import annotations
 
 import argparse
 import json
+import logging
 import sys
 import time
 from pathlib import Path
@@ -20,6 +26,46 @@ import numpy as np
 from teleop.app.sweep import add_sweep_args, check_sweep_args, run_sweep
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
+
+
+class HeldLog(logging.Handler):
+    """teleop's log lines during the benchmark, held (with the run they came from: ``phase``) and
+    printed after the table by :meth:`report`, instead of mid-table on stderr."""
+
+    def __init__(self):
+        super().__init__(logging.INFO)
+        self.phase = ""
+        self.lines: list[tuple[str, str, str]] = []  # (phase, logger, message)
+
+    def emit(self, record: logging.LogRecord) -> None:
+        if record.levelno >= logging.WARNING:
+            self.lines.append((self.phase, record.name, record.getMessage()))
+
+    def __enter__(self):
+        root = logging.getLogger("teleop")
+        self._saved = (root.handlers[:], root.propagate, root.level)
+        root.handlers[:], root.propagate = [self], False
+        root.setLevel(logging.WARNING)
+        return self
+
+    def __exit__(self, *exc) -> None:
+        root = logging.getLogger("teleop")
+        root.handlers[:], root.propagate, level = self._saved
+        root.setLevel(level)
+
+    def report(self) -> None:
+        if not self.lines:
+            return
+        print("\nwhat the runs logged (held out of the table above):")
+        for phase, name, text in self.lines:
+            why = ""
+            if "fault latched" in text:
+                why = ("  -> the cobot's host latched this fault and the run ended there, in its safe state; "
+                       "the figures of that run cover the ticks up to it")
+            print(f"  {phase or 'bench'}: {name}: {text}{why}")
+
+
+HELD = HeldLog()
 
 
 def _stats(samples_ns) -> dict:
@@ -113,33 +159,45 @@ def bench_energy(steps: int) -> dict:
     return out
 
 
-def scene_ticks(seconds: float) -> dict:
+def scene_ticks(seconds: float, statuses: dict | None = None) -> dict:
     """tick_us of every scene (ideal master unless the scene names the cobot), and of the incision
-    scenes with their heavy effects switched off: what simulating only what a scene calls for buys."""
+    scenes with their heavy effects switched off: what simulating only what a scene calls for buys.
+    ``statuses`` (for the printout) gets each run's status."""
     from dataclasses import replace
 
     from teleop.app.runtime import run_scene
     from teleop.scenario.schema import list_scenes, load_scene
 
     out = {}
+    statuses = {} if statuses is None else statuses
+
+    def tick_us(label, scene):
+        HELD.phase = f"tick_us {label}"
+        s = run_scene(scene).summary
+        statuses[label] = s["status"]
+        return s["tick_us"]
+
     for name in list_scenes():
         scene = load_scene(name).with_overrides(duration_s=seconds)
-        out[name] = run_scene(scene).summary["tick_us"]
+        out[name] = tick_us(name, scene)
         light = tuple(e for e in scene.effects if e not in ("tissue", "cutting", "can_faults", "tremor"))
         if light != scene.effects:
-            out[f"{name} (without {', '.join(sorted(set(scene.effects) - set(light)))})"] = run_scene(
-                replace(scene, effects=light)).summary["tick_us"]
+            label = f"{name} (without {', '.join(sorted(set(scene.effects) - set(light)))})"
+            out[label] = tick_us(label, replace(scene, effects=light))
+    HELD.phase = ""
     return out
 
 
 def fuzz_point(seed: int) -> dict:
     """One random valid scene, drawn from its own seed, run to its end: the seed, status and nan."""
+    import logging
     import warnings
 
     from teleop.app.runtime import run_scene
     from teleop.scenario.random_scene import random_scene
     from teleop.scenario.schema import parse_scene
 
+    logging.getLogger("teleop").setLevel(logging.ERROR)  # a random scene's faults are tallied, not logged
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", RuntimeWarning)  # overflow on purpose in diverging scenes
         s = run_scene(parse_scene(random_scene(np.random.default_rng(seed)), f"<fuzz {seed}>")).summary
@@ -160,18 +218,26 @@ def fuzz_scenes(n: int, workers: int = 2, scheduler: str | None = None) -> dict:
 
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("--json", help="write the figures here")
+    ap.add_argument("--json", metavar="PATH", help="write the figures here (times in us; default: printed only)")
     ap.add_argument("--steps", type=int, default=20_000, help="steps per integrator (default 20000)")
     ap.add_argument("--fuzz", type=int, default=500, help="random valid scenes to run (default 500)")
     add_sweep_args(ap)  # the fuzzed scenes run through Dask
     ap.add_argument("--engine-only", action="store_true", help="only the integrators and the yardstick")
-    ap.add_argument("--scene-seconds", type=float, default=2.0, help="simulated seconds per scene for tick_us")
+    ap.add_argument("--scene-seconds", type=float, default=2.0,
+                    help="simulated seconds per scene for tick_us, s (default 2)")
     ap.add_argument("--link-frames", type=int, default=3000,
                     help="frames for the link round trip, Zenoh against raw UDP, two processes at 1 kHz (0: skip)")
     args = ap.parse_args(argv)
     check_sweep_args(ap, args)
     if args.fuzz < 0:
         ap.error(f"--fuzz: expected a count >= 0, got {args.fuzz}")
+    with HELD:
+        code = _bench(args)
+    HELD.report()
+    return code
+
+
+def _bench(args) -> int:
 
     yard = Yardstick()
     yard.block(2000)  # warm-up
@@ -200,8 +266,11 @@ def main(argv=None) -> int:
 
         yard.samples.clear()
         yard.block(3000)
+        HELD.phase = "master_bench"
         result["master"] = master_bench.measure(args.steps // 4)
+        HELD.phase = "slave_bench"
         result["slave"] = slave_bench.measure(args.steps // 8)
+        HELD.phase = ""
         yard.block(3000)
         result["pin_aba_us_late"] = _stats(yard.samples)
         m, sl = result["master"]["master_tick_us"], result["slave"]
@@ -211,9 +280,11 @@ def main(argv=None) -> int:
         for key in ("slave_step_us", "pink_step_us"):
             print(f"{key:34s} median {sl[key]['median']:8.2f}  p99 {sl[key]['p99']:8.2f}")
         print(f"slave_step_us / pink_step_us = {sl['slave_step_us']['median'] / sl['pink_step_us']['median']:.2f} (target <= 0.33)")
-        result["scene_tick_us"] = scene_ticks(args.scene_seconds)
+        statuses: dict = {}
+        result["scene_tick_us"] = scene_ticks(args.scene_seconds, statuses)
         for name, t in result["scene_tick_us"].items():
-            print(f"tick_us {name:60s} median {t['median']:8.1f}  p99 {t['p99']:8.1f}")
+            ended = "" if statuses.get(name, "ok") == "ok" else f"   (ended {statuses[name]}: see below)"
+            print(f"tick_us {name:60s} median {t['median']:8.1f}  p99 {t['p99']:8.1f}{ended}")
     if args.link_frames > 0 and not args.engine_only:
         import link_bench
 

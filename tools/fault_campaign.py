@@ -28,7 +28,11 @@ Per run: detected (the status that names the fault: the master's latched fault; 
 link, :mod:`teleop.tick.heartbeat`), the time from injection to detection, the time to the safe
 state, and whether anything unsafe happened from the injection until the safe state (or the end
 of the run): the slave's blade tip deeper than the fixture's depth by more than ``DEPTH_TOL_M``, or
-a tissue contact force above ``FORCE_LIMIT_N``. Times count from the last tick before the fault
+a tissue contact force above ``FORCE_LIMIT_N``. The depth is measured against the fixture's own
+tissue: a plane scalpel's plane, or the surface of a fixture type that has one
+(:func:`teleop.app.metrics.tissue_surface`: ``surface_scalpel``'s B-spline, along its normal at the
+tip's foot); a fixture with neither gets no depth column ("-", said under the table) and is judged
+on the contact force alone. Times count from the last tick before the fault
 acts (a fault detected on the next tick took 1 ms). Safe state: for a master-side fault, the
 device at rest (every joint rate below ``SAFE_RATE``) with the slave holding still (tip speed below
 ``SAFE_TIP_M_S``), the link running at zero velocity for up to ``POST_CYCLES`` periods after the
@@ -38,19 +42,27 @@ slave's fault at the end, and the blade is watched to the end of the run, as the
 for a link loss, issue 12's safe states: the master's tool at zero velocity and its remote force
 zero, with the slave holding still (its joints held, or its tool held under a clutch-out command);
 ``t_device_rest_s`` adds when the device's gantry, following the held tool, fell below 1 mm/s.
+
+The device's own log lines (rejected CAN frames, the fault it latched: the injected faults'
+expected traces) stay out of the table: they are counted under it, and ``-v`` prints them.
 """
 
 from __future__ import annotations
 
 import argparse
+import collections
 import json
+import logging
 import math
+import re
 import sys
 from dataclasses import replace
 
 import numpy as np
 
 from teleop.util.crc32 import crc32
+from teleop.util.errors import ConfigError
+from teleop.app.metrics import tissue_surface
 from teleop.app.runtime import run_scene
 from teleop.scenario.schema import list_scenes, load_scene
 
@@ -88,9 +100,14 @@ class Injector:
 
     def __init__(self, fault: str, t_inject: float, rng: np.random.Generator, fixture):
         self.fault, self.t_inject, self.rng = fault, t_inject, rng
-        self.normal = np.asarray(fixture.plane_normal, float) / np.linalg.norm(fixture.plane_normal)
-        self.origin = np.asarray(fixture.plane_origin_m, float)
-        self.depth_m = float(fixture.depth_m)
+        self.depth_m, self.normal, self.origin, self._foot = None, None, None, None
+        self.surface = tissue_surface(fixture)  # a fixture's own curved tissue, or None
+        if self.surface is not None:
+            self.depth_m = float(fixture.params.depth_m)
+        elif getattr(fixture, "type", None) == "scalpel":  # a plane scalpel: the plane and its depth
+            self.normal = np.asarray(fixture.plane_normal, float) / np.linalg.norm(fixture.plane_normal)
+            self.origin = np.asarray(fixture.plane_origin_m, float)
+            self.depth_m = float(fixture.depth_m)
         self.injected_at = self.detected_at = self.safe_at = None
         self.status_before = None  # the slave's status on the tick of the injection
         self.depth_excess_m = 0.0  # worst blade depth past the fixture's, from injection to safe state
@@ -177,8 +194,13 @@ class Injector:
     def _watch(self, loop) -> float:
         """Record the blade's depth and contact force; returns the tip speed (m/s)."""
         s = loop.slave.state
-        depth = -float(self.normal @ (s.tip - self.origin))
-        self.depth_excess_m = max(self.depth_excess_m, depth - self.depth_m)
+        if self.surface is not None:
+            sd, _, self._foot = self.surface.signed_distance(s.tip, self._foot)
+            depth = -float(sd)
+        elif self.normal is not None:
+            depth = -float(self.normal @ (s.tip - self.origin))
+        if self.depth_m is not None:
+            self.depth_excess_m = max(self.depth_excess_m, depth - self.depth_m)
         self.force_max_N = max(self.force_max_N, float(np.linalg.norm(s.contact_P[:3])))
         speed = float(np.linalg.norm(s.tip - self._tip_prev)) / loop.dt
         self._tip_prev = s.tip.copy()
@@ -218,9 +240,10 @@ def run_one(scene_name: str, fault: str, t_inject: float, seed: int, window_s: f
         "t_detect_s": None if inj.detected_at is None else inj.detected_at - t0,
         "t_safe_s": None if inj.safe_at is None else inj.safe_at - t0,
         "t_device_rest_s": None if inj.device_rest_at is None else inj.device_rest_at - t0,
-        "depth_excess_um": 1e6 * inj.depth_excess_m, "force_max_N": inj.force_max_N,
+        "depth_excess_um": 1e6 * inj.depth_excess_m if inj.depth_m is not None else math.nan,
+        "force_max_N": inj.force_max_N,
     }
-    row["unsafe"] = bool(row["depth_excess_um"] > 1e6 * DEPTH_TOL_M or row["force_max_N"] > FORCE_LIMIT_N)
+    row["unsafe"] = bool(row["depth_excess_um"] > 1e6 * DEPTH_TOL_M or row["force_max_N"] > FORCE_LIMIT_N)  # nan: False
     return row
 
 
@@ -259,7 +282,8 @@ def summarize(rows) -> list[dict]:
             "safe_ms_median": 1e3 * float(np.median(safe)) if safe else math.nan,
             "safe_ms_max": 1e3 * max(safe) if safe else math.nan,
             "unsafe": sum(x["unsafe"] for x in r),
-            "depth_excess_um_max": max(x["depth_excess_um"] for x in r),
+            "depth_excess_um_max": max((x["depth_excess_um"] for x in r if not math.isnan(x["depth_excess_um"])),
+                                       default=math.nan),
             "force_max_N": max(x["force_max_N"] for x in r),
             "detected_as": sorted({x["detected_as"] for x in r}),
         })
@@ -278,23 +302,88 @@ def table(summary) -> str:
         lines.append(f"| {s['fault']} | {s['injected']} | {s['detected']} | {s['reached_safe']} | "
                      f"{s['detect_ms_median']:.0f} / {s['detect_ms_max']:.0f} | "
                      f"{s['safe_ms_median']:.0f} / {s['safe_ms_max']:.0f} | {s['unsafe']} | "
-                     f"{s['depth_excess_um_max']:.1f} | {s['force_max_N']:.1f} | {', '.join(s['detected_as'])} |")
+                     f"{_um(s['depth_excess_um_max'])} | {s['force_max_N']:.1f} | {', '.join(s['detected_as'])} |")
     return "\n".join(lines)
+
+
+def _um(x: float) -> str:
+    return "-" if math.isnan(x) else f"{x:.1f}"
+
+
+class DeviceLog(logging.Handler):
+    """The device's log lines during the campaign (``teleop.master``: rejected CAN frames, the
+    faults it latched; the injected faults' own traces), held out of the table: counted by kind,
+    and printed at once with ``verbose``. Anything else teleop logs prints as usual."""
+
+    DEVICE = "teleop.master"
+
+    def __init__(self, verbose: bool = False):
+        super().__init__(logging.DEBUG)
+        self.verbose = verbose
+        self.counts: collections.Counter = collections.Counter()
+
+    def emit(self, record: logging.LogRecord) -> None:
+        device = record.name.startswith(self.DEVICE)
+        if device:
+            text = record.getMessage()
+            self.counts[re.sub(r"\s*0x[0-9A-Fa-f]+", "", text.split(":")[0])] += 1  # the kind, not the frame id
+        if self.verbose or not device:
+            print(f"{'debug: ' if device else ''}{record.name}: {record.getMessage()}", file=sys.stderr, flush=True)
+
+    def __enter__(self):
+        root = logging.getLogger("teleop")
+        self._saved = (root.handlers[:], root.propagate, root.level)
+        root.handlers[:], root.propagate = [self], False
+        root.setLevel(logging.DEBUG if self.verbose else logging.WARNING)
+        return self
+
+    def __exit__(self, *exc) -> None:
+        root = logging.getLogger("teleop")
+        root.handlers[:], root.propagate, level = self._saved
+        root.setLevel(level)
+
+    def note(self) -> str:
+        """One line under the table: what the device logged (empty when nothing)."""
+        if not self.counts:
+            return ""
+        kinds = "; ".join(f"{k} x{n}" for k, n in self.counts.most_common())
+        return (f"the device logged {sum(self.counts.values())} line(s) during the runs, the injected faults' "
+                f"expected traces ({kinds}); " + ("printed above" if self.verbose else "-v prints them"))
 
 
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--scenes", nargs="*", help="scene names (default: every shipped blade scene)")
-    ap.add_argument("--trials", type=int, default=1, help="injections per fault and scene")
-    ap.add_argument("--faults", nargs="*", choices=FAULTS, default=list(FAULTS), help="a subset (same draws)")
-    ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--scenes", nargs="*", metavar="NAME",
+                    help="scene names, any fixture (default: every shipped scene with a slave and a plane scalpel: "
+                         f"{', '.join(blade_scenes())})")
+    ap.add_argument("--trials", type=int, default=1, help="injections per fault and scene (default 1)")
+    ap.add_argument("--faults", nargs="*", choices=FAULTS, default=list(FAULTS), metavar="FAULT",
+                    help=f"a subset of the faults, drawn at the same instants (default all: {', '.join(FAULTS)})")
+    ap.add_argument("--seed", type=int, default=0, help="seed of the injection instants and sizes (default 0)")
     ap.add_argument("--t-min", type=float, default=0.6, help="earliest injection, s of run time (default 0.6)")
     ap.add_argument("--t-max", type=float, default=2.0, help="latest injection, s (default 2.0; the cuts run to 5.5)")
     ap.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
                     help="a scene setting for every run, as teleop run's --set (e.g. slave.fallback=\"hold\")")
-    ap.add_argument("--json", help="write every run's row here")
+    ap.add_argument("--json", metavar="PATH", help="write every run's row and the summary here (times in s, depth "
+                                                   "in um, force in N; default: nothing written)")
+    ap.add_argument("-v", "--verbose", action="store_true",
+                    help="print the device's log lines (rejected CAN frames, latched faults) as they come")
     args = ap.parse_args(argv)
+    if args.trials < 1:
+        ap.error(f"--trials: expected at least 1, got {args.trials}")
+    if not 0 <= args.t_min <= args.t_max:
+        ap.error(f"--t-min/--t-max: expected 0 <= t-min <= t-max s, got {args.t_min}, {args.t_max}")
+    for name in args.scenes or ():
+        try:
+            load_scene(name)
+        except ConfigError as e:
+            ap.error(f"--scenes: {e}")
     scenes = args.scenes or blade_scenes()
+    with DeviceLog(args.verbose) as device:
+        return _campaign(args, scenes, device)
+
+
+def _campaign(args, scenes, device) -> int:
 
     def show(row):
         if not row["injected"]:
@@ -302,7 +391,7 @@ def main(argv=None) -> int:
                   file=sys.stderr, flush=True)
             return
         print(f"{row['scene']:24s} {row['fault']:22s} t={row['t_inject_s']:.3f} s  -> {row['detected_as'] or '-':22s}"
-              f" detect {row['t_detect_s']}  safe {row['t_safe_s']}  depth+ {row['depth_excess_um']:.1f} um"
+              f" detect {row['t_detect_s']}  safe {row['t_safe_s']}  depth+ {_um(row['depth_excess_um'])} um"
               f"  F {row['force_max_N']:.1f} N", file=sys.stderr, flush=True)
 
     rows = run_campaign(scenes, args.trials, args.seed, (args.t_min, args.t_max), progress=show, faults=args.faults,
@@ -314,6 +403,12 @@ def main(argv=None) -> int:
     skipped = sorted({(r["scene"], r["status"]) for r in rows if not r["injected"]})
     for name, status in skipped:
         print(f"not injected in {name}: its cobot run ends before the injection window ({status})")
+    no_depth = sorted({r["scene"] for r in rows if r["injected"] and math.isnan(r["depth_excess_um"])})
+    if no_depth:
+        print(f"no blade depth measured in {', '.join(no_depth)}: the fixture has neither a plane nor a tissue "
+              "surface (teleop.app.metrics.tissue_surface); judged on the contact force alone")
+    if device.note():
+        print(device.note())
     if args.json:
         with open(args.json, "w", encoding="utf-8") as f:
             json.dump({"rows": rows, "summary": summary}, f, indent=1)
