@@ -149,7 +149,8 @@ class StatusLine(Hook):
         """The status text of ``loop`` at time ``t_s`` (s) running at ``rtf``."""
         s = self.session
         late = s.late_ticks if s is not None and s.realtime else None
-        slave = loop.slave.state.status if loop.slave is not None else None
+        slave_arm = getattr(loop, "slave", None)  # a master side alone (a two-process run) has none
+        slave = slave_arm.state.status if slave_arm is not None else None
         flags = reasons(loop.operator, loop.tool)
         if loop.status != "ok":
             flags.append(f"master {loop.status}")

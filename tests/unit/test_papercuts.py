@@ -271,6 +271,15 @@ def test_the_status_line_shows_the_reason_beside_the_push():
     assert text.endswith("| slave - | wall: braked at the workspace edge, held by the fixture along z")
 
 
+def test_the_status_line_reads_a_master_side_alone():
+    """A two-process master has no slave beside it: the line shows '-' for it (a master-side hook)."""
+    from teleop.app.statusline import StatusLine
+
+    tool = _still_tool(load_scene("scalpel_fixture"))
+    side = NS(dt=1e-3, status="ok", tool=tool, hand_W=np.zeros(6), operator=NS(clutch_engaged=True, active=()))
+    assert "| slave - |" in StatusLine(enabled=False).line(2.0, 1.0, side) + " |"
+
+
 def test_logging_is_quiet_about_debug_by_default(capsys):
     from teleop.app.cli import configure_logging
 
