@@ -115,18 +115,26 @@ def cmd_run(args) -> int:
         from teleop.app.view_bridge import RunView
 
         rv = RunView(view) if view is not None else None
-        with compile_clock() as clock:  # the kernels' compile time kept out of the real-time factor
-            if args.link == "zenoh":  # two processes on loopback, wall clock
-                result = cmd_run_zenoh(scene, quiet=args.quiet)
-            elif args.operator == "keyboard":  # real time, limited, until the person stops it
-                from teleop.app.keyboard import run_at_keyboard
+        record = _record_writer(args, scene, folder)
+        try:
+            with compile_clock() as clock:  # the kernels' compile time kept out of the real-time factor
+                if args.link == "zenoh":  # two processes on loopback, wall clock; each records its side
+                    result = cmd_run_zenoh(scene, quiet=args.quiet, record_dir=folder.tmp if folder else None)
+                elif args.operator == "keyboard":  # real time, limited, until the person stops it
+                    from teleop.app.keyboard import run_at_keyboard
 
-                result = run_at_keyboard(scene, view=rv, quiet=args.quiet, hooks=[clock])
-            else:
-                bar = RunBar(scene.duration_s, scene.dt_s, enabled=not args.quiet, clock=clock)
-                result = run_scene(scene, progress=bar, realtime=args.realtime, view=rv, hooks=[clock])
-                bar.close()
+                    result = run_at_keyboard(scene, view=rv, quiet=args.quiet, hooks=[clock], record=record)
+                else:
+                    bar = RunBar(scene.duration_s, scene.dt_s, enabled=not args.quiet, clock=clock)
+                    result = run_scene(scene, progress=bar, realtime=args.realtime, view=rv, hooks=[clock],
+                                       record=record)
+                    bar.close()
+        finally:
+            if record is not None:
+                record.close()  # the file whole before the folder is committed
         clock.discount(result.summary)
+        if record is not None:
+            result.summary["record"] = {k: v for k, v in record.stats().items() if k != "path"}
         with _deferred_interrupts() as late:  # the run is over: its files are written whole, then told
             written = _write_run(result, view, rv, scene, folder) if folder is not None else []
             if folder is not None and args.link == "zenoh":  # the recording drawn from the merged log
@@ -185,6 +193,18 @@ def _debug_scene(scene, args) -> None:
     log.debug("numba kernels cached in %s (%s)", numba_cache_dir(),
               "cold: the first tick compiles them" if kernels_cold() else "warm")
     log.debug("writes: --out %s, --json %s", args.out or "none", args.json or "none")
+
+
+def _record_writer(args, scene, folder):
+    """With ``--out`` in one process: every tick to ``OUT/record.mcap`` (a writer process; paced to
+    the wall clock, it never makes a tick wait). None otherwise (over Zenoh each side records its own)."""
+    if folder is None or args.link == "zenoh":
+        return None
+    from teleop.app.record import RecordWriter
+
+    realtime = bool(args.realtime or args.operator == "keyboard")
+    return RecordWriter(folder.path("record.mcap"), realtime=realtime,
+                        metadata={"scene": scene.name, "seed": scene.seed, "master": scene.master})
 
 
 @contextmanager

@@ -255,7 +255,7 @@ def describe(scale: KeyScale, limits: Limits, dt_s: float, duration_s: float) ->
             f"keyboard: the session {end}; Ctrl-C ends it too (status 'interrupted')")
 
 
-def run_at_keyboard(scene, view=None, quiet: bool = False, fd: int | None = None, stream=None, hooks=()):
+def run_at_keyboard(scene, view=None, quiet: bool = False, fd: int | None = None, stream=None, hooks=(), record=None):
     """Run ``scene`` with the person at the keyboard (stdin, or ``fd``), in real time, until they
     press x or ESC (or Ctrl-C, or the scene's duration). Prints the keys and the limits, shows the
     status line on a terminal; ``hooks`` more loop hooks. Returns the RunResult (its summary has
@@ -271,7 +271,8 @@ def run_at_keyboard(scene, view=None, quiet: bool = False, fd: int | None = None
     line = StatusLine(enabled=not quiet, stream=stream)
     try:
         with op.inner, logging_above(line):
-            result = run_scene(scene, realtime=True, operator=op, view=view, hooks=hooks, status_line=line)
+            result = run_scene(scene, realtime=True, operator=op, view=view, hooks=hooks, status_line=line,
+                               record=record)
     finally:
         line.close()
     s = result.summary

@@ -103,6 +103,9 @@ def _open_link(role: str, session: str, listen, connect, timeout_s: float, confi
     ``timeout_s``."""
     from teleop.link.zenoh_link import ConnectRefused, LinkError, ZenohLink
 
+    other = "slave" if role == "master" else "master"
+    print(f"{role}: waiting for the {other} {'on' if listen else 'at'} {listen or connect} (up to {timeout_s:g} s)",
+          flush=True)
     end = time.monotonic() + timeout_s
     while True:
         try:
@@ -142,6 +145,34 @@ def _linked(role: str, stop, session, listen, connect, timeout_s, config_json5, 
     runner = {"tick_us": tick_stats(np.zeros(0)), "late_ticks": 0, "link": {f"zenoh_{role}": {"not_linked": why}},
               "clock": {}}
     return SideRun(status, 0, 0.0, None, None, False, runner, {})
+
+
+class _Teller:
+    """Says when a side loses its peer and when the peer is back (the first EVENTS_SAID events)."""
+
+    EVENTS_SAID = 10
+
+    def __init__(self, role: str, heart, dt_s: float) -> None:
+        self.role, self.heart, self.dt = role, heart, dt_s
+        self.other = "slave" if role == "master" else "master"
+        self.lost, self.said, self.since = False, 0, 0.0
+
+    def tick(self, i: int) -> None:
+        h = self.heart
+        if h.lost == self.lost:
+            return
+        self.lost = h.lost
+        self.said += 1
+        if self.said > self.EVENTS_SAID:
+            return
+        t = i * self.dt
+        if h.lost:
+            self.since = t
+            print(f"{self.role}: lost the {self.other} at t = {t:.3f} s: nothing heard for "
+                  f"{1e3 * h.latency_s[-1]:.0f} ms (heartbeat {1e3 * h.timeout_s:.0f} ms); holding", flush=True)
+        else:
+            print(f"{self.role}: the {self.other} is back at t = {t:.3f} s after {t - self.since:.3f} s; resuming",
+                  flush=True)
 
 
 def _hello(side, link, timeout_s: float, stop=()) -> bool:
@@ -279,6 +310,7 @@ def _run_master(scene, connect, listen, session, timeout_s, config_json5, pin, s
         elif status == "ok":
             print("master: running", flush=True)
         wall0 = time.perf_counter()
+        say = _Teller("master", side.heart, dt)
         for i in range(n if status == "ok" else 0):
             if stop:
                 status = "interrupted"
@@ -286,6 +318,7 @@ def _run_master(scene, connect, listen, session, timeout_s, config_json5, pin, s
             side.heart.tick_late_s = max(0.0, time.perf_counter() - (wall0 + i * dt))
             behind = max(behind, side.heart.tick_late_s)
             status = side.tick(i, i * dt, link)
+            say.tick(i)
             ticks[i], steps = side.tick_ns * 1e-3, i + 1
             if status != "ok":
                 break
@@ -337,6 +370,7 @@ def _run_slave(scene, listen, connect, session, timeout_s, config_json5, pin, st
             print("slave: running", flush=True)
         _fine_timer_slack()
         wall0 = time.perf_counter()
+        say = _Teller("slave", side.heart, dt)
         for i in range(cap if status == "ok" else 0):
             if stop:
                 status = "interrupted"
@@ -345,6 +379,7 @@ def _run_slave(scene, listen, connect, session, timeout_s, config_json5, pin, st
             behind = max(behind, side.heart.tick_late_s)
             late += side.heart.tick_late_s > dt  # past its timeout: a tick owed, run back to back
             side.tick(i, i * dt, link)
+            say.tick(i)
             ticks[i], steps = side.tick_ns * 1e-3, i + 1
             if side.last_seq >= n:
                 break
