@@ -8,10 +8,10 @@ published study: ``--out docs/accuracy``). ``--quick`` is a smoke run: one paper
 periods, the default and shipped integrators, 0.5 s per point, no incision points.
 
 It also runs straight_incision over the master's integrator and period and the slave's QP solver
-and tolerance (tracking and depth error). For every point it records the constraint drift (holonomic position residual, velocity residual
-|G nu|), the energy error on a conservative scene, the trajectory error against a reference run
-(RK4 at 0.1 ms), CPU microseconds per tick (median, p99) and the CPU load (us per tick over the
-period: a shorter period costs more ticks a second) and, on the undamped scenes
+and tolerance (tracking and depth error). For every point it records the constraint drift
+(holonomic position residual, velocity residual |G nu|), the energy error on a conservative scene,
+the trajectory error against a reference run (RK4 at 0.1 ms), CPU microseconds per tick (median,
+p99) and the CPU load (us per tick over the period: a shorter period costs more ticks a second) and, on the undamped scenes
 (tests/data/undamped: pushed for 0.5 s, then left alone), the energy drift over the force-free
 stretch (``metrics.energy_drift_rel_max``). It writes ``accuracy.csv``, ``accuracy.md``
 and ``pareto.png`` (errors against CPU load, log-log), and marks the default (``energy`` at 1 ms,
@@ -35,19 +35,19 @@ from types import SimpleNamespace
 
 import numpy as np
 
+from teleop.app.metrics import EnergyDrift
+from teleop.app.outputs import out_help, study_folder
+from teleop.app.sweep import add_sweep_args, check_sweep_args, run_sweep
 from teleop.dynamics.constraints import stack_jacobian, stack_residual
 from teleop.dynamics.integrators import INTEGRATORS
 from teleop.scenario.build import build_tool
-from teleop.app.metrics import EnergyDrift
-from teleop.app.outputs import out_help, study_folder
 from teleop.scenario.operators import make_operator
 from teleop.scenario.schema import load_scene
-from teleop.app.sweep import add_sweep_args, check_sweep_args, run_sweep
 
 PERIODS_MS = (0.1, 0.25, 0.5, 1.0, 2.0)
 UNDAMPED_DIR = Path(__file__).resolve().parents[1] / "tests" / "data" / "undamped"
 UNDAMPED = ("undamped_sphere_slide", "undamped_rolling_disk", "undamped_scalpel_slide")
-SCENES = ("paper_rolling_disk", "paper_disk_on_sphere") + UNDAMPED
+SCENES = ("paper_rolling_disk", "paper_disk_on_sphere", *UNDAMPED)
 DEFAULT = ("energy", 1.0)  #: what a scene that names no integrator runs (ReferenceTool's default)
 SHIPPED = ("parametric", 1.0)  #: what the shipped scenes name (they were tuned with it)
 EFFECT_SETS = {
@@ -69,8 +69,8 @@ def simulate(scene, seconds: float, record_dt: float = 0.01):
     tool = build_tool(scene)
     drift, loop = EnergyDrift(tool), SimpleNamespace(tool=tool)
     op = make_operator(scene.operator, scene.fixture, scene.effects, np.random.default_rng(scene.seed))
-    n = int(round(seconds / scene.dt_s))
-    every = max(1, int(round(record_dt / scene.dt_s)))
+    n = round(seconds / scene.dt_s)
+    every = max(1, round(record_dt / scene.dt_s))
     ticks, traj = np.empty(n), []
     pos_res = vel_res = 0.0
     e0 = tool.energy()
@@ -121,7 +121,9 @@ def conservative(scene):
 
     q0 = scene.tool.q0
     qd0 = (0.02, 0.0, 0.0, 0.5, 0.0, 1.0) if scene.fixture.type == "sphere" else (0.0, 0.0, 0.0, 0.8, 0.0, -1.0)
-    return replace(with_effects(scene, ("coriolis",)), operator=OperatorSpec(), tool=replace(scene.tool, q0=q0, qd0=qd0))
+    return replace(
+        with_effects(scene, ("coriolis",)), operator=OperatorSpec(), tool=replace(scene.tool, q0=q0, qd0=qd0)
+    )
 
 
 def _traj_err(traj, ref) -> float:
@@ -213,10 +215,20 @@ def print_rows(rows: list[dict]) -> None:
 
 INCISION = "straight_incision"
 SHIPPED_SOLVER = "osqp"  # what the incision scenes ship with: the library default (issue #4), in the base install
-SOLVERS = (("osqp", 1e-3), ("osqp", 1e-5), ("osqp", 1e-7), ("proxqp", 1e-3), ("proxqp", 1e-7), ("daqp", None), ("quadprog", None))
+SOLVERS = (
+    ("osqp", 1e-3),
+    ("osqp", 1e-5),
+    ("osqp", 1e-7),
+    ("proxqp", 1e-3),
+    ("proxqp", 1e-7),
+    ("daqp", None),
+    ("quadprog", None),
+)
 
 
-def incision_point(integrator: str, period_ms: float, solver: str, eps, seconds: float, every_tick: bool = False) -> dict:
+def incision_point(
+    integrator: str, period_ms: float, solver: str, eps, seconds: float, every_tick: bool = False
+) -> dict:
     """One straight_incision run: the master's integrator and period, the slave's solver and tolerance.
     ``every_tick``: the slave's QP solver runs every tick (``kkt_shortcut`` off), so that solvers
     are compared on what they do; by default it runs only on ticks where a joint bound binds."""
@@ -304,18 +316,31 @@ def write_outputs(rows, out: Path) -> None:
         wr = csv.DictWriter(f, fieldnames=list(dict.fromkeys(k for r in rows for k in r)), restval="")
         wr.writeheader()
         wr.writerows(rows)
-    lines = ["| scene | integrator | period ms | effects | QP solver (eps) | traj / tracking err m | drift / depth err m | |Gν| | energy err | energy drift | µs median | µs p99 | CPU load % | front |",
-             "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|"]
+    lines = [
+        "| scene | integrator | period ms | effects | QP solver (eps) | traj / tracking err m | drift / depth err m "
+        "| |Gν| | energy err | energy drift | µs median | µs p99 | CPU load % | front |",
+        "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|",
+    ]
     main = [r for r in rows if not r["effects"].startswith("effect set")]
     for name in dict.fromkeys(r["scene"] for r in rows):
         sub = [r for r in main if r["scene"] == name]
         # objectives: CPU load (us per tick / period: a shorter period costs more ticks a second),
         # trajectory (or tracking) error, and the constraint drift in position and in velocity
         # (what a haptic user feels as sinking into a surface or a slipping knife edge)
-        front = set(pareto_front([
-            (r["cpu_load_pct"], max(r["traj_err_m"], 1e-16), max(r["pos_residual_max"], 1e-16), max(r["vel_residual_max"], 1e-16))
-            for r in sub
-        ], tie=LOAD_TIE))
+        front = set(
+            pareto_front(
+                [
+                    (
+                        r["cpu_load_pct"],
+                        max(r["traj_err_m"], 1e-16),
+                        max(r["pos_residual_max"], 1e-16),
+                        max(r["vel_residual_max"], 1e-16),
+                    )
+                    for r in sub
+                ],
+                tie=LOAD_TIE,
+            )
+        )
         for i, r in enumerate(sub):
             r["front"] = i in front
     for r in rows:
@@ -326,7 +351,8 @@ def write_outputs(rows, out: Path) -> None:
             f"{qp} | {r['traj_err_m']:.2e} | "
             f"{r['pos_residual_max']:.1e} | {r['vel_residual_max']:.1e} | {r['energy_rel_err']:.1e} | "
             f"{r.get('energy_drift_rel_max', float('nan')):.1e} | "
-            f"{r['tick_median_us']:.1f} | {r['tick_p99_us']:.1f} | {r['cpu_load_pct']:.1f} | {'yes' if r.get('front') else ''} |"
+            f"{r['tick_median_us']:.1f} | {r['tick_p99_us']:.1f} | {r['cpu_load_pct']:.1f} | "
+            f"{'yes' if r.get('front') else ''} |"
         )
     (out / "accuracy.md").write_text("\n".join(lines) + "\n")
     plot_pareto(rows, out / "pareto.png")
@@ -381,8 +407,11 @@ def plot_pareto(rows, path: Path) -> None:
     fig, axes = plt.subplots(3, ncol, figsize=(4.3 * ncol + 2.6, 12.5), squeeze=False)
     markers = dict(zip(INTEGRATORS, "osD^v*pXh"))
     colors = dict(zip(INTEGRATORS, plt.get_cmap("tab10").colors))
-    rows_spec = (("traj_err_m", "trajectory error vs RK4 @ 0.1 ms [m]"), ("pos_residual_max", "constraint drift max |h| [m]"),
-                 ("energy_drift_rel_max", "energy drift, force-free stretch (relative)"))
+    rows_spec = (
+        ("traj_err_m", "trajectory error vs RK4 @ 0.1 ms [m]"),
+        ("pos_residual_max", "constraint drift max |h| [m]"),
+        ("energy_drift_rel_max", "energy drift, force-free stretch (relative)"),
+    )
     legend = {}
     for col, name in enumerate(scenes):
         for row, (key, label) in enumerate(rows_spec):

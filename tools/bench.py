@@ -84,7 +84,10 @@ class Yardstick:
         robot = example_robot_data.load("panda")
         self.model, self.data = robot.model, robot.model.createData()
         rng = np.random.default_rng(seed)
-        self.states = [(pin.randomConfiguration(self.model), rng.normal(size=self.model.nv), rng.normal(size=self.model.nv)) for _ in range(64)]
+        self.states = [
+            (pin.randomConfiguration(self.model), rng.normal(size=self.model.nv), rng.normal(size=self.model.nv))
+            for _ in range(64)
+        ]
         self.samples: list[int] = []
 
     def block(self, n: int) -> None:
@@ -279,7 +282,10 @@ def _bench(args) -> int:
             print(f"WARNING: the master benchmark ended in status {result['master']['status']!r}")
         for key in ("slave_step_us", "pink_step_us"):
             print(f"{key:34s} median {sl[key]['median']:8.2f}  p99 {sl[key]['p99']:8.2f}")
-        print(f"slave_step_us / pink_step_us = {sl['slave_step_us']['median'] / sl['pink_step_us']['median']:.2f} (target <= 0.33)")
+        print(
+            f"slave_step_us / pink_step_us = {sl['slave_step_us']['median'] / sl['pink_step_us']['median']:.2f} "
+            "(target <= 0.33)"
+        )
         statuses: dict = {}
         result["scene_tick_us"] = scene_ticks(args.scene_seconds, statuses)
         for name, t in result["scene_tick_us"].items():

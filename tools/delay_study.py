@@ -52,13 +52,13 @@ from pathlib import Path
 
 import numpy as np
 
-from teleop.tick.loop import Hook
+from teleop.app.metrics import band_rms
 from teleop.app.outputs import out_help, study_folder
 from teleop.app.plots import plot_passivity
 from teleop.app.runtime import run_scene
-from teleop.app.metrics import band_rms
-from teleop.scenario.schema import load_scene
 from teleop.app.sweep import add_sweep_args, check_sweep_args, run_sweep
+from teleop.scenario.schema import load_scene
+from teleop.tick.loop import Hook
 
 DELAYS_MS = (0, 10, 50, 100, 200, 500, 1000)
 LOSSES = (0.0, 0.05)
@@ -105,7 +105,7 @@ def run_point(name: str, delay_ms: float, loss: float, guard: bool, seconds: flo
     if seconds:
         sets.append(f"duration_s={seconds}")
     scene = load_scene(name, sets=sets)
-    n = int(round(scene.duration_s / scene.dt_s))
+    n = round(scene.duration_s / scene.dt_s)
     felt = FeltForce(n)
     t0 = time.perf_counter()
     r = run_scene(scene, hooks=[felt])

@@ -60,11 +60,11 @@ from dataclasses import replace
 
 import numpy as np
 
-from teleop.util.crc32 import crc32
-from teleop.util.errors import ConfigError
 from teleop.app.metrics import tissue_surface
 from teleop.app.runtime import run_scene
 from teleop.scenario.schema import list_scenes, load_scene
+from teleop.util.crc32 import crc32
+from teleop.util.errors import ConfigError
 
 FAULTS = ("sensor_nan", "sensor_stuck", "encoder_jump", "lost_frames", "corrupted_frames", "silent_device",
           "slave_joint_limit", "slave_solver_failure", "link_loss")
@@ -145,7 +145,11 @@ class Injector:
                 if held and speed < SAFE_TIP_M_S:
                     self.safe_at = t_s
             m = loop.master
-            if self.device_rest_at is None and m.joints() is not None and np.all(np.abs(m.sim.plant.qd[:3]) < SAFE_RATE[:3]):
+            if (
+                self.device_rest_at is None
+                and m.joints() is not None
+                and np.all(np.abs(m.sim.plant.qd[:3]) < SAFE_RATE[:3])
+            ):
                 self.device_rest_at = t_s  # the device's gantry has stopped following the held tool
 
     def close(self) -> None:
@@ -247,7 +251,9 @@ def run_one(scene_name: str, fault: str, t_inject: float, seed: int, window_s: f
     return row
 
 
-def run_campaign(scenes, trials: int, seed: int, t_range=(0.6, 2.0), progress=None, faults=FAULTS, sets=()) -> list[dict]:
+def run_campaign(
+    scenes, trials: int, seed: int, t_range=(0.6, 2.0), progress=None, faults=FAULTS, sets=()
+) -> list[dict]:
     """Every fault of ``faults`` in every scene, ``trials`` times; the draws depend on neither
     ``faults`` nor the other scenes (a subset reruns the same instants)."""
     rows = []

@@ -26,22 +26,20 @@ from __future__ import annotations
 import argparse
 import json
 import math
-from dataclasses import replace
 from pathlib import Path
 
 import matplotlib
 import numpy as np
 
-from teleop.tick.master_side import MasterSide, SetWrench
-
+from teleop.app.outputs import out_help, study_folder
+from teleop.app.sweep import add_sweep_args, check_sweep_args, run_sweep
 from teleop.control.stability import LoopParams, critical_mass
 from teleop.dynamics import fixtures
 from teleop.dynamics.body import RigidBody
 from teleop.dynamics.effects import AngularDamper, LinearDamper, Spring
 from teleop.dynamics.tool import ReferenceTool
 from teleop.master import CobotConfig, CobotMaster
-from teleop.app.outputs import out_help, study_folder
-from teleop.app.sweep import add_sweep_args, check_sweep_args, run_sweep
+from teleop.tick.master_side import MasterSide, SetWrench
 
 PULSE_S, DURATION_S, TAIL_S = 0.02, 0.5, 0.2
 KICK_M_PER_S, KICK_RAD_PER_S = 0.05, 0.5
@@ -144,7 +142,7 @@ ROWS = (  # (label, device overrides) of the table: the critical mass against ea
 def sweep_points(quick: bool = False, seed: int = 0) -> list[dict]:
     """Every point of the map: the Z-width sweep (mass x damping, both compensations), the
     device-settings table (mass ladder per row and compensation), the rotational ladder."""
-    masses = MASSES[::2] + (MASSES[-1],) if quick else MASSES
+    masses = (*MASSES[::2], MASSES[-1]) if quick else MASSES
     pts = []
     for comp in ("commanded", "servo_model"):
         for b in (DAMPINGS[:2] if quick else DAMPINGS):

@@ -10,14 +10,22 @@ from teleop.util.errors import ConfigError, SceneError
 
 DEFAULT_SCENE = "straight_incision"
 #: command-line flags of the scene's top-level keys, for error messages
-FLAGS = {"duration_s": "--duration", "dt_s": "--dt", "seed": "--seed", "integrator": "--integrator", "master": "--master"}
+FLAGS = {
+    "duration_s": "--duration",
+    "dt_s": "--dt",
+    "seed": "--seed",
+    "integrator": "--integrator",
+    "master": "--master",
+}
 
 
 def add_scene_flags(p: argparse.ArgumentParser, optional_scene: bool = False) -> None:
     """The scene and the flags that change it or how it runs, on ``p``."""
     p.add_argument("scene", nargs="?" if optional_scene else None,
                    help="scene name (see 'teleop list') or path to a .toml file")
-    p.add_argument("--master", choices=["ideal", "cobot"], help="ideal: wrench straight to the tool; cobot: the CAN device")
+    p.add_argument(
+        "--master", choices=["ideal", "cobot"], help="ideal: wrench straight to the tool; cobot: the CAN device"
+    )
     view = p.add_mutually_exclusive_group()
     view.add_argument("--headless", action="store_true", default=True, help="no viewer (default)")
     view.add_argument("--viewer", action="store_true", help="show both sides live in Meshcat (prints the URL)")
@@ -50,8 +58,8 @@ def add_scene_flags(p: argparse.ArgumentParser, optional_scene: bool = False) ->
 def scene_for(args):
     """The scene of a ``run``, its overrides applied and checked: (scene, capture path from the
     scene file or None)."""
-    from teleop.scenario.schema import hardware_interface, load_scene
     from teleop.app.session import tick_count
+    from teleop.scenario.schema import hardware_interface, load_scene
 
     if getattr(args, "hold", False) and not getattr(args, "viewer", False):
         raise ConfigError("--hold: keeps the live viewer's page up after the run; add --viewer (a run's "
@@ -71,7 +79,9 @@ def scene_for(args):
             raise ConfigError(f"{FLAGS[e.key]} {given[e.key]}: {e.reason}") from None
         raise
     check_slave_gains(scene, given)
-    where = "--duration" if args.duration is not None else "--dt" if args.dt is not None else f"{scene.path}: duration_s"
+    where = (
+        "--duration" if args.duration is not None else "--dt" if args.dt is not None else f"{scene.path}: duration_s"
+    )
     try:
         n = tick_count(scene.duration_s, scene.dt_s, where)
     except ConfigError as e:

@@ -20,7 +20,6 @@ from __future__ import annotations
 import argparse
 import json
 import logging
-import re
 import signal
 import sys
 import threading
@@ -28,10 +27,17 @@ from contextlib import contextmanager
 from pathlib import Path
 
 from teleop import __version__
-from teleop.util.errors import ConfigError, SceneError, TeleopError
-from teleop.util.inputs import plain
 from teleop.app.args import add_scene_flags, scene_for, with_capture
-from teleop.app.netcli import add_keys_command, add_run_flags, add_subcommands, cmd_run_zenoh, record_from_log, refuse_over_zenoh
+from teleop.app.netcli import (
+    add_keys_command,
+    add_run_flags,
+    add_subcommands,
+    cmd_run_zenoh,
+    record_from_log,
+    refuse_over_zenoh,
+)
+from teleop.util.errors import ConfigError, TeleopError
+from teleop.util.inputs import plain
 
 #: exit codes: the run's status "ok"; any other status; bad input (nothing run, nothing written);
 #: Ctrl-C (the summary, if a run had started, says "interrupted")
@@ -45,7 +51,8 @@ log = logging.getLogger("teleop")
 def _summary_text(s: dict) -> str:
     lines = [
         f"scene      {plain(s['scenario'])}   master={s['master']}  integrator={s['integrator']}  seed={s['seed']}",
-        f"status     {s['status']}   steps={s['steps']}  dt={s['dt_s'] * 1e3:g} ms  simulated={s['duration_s']:g} s  nan={s['nan']}",
+        f"status     {s['status']}   steps={s['steps']}  dt={s['dt_s'] * 1e3:g} ms  "
+        f"simulated={s['duration_s']:g} s  nan={s['nan']}",
         f"           {s.get('status_reason', '')}",
         f"tick       median {s['tick_us']['median']:.1f} us   p99 {s['tick_us']['p99']:.1f} us   "
         f"{s.get('realtime_factor', 0):.2f}x real time"
@@ -106,8 +113,8 @@ def cmd_run(args) -> int:
             scene = with_capture(scene, folder, capture)
         notice_compile()
         if (args.viewer or args.out) and args.link != "zenoh":  # over Zenoh: replay the run's folder
-            from teleop.viz import make_view
             from teleop.app.view_bridge import viz_scene_for
+            from teleop.viz import make_view
 
             view = make_view("meshcat", viz_scene_for(scene, view=args.view), record=bool(args.out), host=args.host)
             if args.viewer:
@@ -295,7 +302,9 @@ def build_parser() -> argparse.ArgumentParser:
     common = argparse.ArgumentParser(add_help=False)
     loud = common.add_mutually_exclusive_group()
     loud.add_argument("-v", "--verbose", action="count", default=0, help="more messages (-vv: debug)")
-    loud.add_argument("-q", "--quiet", action="store_true", help="errors only: no notices, no progress bar, no summary text")
+    loud.add_argument(
+        "-q", "--quiet", action="store_true", help="errors only: no notices, no progress bar, no summary text"
+    )
     sub = ap.add_subparsers(dest="command", required=True)
     _add = sub.add_parser
     sub.add_parser = lambda *a, **kw: _add(*a, parents=[common, *kw.pop("parents", [])], **kw)

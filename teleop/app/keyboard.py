@@ -18,9 +18,9 @@ workspace in :data:`KEY_CROSSING_S`; the push never exceeds :data:`KEY_FORCE_SHA
 device's force (torque) range, and a tool that does not move gets all of it after
 :data:`KEY_STUCK_S` (the integral gain), whatever resists (a fixture's added inertia, damping,
 tissue); the proportional gain damps that critically on the tool's own mass (largest inertia),
-within what an explicit step of the lightest axis takes. A key holds for ``hold_s`` after its last press (keyboards auto-repeat,
-after a first pause of up to half a second). Input is read without blocking from a file
-descriptor (the terminal in cbreak mode by default; a pipe in tests).
+within what an explicit step of the lightest axis takes. A key holds for ``hold_s`` after its
+last press (keyboards auto-repeat, after a first pause of up to half a second). Input is read
+without blocking from a file descriptor (the terminal in cbreak mode by default; a pipe in tests).
 
 :func:`run_at_keyboard` runs a scene with it, in real time, under the workspace and speed limits
 of :mod:`teleop.app.limits`, with a live status line (:mod:`teleop.app.statusline`), until the
@@ -38,11 +38,11 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from teleop.util.errors import ConfigError
-from teleop.scenario.build import build_tool, master_fixture_spec
-from teleop.app.limits import Limits, LimitedOperator, device_workspace, limits_for
-from teleop.scenario.operators import Operator, task_frame
+from teleop.app.limits import LimitedOperator, Limits, device_workspace, limits_for
 from teleop.app.session import MAX_TICKS
+from teleop.scenario.build import build_tool, master_fixture_spec
+from teleop.scenario.operators import Operator, task_frame
+from teleop.util.errors import ConfigError
 
 log = logging.getLogger(__name__)
 

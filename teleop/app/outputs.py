@@ -124,7 +124,7 @@ class RunFolder:
             raise ConfigError(f"{flag} {out}: exists and is not a folder")
         self._lock_path = parent / f".{self.out.name}.lock"
         try:
-            self._lock = open(self._lock_path, "a")  # noqa: SIM115 - held for the run, closed in _release
+            self._lock = open(self._lock_path, "a")  # held for the run, closed in _release
         except OSError as e:
             raise ConfigError(f"{flag} {out}: cannot write beside it ({self._lock_path}: {e.strerror})") from None
         try:

@@ -31,7 +31,7 @@ def kernels_cold() -> bool:
         from teleop.dynamics.kernels import motion
 
         return not motion.evaluate._cache._cache_file._load_index()  # numba's cache index: {} when stale
-    except Exception:  # noqa: BLE001 - a private numba API: unknown means "say nothing"
+    except Exception:  # a private numba API: unknown means "say nothing"
         return False
 
 

@@ -15,8 +15,8 @@ from teleop.util.errors import ConfigError
 def replay_command(source, viewer: bool = False, out=None, force: bool = False, view: str = "perspective",
                    hold: bool = False, host: str = "127.0.0.1") -> int:
     """Replay the run folder (or its log.npz) ``source``; returns the exit code (0)."""
-    from teleop.viz import make_view
     from teleop.app.view_bridge import load_run_scene, replay_run, viz_scene_for
+    from teleop.viz import make_view
 
     folder = Path(source)
     if folder.suffix == ".npz":

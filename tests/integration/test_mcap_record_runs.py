@@ -127,7 +127,9 @@ def test_side_hooks_record_what_the_loop_hook_records(tmp_path, mode):
     with RecordWriter(tmp_path / "sides.mcap", mode=mode) as w:
         mb.side.add_hooks(MasterRecorderMcap(w, side=mb.side))  # the rings made now, not at the first tick
         sb.side.add_hooks(SlaveRecorderMcap(w, side=sb.side))
-        run = Session.of(BilateralLoop(mb.side, sb.side, make_link(scene, rng)), scene.duration_s, mb.recorder).run_ticks()
+        run = Session.of(
+            BilateralLoop(mb.side, sb.side, make_link(scene, rng)), scene.duration_s, mb.recorder
+        ).run_ticks()
     assert run.steps == n
     by_sides = read_record(tmp_path / "sides.mcap")
     assert by_sides.topics == by_loop.topics

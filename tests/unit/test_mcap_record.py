@@ -136,9 +136,17 @@ def _slave_side(i, rng):
     s = SimpleNamespace(p_t=rng.normal(size=3), R_t=R[0], p=rng.normal(size=3), R=R[1], v=rng.normal(size=3),
                         w=rng.normal(size=3), tip=rng.normal(size=3), contact_P=rng.normal(size=6),
                         status=("ok", "saturated", "link_lost")[i % 3])
-    return SimpleNamespace(state=s, arm=SimpleNamespace(q=rng.normal(size=7), qd=rng.normal(size=7), model=None),
-                           guard=None, heart=SimpleNamespace(lost=False), tick_ns=2000 + i, last_seq=i, without_command=0,
-                           skipped=0, reg=SimpleNamespace(X_PM_p=np.array([0.5, 0.0, 0.2]), X_PM_R=np.eye(3)))
+    return SimpleNamespace(
+        state=s,
+        arm=SimpleNamespace(q=rng.normal(size=7), qd=rng.normal(size=7), model=None),
+        guard=None,
+        heart=SimpleNamespace(lost=False),
+        tick_ns=2000 + i,
+        last_seq=i,
+        without_command=0,
+        skipped=0,
+        reg=SimpleNamespace(X_PM_p=np.array([0.5, 0.0, 0.2]), X_PM_R=np.eye(3)),
+    )
 
 
 def _drive(writer, n, seed=3, slave=True):

@@ -80,7 +80,7 @@ class Layout:
         size = len(self._template)
         buf = np.empty((n, size), dtype=np.uint8)
         buf[:] = self._template
-        for name, a, b, fmt, count in fields:
+        for name, a, b, fmt, _count in fields:
             col = columns.get(name)
             if col is not None:
                 view = buf[:, a:b].view(fmt)

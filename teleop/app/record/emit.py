@@ -158,7 +158,7 @@ class McapOut:
         from mcap.writer import CompressionType, Writer
 
         comp = {"zstd": CompressionType.ZSTD, "lz4": CompressionType.LZ4, "none": CompressionType.NONE}[compression]
-        self.file = open(path, "wb")  # noqa: SIM115 - open until finish()
+        self.file = open(path, "wb")  # open until finish()
         self.mcap = Writer(self.file, chunk_size=int(chunk_bytes), compression=comp)
         self.mcap.start(profile="", library="teleop.app.record")
         self.mcap.add_metadata("teleop", {str(k): str(v) for k, v in metadata.items()})

@@ -188,7 +188,7 @@ def read_record(path: str | Path, topics=None, keep_messages: bool = False) -> R
                     attachments[rec.name] = bytes(rec.data)
                 elif isinstance(rec, Footer):
                     complete = True
-        except Exception as e:  # noqa: BLE001 - a truncated tail: keep what came before it
+        except Exception as e:  # a truncated tail: keep what came before it
             error = f"{type(e).__name__}: {e}" if str(e) else type(e).__name__
     out: dict = {}
     for cid, items in raw.items():
@@ -253,7 +253,7 @@ def recover(path: str | Path, out: str | Path | None = None) -> tuple[Path, int]
                     w.add_metadata(rec.name, dict(rec.metadata))
                 elif isinstance(rec, Attachment):
                     w.add_attachment(rec.create_time, rec.log_time, rec.name, rec.media_type, rec.data)
-        except Exception:  # noqa: BLE001, S110 - the cut: everything before it is copied
+        except Exception:  # the cut: everything before it is copied
             pass
         w.finish()
     return dst, n

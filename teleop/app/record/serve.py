@@ -49,7 +49,9 @@ class _Reader:
         self.cap, self.r, self.slice = cap, 0, slice_rows
         self.rows: np.ndarray
         if width is not None:
-            self.rows = np.frombuffer(region, np.float64, count=cap * width, offset=offset + _HEADER).reshape(cap, width)
+            self.rows = np.frombuffer(region, np.float64, count=cap * width, offset=offset + _HEADER).reshape(
+                cap, width
+            )
         else:
             self.rows = np.frombuffer(region, np.uint8, count=cap * row_bytes,
                                       offset=offset + _HEADER).reshape(cap, row_bytes)
@@ -259,7 +261,7 @@ def convert(spool: str, path: str, extra: dict | None = None, closed_by: str = "
             break  # a frame cut short: the writer was killed writing it
         try:
             frame = pickle.loads(data[at + 4:at + 4 + size])
-        except Exception:  # noqa: BLE001 - a torn frame ends the spool
+        except Exception:  # told on stderr; the run sees the exit code at close()  # a torn frame ends the spool
             break
         at += 4 + size
         if frame[0] == "msg":
@@ -338,6 +340,6 @@ def main(argv: list[str]) -> int:
 if __name__ == "__main__":
     try:
         sys.exit(main(sys.argv))
-    except Exception:  # noqa: BLE001 - told on stderr; the run sees the exit code at close()
+    except Exception:
         traceback.print_exc()
         sys.exit(1)

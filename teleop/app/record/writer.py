@@ -104,7 +104,7 @@ def _shared_fd(size: int) -> int:
     if hasattr(os, "memfd_create"):
         fd = os.memfd_create("teleop-record", 0)
     else:  # pragma: no cover - not Linux
-        f = tempfile.TemporaryFile(dir="/dev/shm" if os.path.isdir("/dev/shm") else None)  # noqa: SIM115
+        f = tempfile.TemporaryFile(dir="/dev/shm" if os.path.isdir("/dev/shm") else None)
         fd = os.dup(f.fileno())
         f.close()
     os.ftruncate(fd, size)
@@ -351,7 +351,7 @@ class RecordWriter:
                     return
                 if not busy:
                     time.sleep(POLL_S)
-        except BaseException as e:  # noqa: BLE001 - raised by close()
+        except BaseException as e:  # raised by close()
             self._error = e
             self._dead()
 
