@@ -11,9 +11,9 @@ It also runs straight_incision over the master's integrator and period and the s
 and tolerance (tracking and depth error). For every point it records the constraint drift
 (holonomic position residual, velocity residual |G nu|), the energy error on a conservative scene,
 the trajectory error against a reference run (RK4 at 0.1 ms), CPU microseconds per tick (median,
-p99) and the CPU load (us per tick over the period: a shorter period costs more ticks a second) and, on the undamped scenes
-(tests/data/undamped: pushed for 0.5 s, then left alone), the energy drift over the force-free
-stretch (``metrics.energy_drift_rel_max``). It writes ``accuracy.csv``, ``accuracy.md``
+p99) and the CPU load (us per tick over the period: a shorter period costs more ticks a second)
+and, on the undamped scenes (tests/data/undamped: pushed for 0.5 s, then left alone), the energy
+drift over the force-free stretch (``metrics.energy_drift_rel_max``). It writes ``accuracy.csv``, ``accuracy.md``
 and ``pareto.png`` (errors against CPU load, log-log), and marks the default (``energy`` at 1 ms,
 what a scene that names no integrator runs) and what the shipped scenes run (``parametric`` at
 1 ms). The effect sweep shows what each simulated effect costs.
