@@ -147,6 +147,13 @@ def _linked(role: str, stop, session, listen, connect, timeout_s, config_json5, 
     return SideRun(status, 0, 0.0, None, None, False, runner, {})
 
 
+def _lateness(heart, wall0: float, i: int, dt_s: float) -> float:
+    """How late tick ``i`` starts on the wall clock (s, perf_counter from ``wall0``), told to the
+    side's heartbeat (a detection's latency is read against it)."""
+    heart.tick_late_s = max(0.0, time.perf_counter() - (wall0 + i * dt_s))
+    return heart.tick_late_s
+
+
 class _Teller:
     """Says when a side loses its peer and when the peer is back (the first EVENTS_SAID events)."""
 
@@ -315,8 +322,7 @@ def _run_master(scene, connect, listen, session, timeout_s, config_json5, pin, s
             if stop:
                 status = "interrupted"
                 break
-            side.heart.tick_late_s = max(0.0, time.perf_counter() - (wall0 + i * dt))
-            behind = max(behind, side.heart.tick_late_s)
+            behind = max(behind, _lateness(side.heart, wall0, i, dt))
             status = side.tick(i, i * dt, link)
             say.tick(i)
             ticks[i], steps = side.tick_ns * 1e-3, i + 1
@@ -375,9 +381,9 @@ def _run_slave(scene, listen, connect, session, timeout_s, config_json5, pin, st
             if stop:
                 status = "interrupted"
                 break
-            side.heart.tick_late_s = max(0.0, time.perf_counter() - (wall0 + i * dt))
-            behind = max(behind, side.heart.tick_late_s)
-            late += side.heart.tick_late_s > dt  # past its timeout: a tick owed, run back to back
+            lateness = _lateness(side.heart, wall0, i, dt)
+            behind = max(behind, lateness)
+            late += lateness > dt  # past its timeout: a tick owed, run back to back
             side.tick(i, i * dt, link)
             say.tick(i)
             ticks[i], steps = side.tick_ns * 1e-3, i + 1
