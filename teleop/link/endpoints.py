@@ -59,7 +59,8 @@ def check_endpoint(endpoint: str, allow_plaintext_network: bool = False) -> str:
     if not is_loopback(host) and not allow_plaintext_network:
         raise ConfigError(f"Zenoh endpoint {endpoint!r}: plain-text {proto}/ off loopback is refused "
                           f"(anyone on the network reads the link): use tls/{host}:PORT with the "
-                          f"certificates of 'teleop keys', or pass allow_plaintext_network=True")
+                          f"certificates of 'teleop keys', or pass --allow-plaintext-network "
+                          f"(allow_plaintext_network=True)")
     return proto
 
 

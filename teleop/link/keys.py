@@ -174,7 +174,8 @@ def make_keys(folder: str | Path, hosts: tuple[str, ...] | list[str] = DEFAULT_H
     folder.mkdir(parents=True, exist_ok=True)
     existing = [n for n in names if (folder / n).exists()]
     if existing and not overwrite:
-        raise KeyFileError(f"{folder / existing[0]}: exists; not replaced (pass overwrite to make new keys)")
+        raise KeyFileError(f"{folder / existing[0]}: exists; not replaced "
+                           "(teleop keys --force, or overwrite=True, makes new keys)")
     out = {PAIRING_FILE: folder / PAIRING_FILE}
     write_pairing_key(out[PAIRING_FILE])
     if tls:
