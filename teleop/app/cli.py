@@ -7,6 +7,7 @@
     teleop list
     teleop schema [--out FILE]
     teleop replay RUN_DIR [--viewer [--hold]] [--host ADDR] [--out FILE [--force]] [--view perspective|side]
+    teleop replay RUN_DIR --check
     teleop slave NAME_OR_PATH --listen ENDPOINT / teleop master NAME_OR_PATH --connect ENDPOINT
     teleop plot LOG [--out DIR]
 
@@ -204,14 +205,15 @@ def _debug_scene(scene, args) -> None:
 
 def _record_writer(args, scene, folder):
     """With ``--out`` in one process: every tick to ``OUT/record.mcap`` (a writer process; paced to
-    the wall clock, it never makes a tick wait). None otherwise (over Zenoh each side records its own)."""
+    the wall clock, it never makes a tick wait), with what ``teleop replay --check`` needs to run it
+    again (:mod:`teleop.app.record.runinfo`). None otherwise (over Zenoh each side records its own)."""
     if folder is None or args.link == "zenoh":
         return None
-    from teleop.app.record import RecordWriter
+    from teleop.app.record.runinfo import open_run_record
 
-    realtime = bool(args.realtime or args.operator == "keyboard")
-    return RecordWriter(folder.path("record.mcap"), realtime=realtime,
-                        metadata={"scene": scene.name, "seed": scene.seed, "master": scene.master})
+    keyboard = args.operator == "keyboard"
+    return open_run_record(folder.path("record.mcap"), scene, runner="one_process",
+                           operator="keyboard" if keyboard else "script", realtime=bool(args.realtime or keyboard))
 
 
 @contextmanager
@@ -246,9 +248,15 @@ def _run_log(arg: str):
 
 def cmd_replay(args) -> int:
     """Show a recorded run again: live in Meshcat (--viewer), or as replay.html in the run folder
-    (the run's own recording.html is never touched). The log is checked whole first."""
-    from teleop.app.replay import replay_command
+    (the run's own recording.html is never touched). The log is checked whole first. ``--check``:
+    run it again from its record and compare (:func:`teleop.app.replay.check_run`)."""
+    from teleop.app.replay import check_command, replay_command
 
+    if args.check:  # the run again from its record, compared bit for bit
+        if args.viewer or args.out or args.hold:
+            raise ConfigError("--check: runs the run again and compares it; it draws nothing (drop --viewer, "
+                              "--out, --hold)")
+        return check_command(args.log)
     if args.hold and not args.viewer:
         raise ConfigError("--hold: keeps the live viewer's page up after the replay; add --viewer")
     log_path, _, _ = _run_log(args.log)
@@ -325,6 +333,9 @@ def build_parser() -> argparse.ArgumentParser:
                     help="replace the page if it exists (replay.html, or --out; never the run's data files)")
     rp.add_argument("--view", choices=["perspective", "side"], default="perspective", help="viewer camera")
     rp.add_argument("--hold", action="store_true", help="with --viewer: keep the page served until Ctrl-C")
+    rp.add_argument("--check", action="store_true",
+                    help="run the run again from its record and compare every recorded state bit for bit: one "
+                         "line, exit 0 identical, 1 the first tick and field that differ")
     rp.set_defaults(func=cmd_replay)
     pl = sub.add_parser("plot", help="paper-style PNG figures of a run log")
     pl.add_argument("log", help="a log.npz or the --out folder of a run")

@@ -118,7 +118,10 @@ def key_scale(scene, workspace=None) -> KeyScale:
 class KeyboardOperator(Operator):
     """Wrench from key presses through the hand of ``scale`` (:class:`KeyScale`); ``hold_s`` how
     long a press holds its key (simulated s). ``target`` is the task-frame twist the hand is after
-    (6,: m/s, rad/s)."""
+    (6,: m/s, rad/s). ``tap(t_s, text)``, when set, is told every read of the terminal (the
+    record keeps the keys, :class:`~teleop.app.record.runinfo.KeyTap`); ``script`` (simulated time
+    s -> the texts read then, in order), when set, stands in for the terminal: a replay types
+    what the record says was typed, at the tick it was read."""
 
     def __init__(self, fixture, scale: KeyScale, fd: int | None = None, hold_s: float = HOLD_S):
         self.fixture, self.scale, self.fd, self.hold = fixture, scale, fd, hold_s
@@ -135,6 +138,8 @@ class KeyboardOperator(Operator):
         self._t = None
         self._tty = None
         self._pending = ""  # an escape sequence cut by the end of a read
+        self.tap = None
+        self.script: dict[float, list[str]] | None = None
 
     def __enter__(self):
         """Read the terminal on stdin in cbreak mode (keys one by one, no echo; Ctrl-C still a
@@ -161,12 +166,19 @@ class KeyboardOperator(Operator):
             self._tty = None
 
     def poll(self, t: float) -> None:
-        """Read every pending key (never blocks)."""
+        """Read every pending key (never blocks); with a ``script``, its texts of time ``t``."""
+        if self.script is not None:
+            for text in self.script.get(t, ()):
+                self.feed(text, t)
+            return
         while self.fd is not None and select.select([self.fd], [], [], 0.0)[0]:
             data = os.read(self.fd, 64)
             if not data:
                 return
-            self.feed(data.decode(errors="ignore"), t)
+            text = data.decode(errors="ignore")
+            if self.tap is not None:
+                self.tap(t, text)
+            self.feed(text, t)
 
     def feed(self, text: str, t: float) -> None:
         """Act on typed characters: keys, arrows (ESC [ A ...), a lone ESC (stop)."""
@@ -243,6 +255,14 @@ def keyboard_operator(scene, fd: int | None = None) -> tuple[LimitedOperator, Ke
     return LimitedOperator(KeyboardOperator(master_fixture_spec(scene), scale, fd=fd), limits), scale
 
 
+def scripted_keyboard(scene, script: dict[float, list[str]]) -> LimitedOperator:
+    """The keyboard of ``scene`` (:func:`keyboard_operator`) typing ``script`` (simulated time s ->
+    the texts read at that tick) instead of reading a terminal: a recorded session again."""
+    op, _ = keyboard_operator(scene)
+    op.inner.script = script
+    return op
+
+
 def describe(scale: KeyScale, limits: Limits, dt_s: float, duration_s: float) -> str:
     """Two lines for the person at the keyboard: the keys' speeds, the limits, how it ends."""
     size = " x ".join(f"{2e3 * h:.0f}" for h in limits.workspace.half)
@@ -258,8 +278,9 @@ def describe(scale: KeyScale, limits: Limits, dt_s: float, duration_s: float) ->
 def run_at_keyboard(scene, view=None, quiet: bool = False, fd: int | None = None, stream=None, hooks=(), record=None):
     """Run ``scene`` with the person at the keyboard (stdin, or ``fd``), in real time, until they
     press x or ESC (or Ctrl-C, or the scene's duration). Prints the keys and the limits, shows the
-    status line on a terminal; ``hooks`` more loop hooks. Returns the RunResult (its summary has
-    "operator": the limits met)."""
+    status line on a terminal; ``hooks`` more loop hooks; ``record`` a
+    :class:`~teleop.app.record.RecordWriter` that gets every tick and every key read. Returns the
+    RunResult (its summary has "operator": the limits met)."""
     from teleop.app.runtime import run_scene
     from teleop.app.statusline import StatusLine, logging_above
 
@@ -269,6 +290,10 @@ def run_at_keyboard(scene, view=None, quiet: bool = False, fd: int | None = None
         print(HELP, file=stream)
         print(describe(scale, op.limits, scene.dt_s, scene.duration_s), file=stream)
     line = StatusLine(enabled=not quiet, stream=stream)
+    if record is not None:  # every read of the terminal on record, for `teleop replay --check`
+        from teleop.app.record.runinfo import KeyTap
+
+        op.inner.tap = KeyTap(record, scene.dt_s)
     try:
         with op.inner, logging_above(line):
             result = run_scene(scene, realtime=True, operator=op, view=view, hooks=hooks, status_line=line,

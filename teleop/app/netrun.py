@@ -267,10 +267,9 @@ def _recording(path, scene: Scene, role: str):
     if path is None:
         yield None
         return
-    from teleop.app.record import RecordWriter
+    from teleop.app.record.runinfo import open_run_record
 
-    writer = RecordWriter(path, realtime=True, metadata={"scene": scene.name, "seed": scene.seed, "side": role,
-                                                         "master": scene.master})
+    writer = open_run_record(path, scene, runner="two_process", realtime=True, side=role)
     try:
         yield writer
     finally:

@@ -152,20 +152,33 @@ def _fill(ch: Channel, msgs: list) -> None:
         ch.frames = frames
 
 
-def read_record(path: str | Path, topics=None, keep_messages: bool = False) -> Record:
-    """The record at ``path`` (see :class:`Record`), only ``topics`` if given. Reads a file cut
-    short (a killed process) up to its last whole record. ``keep_messages``: keep the decoded
-    messages in each :attr:`Channel.messages`."""
+@dataclass
+class RawRecord:
+    """A record's messages as stored, not decoded: ``messages`` by topic, in log-time order, each
+    (log time ns, sequence, bytes); ``schemas`` by topic (name, encoding, data), ``encodings`` the
+    topics' message encodings; ``metadata``, ``attachments``, ``complete`` and ``error`` as in
+    :class:`Record`."""
+
+    messages: dict
+    schemas: dict
+    encodings: dict
+    metadata: dict
+    attachments: dict
+    complete: bool
+    error: str | None = None
+
+
+def scan_record(path: str | Path, topics=None) -> RawRecord:
+    """The record at ``path`` read front to back, its messages left as bytes (see
+    :class:`RawRecord`; only ``topics`` if given). A file cut short reads up to its last whole
+    record, the reason in ``error``."""
     from mcap.records import Attachment, Footer, Message, Metadata, Schema
     from mcap.records import Channel as McapChannel
     from mcap.stream_reader import StreamReader
-    from mcap_ros2.decoder import DecoderFactory
 
     wanted = None if topics is None else set([topics] if isinstance(topics, str) else topics)
-    factory = DecoderFactory()
     sch: dict[int, Schema] = {}
     chans: dict[int, McapChannel] = {}
-    decoders: dict[int, Any] = {}
     raw: dict[int, list] = {}
     metadata: dict = {}
     attachments: dict = {}
@@ -190,26 +203,45 @@ def read_record(path: str | Path, topics=None, keep_messages: bool = False) -> R
                     complete = True
         except Exception as e:  # a truncated tail: keep what came before it
             error = f"{type(e).__name__}: {e}" if str(e) else type(e).__name__
-    out: dict = {}
+    messages, schemas_, encodings = {}, {}, {}
     for cid, items in raw.items():
         c = chans[cid]
-        schema = sch.get(c.schema_id)
-        name = schema.name if schema is not None else ""
         items.sort(key=lambda x: x[0])
-        if c.message_encoding == "json":
-            msgs = [json.loads(d) for _, _, d in items]
-        else:
-            dec = decoders.get(cid)
-            if dec is None:
-                dec = decoders[cid] = factory.decoder_for(c.message_encoding, schema)
-            msgs = [dec(d) for _, _, d in items] if dec is not None else [d for _, _, d in items]
-        ch = Channel(c.topic, name, c.message_encoding, np.array([x[0] for x in items], dtype=np.int64),
-                     np.array([x[1] for x in items], dtype=np.int64))
+        messages[c.topic] = items
+        s = sch.get(c.schema_id)
+        schemas_[c.topic] = (s.name, s.encoding, bytes(s.data)) if s is not None else ("", "", b"")
+        encodings[c.topic] = c.message_encoding
+    return RawRecord(messages, schemas_, encodings, metadata, attachments, complete, error)
+
+
+def decoder(raw: RawRecord, topic: str):
+    """A function decoding one message of ``topic`` (JSON: a dict; ROS 2: mcap-ros2-support's
+    decoded message), or None when there is none for its encoding."""
+    from mcap.records import Schema
+    from mcap_ros2.decoder import DecoderFactory
+
+    if raw.encodings[topic] == "json":
+        return json.loads
+    name, encoding, data = raw.schemas[topic]
+    return DecoderFactory().decoder_for(raw.encodings[topic], Schema(id=1, name=name, encoding=encoding, data=data))
+
+
+def read_record(path: str | Path, topics=None, keep_messages: bool = False) -> Record:
+    """The record at ``path`` (see :class:`Record`), only ``topics`` if given. Reads a file cut
+    short (a killed process) up to its last whole record. ``keep_messages``: keep the decoded
+    messages in each :attr:`Channel.messages`."""
+    raw = scan_record(path, topics)
+    out: dict = {}
+    for topic, items in raw.messages.items():
+        dec = decoder(raw, topic)
+        msgs = [dec(d) for _, _, d in items] if dec is not None else [d for _, _, d in items]
+        ch = Channel(topic, raw.schemas[topic][0], raw.encodings[topic],
+                     np.array([x[0] for x in items], dtype=np.int64), np.array([x[1] for x in items], dtype=np.int64))
         _fill(ch, msgs)
         if keep_messages:
             ch.messages = msgs
-        out[c.topic] = ch
-    return Record(out, metadata, complete, error, attachments)
+        out[topic] = ch
+    return Record(out, raw.metadata, raw.complete, raw.error, raw.attachments)
 
 
 def recover(path: str | Path, out: str | Path | None = None) -> tuple[Path, int]:

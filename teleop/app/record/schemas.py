@@ -142,5 +142,12 @@ LINK_EVENT = _obj("teleop.LinkEvent", {
 }, "An event of the link between the sides")
 
 
+OPERATOR_KEYS = _obj("teleop.OperatorKeys", {
+    "tick": {"type": "integer", "description": "the tick whose hand read the keys"},
+    "t_s": _num("the run's simulated time of that tick (s); the log time"),
+    "text": {"type": "string", "description": "the characters read from the terminal at that tick, as typed"},
+}, "What the person at the keyboard typed, read by the tick it acted on (teleop replay --check feeds it again)")
+
+
 def json_schema(schema: dict) -> bytes:
     return json.dumps(schema, separators=(",", ":")).encode()

@@ -6,9 +6,10 @@ run's process (``RecordWriter(mode="thread")``: the messages come through a queu
 
 Messages: ("open", path, metadata, options), ("source", sid, kind, offset, capacity, width, meta,
 can_offset), ("name", sid, code, status), ("meta", sid, {...}), ("event", ...), ("attach", name,
-data, media_type), ("close", stats). The process ends when told to close or when its parent is
-gone (stdin at its end, or another parent): either way it takes every row published, finishes the
-file and prints its counts as one JSON line. It ignores SIGINT (a Ctrl-C is the run's to handle)
+data, media_type), ("json", topic, schema, log_ns, data, seq), ("metadata", name, values), ("close",
+stats). The process ends when told to close or when its parent is gone (stdin at its end, or
+another parent): either way it takes every row published, finishes the file and prints its
+counts as one JSON line. It ignores SIGINT (a Ctrl-C is the run's to handle)
 and finishes on SIGTERM or SIGHUP as on a close.
 """
 
@@ -138,6 +139,11 @@ class Server:
             self.sides[sid].emitter.meta.update(more)
         elif kind == "event":
             self.events.append(msg[1:])
+        elif kind == "json":
+            _, topic, schema, log_ns, data, seq = msg
+            out.add_one(out.json_channel(topic, schema), log_ns, data, seq)
+        elif kind == "metadata":
+            out.mcap.add_metadata(msg[1], msg[2])
         elif kind == "attach":
             _, name, data, media_type = msg
             out.mcap.add_attachment(create_time=time.time_ns(), log_time=0, name=name, media_type=media_type,

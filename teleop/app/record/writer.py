@@ -375,6 +375,16 @@ class RecordWriter:
         events, not for every message of every tick."""
         self._send(("event", float(t_s), time.time(), str(side), str(kind), seq, detail))
 
+    def message(self, topic: str, schema: dict, t_s: float, body: dict, seq: int = 0) -> None:
+        """One JSON message on ``topic`` (its JSON Schema ``schema``, see
+        :mod:`~teleop.app.record.schemas`) at the run's time ``t_s`` (s): a pickle down a pipe (a
+        few us), for what comes now and then (a key typed), not every tick."""
+        self._send(("json", str(topic), schema, max(0, round(float(t_s) * 1e9)), json.dumps(body).encode(), int(seq)))
+
+    def metadata_record(self, name: str, values: dict) -> None:
+        """An MCAP metadata record ``name`` of str -> str ``values`` (what a replay needs, say)."""
+        self._send(("metadata", str(name), {str(k): str(v) for k, v in values.items()}))
+
     def attach(self, name: str, data: bytes | str, media_type: str = "text/plain") -> None:
         """A file carried in the record (an MCAP attachment: the scene as run, say), at log time 0."""
         self._send(("attach", str(name), data.encode() if isinstance(data, str) else bytes(data), str(media_type)))
