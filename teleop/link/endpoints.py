@@ -5,7 +5,11 @@ The policy (:func:`check_endpoint`):
 - ``tcp/``, ``udp/`` and ``ws/`` (plain text) on a loopback address (127.0.0.0/8, ::1,
   ``localhost``) only; anywhere else they are refused unless ``allow_plaintext_network=True``
   (the frames are still authenticated, but anyone on the path reads them, and can cut them);
-- ``tls/``: anywhere, with mutual TLS from the keys folder (:func:`tls_settings`);
+- ``tls/``: anywhere, with mutual TLS from the keys folder (:func:`tls_settings`) and Zenoh's
+  access control (:func:`acl_settings`): only the peer's certificate (common name
+  ``teleop-<peer role>``) may put on the one key this side reads, only it receives what this side
+  puts, and everything else is denied by default, so another holder of a certificate from the same
+  CA neither drives nor overhears the pair (the frames' MAC and the pairing also refuse it);
 - ``unixsock-stream/``: a local socket file, allowed;
 - anything else is refused.
 """
@@ -84,3 +88,36 @@ def tls_settings(keys: LinkKeys | None, listen: str | None, connect: str | None)
     if connect and split_endpoint(connect)[0] in TLS:
         out["transport/link/tls/verify_name_on_connect"] = "true"
     return out
+
+
+#: The Zenoh messages the link exchanges (its publisher's puts and the subscriptions that route them);
+#: every other kind (queries, replies, liveliness, deletes) is denied on a TLS link.
+ACL_MESSAGES = {"data": ["put"], "interest": ["declare_subscriber"]}
+
+
+def peer_common_name(role: str) -> str:
+    """The common name of the peer's certificate as ``teleop keys`` issues it: the master's peer is
+    ``teleop-slave``, the slave's ``teleop-master``."""
+    return f"teleop-{'slave' if role == 'master' else 'master'}"
+
+
+def acl_settings(role: str, session: str, listen: str | None, connect: str | None) -> dict[str, str]:
+    """Zenoh access control (json5 settings) for a side that uses a ``tls/`` endpoint: default deny;
+    the peer's certificate (:func:`peer_common_name`) may put on ``teleop/<session>/<in key>``
+    (ingress) and receive this side's puts on ``teleop/<session>/<out key>`` (egress), and declare
+    subscribers on those two keys. Empty when no endpoint is ``tls/`` (on loopback the frames' MAC
+    is the access boundary: Zenoh's ACL can only name a peer by its certificate)."""
+    if not any(ep and split_endpoint(ep)[0] in TLS for ep in (listen, connect)):
+        return {}
+    out_key, in_key = ("cmd", "fb") if role == "master" else ("fb", "cmd")
+    keys = {k: f"teleop/{session}/{k}" for k in (out_key, in_key)}
+    rules = [{"id": "peer_puts", "permission": "allow", "flows": ["ingress"], "messages": ACL_MESSAGES["data"],
+              "key_exprs": [keys[in_key]]},
+             {"id": "peer_hears", "permission": "allow", "flows": ["egress"], "messages": ACL_MESSAGES["data"],
+              "key_exprs": [keys[out_key]]},
+             {"id": "routes", "permission": "allow", "flows": ["ingress", "egress"],
+              "messages": ACL_MESSAGES["interest"], "key_exprs": sorted(keys.values())}]
+    acl = {"enabled": True, "default_permission": "deny", "rules": rules,
+           "subjects": [{"id": "peer", "cert_common_names": [peer_common_name(role)]}],
+           "policies": [{"id": "the_pair", "rules": [r["id"] for r in rules], "subjects": ["peer"]}]}
+    return {"access_control": json.dumps(acl)}

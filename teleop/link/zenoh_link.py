@@ -55,10 +55,12 @@ import socket
 import time
 from collections.abc import Callable
 
+from teleop.link import wire
 from teleop.link.auth import WINDOW, LinkAuth
 from teleop.link.base import Link, Mailbox
-from teleop.link.endpoints import check_endpoint, split_endpoint, tls_settings
+from teleop.link.endpoints import acl_settings, check_endpoint, split_endpoint, tls_settings
 from teleop.link.keys import LinkKeys
+from teleop.link.latency import LatencyLedger, latency_summary
 from teleop.tick.messages import ContactFeedback, ToolCommand
 from teleop.util.errors import ConfigError, TeleopError
 
@@ -83,10 +85,12 @@ class PairingRefused(LinkError):
 
 def make_config(listen: str | None = None, connect: str | None = None, config_json5: dict | None = None,
                 keys: LinkKeys | None = None, allow_plaintext_network: bool = False,
-                connect_timeout_s: float | None = None):
+                connect_timeout_s: float | None = None, role: str | None = None, session: str = "default"):
     """A zenoh.Config: peer mode, multicast scouting and gossip off, the given endpoints (checked,
-    :func:`teleop.link.endpoints.check_endpoint`), mutual TLS for ``tls/`` ones from ``keys``,
-    then any extra ``{"path/to/key": "json5 value"}`` entries (endpoints not among them).
+    :func:`teleop.link.endpoints.check_endpoint`), mutual TLS for ``tls/`` ones from ``keys`` and,
+    for a side (``role``, ``session``), Zenoh's access control to its peer's certificate on a
+    ``tls/`` link (:func:`teleop.link.endpoints.acl_settings`), then any extra
+    ``{"path/to/key": "json5 value"}`` entries (neither endpoints nor, for a side, access control).
     ``connect_timeout_s`` (s): open fails when ``connect`` is not reached within it (None: open
     at once and keep trying in the background)."""
     import zenoh
@@ -97,11 +101,14 @@ def make_config(listen: str | None = None, connect: str | None = None, config_js
     for key in config_json5 or {}:
         if key.strip("/") in _ENDPOINT_KEYS:
             raise ConfigError(f"ZenohLink config: {key}: pass the endpoints as listen=/connect= (they are checked)")
+        if key.strip("/").startswith("access_control") and role is not None:
+            raise ConfigError(f"ZenohLink config: {key}: the link sets its own access control")
     c = zenoh.Config()
     settings = {"mode": '"peer"', "scouting/multicast/enabled": "false", "scouting/gossip/enabled": "false",
                 "listen/endpoints": json.dumps([listen] if listen else []),
                 "connect/endpoints": json.dumps([connect] if connect else []),
-                **tls_settings(keys, listen, connect)}
+                **tls_settings(keys, listen, connect),
+                **(acl_settings(role, session, listen, connect) if role is not None else {})}
     if connect and connect_timeout_s is not None:
         settings.update({"connect/exit_on_failure": "true", "connect/timeout_ms": str(int(connect_timeout_s * 1e3))})
     for key, value in {**settings, **(config_json5 or {})}.items():
@@ -171,11 +178,13 @@ class ZenohLink(Link):
         self.listen, self.connect = listen, connect
         self._auth = LinkAuth(role, keys, session, window)
         self._box = Mailbox()
+        self.ledger = LatencyLedger(role)  # the messages' time stamps, on ``clock`` (teleop.link.latency)
         self._heard_s: float | None = None  # see last_receive_s
         self._polled_s = clock()  # the clock's time of the last poll
         self.received = self.sent = self.flood = 0
         self._closed = False
-        config = make_config(listen, connect, config_json5, keys, allow_plaintext_network, connect_timeout_s)
+        config = make_config(listen, connect, config_json5, keys, allow_plaintext_network, connect_timeout_s,
+                             role=role, session=session)
         try:
             self._session = zenoh.open(config)
         except Exception as e:
@@ -247,11 +256,13 @@ class ZenohLink(Link):
                 break
             if sample is None:
                 break
-            msg = self._auth.open(sample.payload.to_bytes(), self._polled_s)
+            frame = sample.payload.to_bytes()
+            msg = self._auth.open(frame, self._polled_s)
             if msg is not None:
                 valid += 1
                 self._heard_s = before
                 self._box.put(msg)
+                self.ledger.received(msg, wire.stamps(frame), self._polled_s)
         else:
             self.flood += 1
         self.received += valid
@@ -284,14 +295,16 @@ class ZenohLink(Link):
             return
         if self._auth.session is None:
             self.poll()  # the handshake moves on (a sender that never receives pairs too)
-        if self._put(self._auth.seal(msg)):
+        if self._put(self._auth.seal(msg, self.ledger.sending(msg, self.clock()))):
             self.sent += 1
 
     def _take(self, role: str):
         if self.role != role:
             raise LinkError(f"ZenohLink: the {self.role} side receives no such message")
         self.poll()
-        return self._box.take()
+        msg = self._box.take()
+        self.ledger.applied(msg, self._polled_s)
+        return msg
 
     def peek(self):
         """The newest in-order message received and not yet taken (None if none), left in place."""
@@ -335,13 +348,16 @@ class ZenohLink(Link):
         ``delivered`` / ``dropped_old`` by the mailbox; ``refused`` by reason
         (:mod:`teleop.link.auth`) and ``bad_frames`` their sum; ``missed`` the peer's frames
         that never arrived; ``unsent`` messages not sent before pairing; ``flood`` polls that
-        found the ring full; ``peer`` and ``session`` (hex) once paired."""
+        found the ring full; ``peer`` and ``session`` (hex) once paired; ``latency`` the messages'
+        times (:func:`teleop.link.latency.latency_summary`: round trip, jitter, loss, the split)."""
         self.poll()
         c = self._auth.counts()
         sid = self.session_id
         return {"sent": self.sent, "received": self.received, "delivered": self._box.delivered,
                 "dropped_old": self._box.dropped_old, "bad_frames": sum(c["refused"].values()), **c,
-                "flood": self.flood, "peer": self.peer, "session": None if sid is None else f"{sid:016x}"}
+                "flood": self.flood, "peer": self.peer, "session": None if sid is None else f"{sid:016x}",
+                "latency": latency_summary(*((self.ledger, None) if self.role == "master" else (None, self.ledger)),
+                                           clock="time.monotonic (CLOCK_MONOTONIC: one clock per host)")}
 
     def close(self) -> None:
         """Undeclare and close the session; safe to call twice."""

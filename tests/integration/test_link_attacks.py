@@ -245,3 +245,49 @@ def test_tls_peer_from_another_ca_is_refused_at_connect(two_cas):
             zenoh.open(make_config(connect=ep.replace("tls/", "tcp/"), connect_timeout_s=1))
     finally:
         slave.close()
+
+
+def test_a_certificate_of_the_same_ca_with_another_name_neither_drives_nor_overhears(two_cas):
+    """Zenoh's access control on a TLS link: only the peer's certificate (teleop-master for the
+    slave, teleop-slave for the master) puts on what a side reads and hears what it puts. A third
+    session holding a certificate from the same CA under another name connects (TLS accepts it),
+    publishes commands and feedback, and listens: nothing of it reaches the pair, nothing of the
+    pair reaches it, and the pair runs on."""
+    import datetime
+
+    from teleop.link import certs
+
+    a, _ = two_cas
+    now = datetime.datetime.now(datetime.UTC)
+    key, cert = certs.issue((a / "ca.key").read_bytes(), (a / "ca.pem").read_bytes(), "teleop-intruder",
+                            ("127.0.0.1", "localhost"), now, 1)
+    (a / "intruder.key").write_bytes(key)
+    (a / "intruder.pem").write_bytes(cert)
+    ep = free_ep("tls")
+    _, master, slave = open_pair(ep=ep, master_keys=load_keys(a, "master"), slave_keys=load_keys(a, "slave"))
+    intruder_keys = LinkKeys(KEY, "teleop-intruder", a / "ca.pem", a / "intruder.pem", a / "intruder.key")
+    atk = zenoh.open(make_config(connect=ep, keys=intruder_keys, connect_timeout_s=5))
+    heard = []
+    remote = zenoh.Locality.REMOTE  # not its own puts, which its session delivers to itself
+    atk.declare_subscriber("teleop/atk/cmd", lambda s: heard.append(1), allowed_origin=remote)
+    atk.declare_subscriber("teleop/atk/fb", lambda s: heard.append(1), allowed_origin=remote)
+    try:
+        time.sleep(0.5)  # the intruder's routes up, were they allowed
+        before = slave.stats()
+        for k in range(200):
+            atk.put("teleop/atk/cmd", b"\x00" * 64)
+            atk.put("teleop/atk/fb", b"\x00" * 64)
+            master.send_command(cmd(100 + k))
+            time.sleep(0.001)
+        assert wait_for(lambda: slave.peek() is not None)
+        slave.send_feedback(fb(7))
+        assert wait_for(lambda: master.peek() is not None)
+        time.sleep(0.3)
+        after = slave.stats()
+        assert after["bad_frames"] == before["bad_frames"]  # not a frame of the intruder's reached the slave
+        assert master.stats()["bad_frames"] == 0 and heard == []
+        assert slave.receive_command().seq >= 100 and master.receive_feedback().seq == 7
+    finally:
+        atk.close()
+        master.close()
+        slave.close()

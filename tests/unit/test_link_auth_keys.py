@@ -8,7 +8,7 @@ import stat
 
 import pytest
 
-from teleop.link.endpoints import check_endpoint, tls_settings
+from teleop.link.endpoints import acl_settings, check_endpoint, peer_common_name, tls_settings
 from teleop.link.keys import (
     KeyFileError,
     LinkKeys,
@@ -153,3 +153,31 @@ def test_make_config_applies_the_policy(tmp_path):
     c = make_config(connect="tcp/10.0.0.2:7447", allow_plaintext_network=True, connect_timeout_s=2)
     assert json.loads(c.get_json("scouting/gossip/enabled")) is False
     assert json.loads(c.get_json("connect/timeout_ms")) == 2000
+
+
+@pytest.mark.parametrize("role, reads, writes", [("slave", "cmd", "fb"), ("master", "fb", "cmd")])
+def test_a_tls_side_lets_only_its_peers_certificate_put_what_it_reads_and_hear_what_it_puts(role, reads, writes):
+    assert acl_settings(role, "s", "tcp/127.0.0.1:7447", None) == {}  # on loopback the MAC is the boundary
+    acl = json.loads(acl_settings(role, "s", "tls/0.0.0.0:7447" if role == "slave" else None,
+                                  "tls/10.0.0.2:7447" if role == "master" else None)["access_control"])
+    assert acl["enabled"] is True and acl["default_permission"] == "deny"
+    rules = {r["id"]: r for r in acl["rules"]}
+    assert rules["peer_puts"]["flows"] == ["ingress"] and rules["peer_puts"]["key_exprs"] == [f"teleop/s/{reads}"]
+    assert rules["peer_hears"]["flows"] == ["egress"] and rules["peer_hears"]["key_exprs"] == [f"teleop/s/{writes}"]
+    kinds = {"put", "declare_subscriber"}
+    assert all(r["permission"] == "allow" and set(r["messages"]) <= kinds for r in rules.values())
+    assert acl["subjects"] == [{"id": "peer", "cert_common_names": [peer_common_name(role)]}]
+    assert peer_common_name(role) == f"teleop-{'master' if role == 'slave' else 'slave'}"
+    assert set(acl["policies"][0]["rules"]) == set(rules) and acl["policies"][0]["subjects"] == ["peer"]
+
+
+def test_make_config_keeps_the_links_own_access_control(tmp_path):
+    pytest.importorskip("zenoh")
+    from teleop.link.zenoh_link import make_config
+
+    make_keys(tmp_path)
+    c = make_config(listen="tls/127.0.0.1:7447", keys=load_keys(tmp_path, "slave"), role="slave", session="s")
+    assert json.loads(c.get_json("access_control/default_permission")) == "deny"
+    with pytest.raises(ConfigError, match="its own access control"):
+        make_config(listen="tls/127.0.0.1:7447", keys=load_keys(tmp_path, "slave"), role="slave",
+                    config_json5={"access_control/enabled": "false"})
