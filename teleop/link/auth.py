@@ -29,6 +29,7 @@ import math
 
 from teleop.link import wire
 from teleop.link.keys import LinkKeys
+from teleop.link.latency import NO_STAMPS, Stamps
 from teleop.link.pairing import MasterPairing, Session, SlavePairing
 from teleop.tick.messages import ContactFeedback, MessageError, ToolCommand
 
@@ -89,15 +90,16 @@ class LinkAuth:
         p = self.pairing
         return p.confirmed if isinstance(p, MasterPairing) else p.session is not None
 
-    def seal(self, msg: ToolCommand | ContactFeedback) -> bytes | None:
-        """The frame of ``msg`` in this side's session (next counter), or None without one."""
+    def seal(self, msg: ToolCommand | ContactFeedback, stamps: Stamps = NO_STAMPS) -> bytes | None:
+        """The frame of ``msg`` in this side's session (next counter), carrying ``stamps`` (its send
+        time, :mod:`teleop.link.latency`), or None without one."""
         s = self.pairing.session
         if s is None:
             self.unsent += 1
             return None
         self._follow(s)
         self._count += 1
-        return wire.encode(msg, s.cmd if self.role == "master" else s.fb, s.id, self._count)
+        return wire.encode(msg, s.cmd if self.role == "master" else s.fb, s.id, self._count, stamps)
 
     def _seal_empty(self, kind: int, s: Session) -> bytes:
         self._follow(s)

@@ -41,6 +41,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from teleop.link.base import Link, Mailbox
+from teleop.link.latency import LatencyLedger, latency_summary
 from teleop.link.wire import encoded_size
 from teleop.tick.messages import ContactFeedback, ToolCommand
 from teleop.util.errors import ConfigError
@@ -111,7 +112,9 @@ class ChannelSpec:
 class _Way:
     """One direction: the loss chain, the wire, the messages in flight and the mailbox."""
 
-    def __init__(self, spec: ChannelSpec, way: int, rng: np.random.Generator):
+    def __init__(self, spec: ChannelSpec, way: int, rng: np.random.Generator, sender: LatencyLedger,
+                 receiver: LatencyLedger):
+        self.sender, self.receiver = sender, receiver  # the ends' time stamps (simulated time)
         self.delay_s = spec.delay_s(way)
         self.jitter_s = spec.jitter_ms[way] * 1e-3
         self.loss, self.enter, self.exit = spec.loss[way], spec.burst_enter[way], spec.burst_exit[way]
@@ -134,6 +137,7 @@ class _Way:
 
     def send(self, msg) -> None:
         self.sent += 1
+        stamps = self.sender.sending(msg, msg.t_s)
         u_loss, u_state, u_jit = self.rng.random(3)
         lost = u_loss < (self.burst_loss if self.bad else self.loss)
         if self.bad:
@@ -158,7 +162,7 @@ class _Way:
             self.wire_free_s = t
             self.leaving.append(t)
         jitter = -self.jitter_s * math.log1p(-u_jit) if self.jitter_s > 0.0 else 0.0
-        heapq.heappush(self.flight, (t + self.delay_s + jitter, self.order, msg))
+        heapq.heappush(self.flight, (t + self.delay_s + jitter, self.order, msg, stamps))
         self.order += 1
 
     def _down(self, t_s: float) -> bool:
@@ -168,15 +172,17 @@ class _Way:
     def receive(self, t_s: float):
         box = self.box
         while self.flight and self.flight[0][0] <= t_s + _EPS_S:
-            arrival, _, msg = heapq.heappop(self.flight)
+            arrival, _, msg, stamps = heapq.heappop(self.flight)
             if self._down(arrival):  # in flight when the link was cut
                 self.cut += 1
                 continue
             self.last_arrival_s = arrival
+            self.receiver.received(msg, stamps, arrival)
             if box.pending is not None and msg.seq > box.pending.seq:
                 self.superseded += 1
             box.put(msg)
         msg = self.box.take()
+        self.receiver.applied(msg, t_s)
         if msg is not None:
             age = t_s - msg.t_s
             self.max_age_s = max(self.max_age_s, age)
@@ -200,8 +206,9 @@ class SimulatedChannel(Link):
         if rng is None:
             rng = np.random.default_rng(0)
         r_cmd, r_fb = rng.spawn(2)
-        self._cmd = _Way(self.spec, 0, r_cmd)
-        self._fb = _Way(self.spec, 1, r_fb)
+        self.ledgers = {"master": LatencyLedger("master"), "slave": LatencyLedger("slave")}
+        self._cmd = _Way(self.spec, 0, r_cmd, self.ledgers["master"], self.ledgers["slave"])
+        self._fb = _Way(self.spec, 1, r_fb, self.ledgers["slave"], self.ledgers["master"])
 
     def send_command(self, msg: ToolCommand) -> None:
         self._cmd.send(msg)
@@ -242,5 +249,7 @@ class SimulatedChannel(Link):
         (lost to :meth:`cut`), dropped_queue (bandwidth queue full), dropped_old (reordered or
         stale), superseded (arrived in the same receive as a newer one), in_flight, bursts (times
         the bad state was entered), max_age_s and mean_age_s (receive time - send time of the
-        delivered messages, s)."""
-        return {"command": self._cmd.stats(), "feedback": self._fb.stats()}
+        delivered messages, s); and ``"latency"``: the messages' times in simulated time
+        (:func:`teleop.link.latency.latency_summary`: round trip, jitter, loss, late ticks, the split)."""
+        return {"command": self._cmd.stats(), "feedback": self._fb.stats(),
+                "latency": latency_summary(self.ledgers["master"], self.ledgers["slave"], clock="simulated time")}

@@ -10,26 +10,30 @@ One frame, all little-endian::
     8      8     session    u64, the pairing's session id (0 in pairing frames)
     16     8     counter    u64, the sender's frame number in the session, from 1 (0 in pairing frames)
     24     8     seq        u64, the message's sequence number (< 2^63)
-    32     n     payload    (below)
-    32+n   32    tag        HMAC-SHA256 over bytes [0, 32+n), keyed per session and direction
+    32     8     sent_s     f64, the sender's clock when it sealed the frame (s; 0 in pairing frames)
+    40     n     payload    (below)
+    40+n   32    tag        HMAC-SHA256 over bytes [0, 40+n), keyed per session and direction
 
 ToolCommand payload (209 bytes): t_s f64 (s), p_m 3 f64 (m), R 9 f64 row-major, v_m_s 3 f64 (m/s),
 w_rad_s 3 f64 (rad/s), clutch u8, energy_J 6 f64 (J).
-ContactFeedback payload (337 bytes): t_s f64 (s), wrench_P 6 f64 (N, N*m), status u8 (index in
+ContactFeedback payload (361 bytes): t_s f64 (s), wrench_P 6 f64 (N, N*m), status u8 (index in
 SLAVE_STATUSES), command_seq i64, energy_J 6 f64 (J), damping_P 21 f64 (the upper triangle, row by
-row: N*s/m, N*s, N*m*s/rad), twist_P 6 f64 (m/s, rad/s).
+row: N*s/m, N*s, N*m*s/rad), twist_P 6 f64 (m/s, rad/s), then the stamps of the command it
+answered (s, :class:`~teleop.link.latency.Stamps`): its send time as the master stamped it, and
+when the slave received it and when its tick applied it (the slave's clock; all 0: none).
 
-Version 4 added the session and counter fields and replaced the CRC-32 with the tag: a frame
-whose tag does not verify under the receiver's key is refused before anything in it is read
-(any changed bit, and any frame made without the key). The HMAC is ``cryptography``'s
-(OpenSSL's), a keyed copy per frame (:class:`Mac`). :data:`PLAIN` is the MAC under a public
-all-zero key, for tools and tests that need a frame and no peer: an integrity check only, which
-no link accepts (their keys are derived per session, :mod:`teleop.link.pairing`).
+Version 5 added the send time and the reply's echo of its command's stamps (the latency accounting
+of :mod:`teleop.link.latency`); version 4 the session and counter fields and the tag in place of
+a CRC-32: a frame whose tag does not verify under the receiver's key is refused before anything
+in it is read (any changed bit, and any frame made without the key). The HMAC is
+``cryptography``'s (OpenSSL's), a keyed copy per frame (:class:`Mac`). :data:`PLAIN` is the MAC
+under a public all-zero key, for tools and tests that need a frame and no peer: an integrity check
+only, which no link accepts (their keys are derived per session, :mod:`teleop.link.pairing`).
 
 :func:`decode` checks magic, version, type, length, tag, sequence range and the values (finite,
-a known clutch byte and status), in that order, and raises
+the stamps too; a known clutch byte and status), in that order, and raises
 :class:`~teleop.tick.messages.MessageError` naming the reason (``str(e)`` starts ``wire: bad MAC``
-for a failed tag).
+for a failed tag). :func:`stamps` reads a checked frame's stamps.
 """
 
 from __future__ import annotations
@@ -42,20 +46,23 @@ import numpy as np
 from cryptography.exceptions import InvalidSignature
 from cryptography.hazmat.primitives import hashes, hmac
 
+from teleop.link.latency import NO_STAMPS, Stamps
 from teleop.tick.messages import SLAVE_STATUSES, ContactFeedback, MessageError, ToolCommand
 
 MAGIC = b"TLNK"
-WIRE_VERSION = 4
+WIRE_VERSION = 5
 TYPE_COMMAND = 1
 TYPE_FEEDBACK = 2
 TYPE_HELLO, TYPE_WELCOME, TYPE_REFUSE, TYPE_CONFIRM, TYPE_ACCEPT = 16, 17, 18, 19, 20
 TAG_SIZE = 32
 MAX_SEQ = 2**63
 
-_HEADER = struct.Struct("<4sBBHQQQ")
+_HEADER = struct.Struct("<4sBBHQQQd")
 HEADER_SIZE = _HEADER.size
+_SENT_AT = 32  # the header's sent_s
 _COMMAND = struct.Struct("<19dB6d")
-_FEEDBACK = struct.Struct("<7dBq33d")
+_FEEDBACK = struct.Struct("<7dBq36d")
+_ECHO = struct.Struct("<3d")  # the last 24 bytes of a feedback payload
 _UPPER = np.triu_indices(6)
 _PAYLOAD = {TYPE_COMMAND: _COMMAND, TYPE_FEEDBACK: _FEEDBACK}
 #: payload sizes of the pairing frames (teleop.link.pairing packs them)
@@ -108,9 +115,10 @@ class Header(NamedTuple):
     seq: int
 
 
-def seal(kind: int, session: int, counter: int, seq: int, payload: bytes, mac: Mac) -> bytes:
-    """One frame: the header, ``payload`` and the tag under ``mac``."""
-    head = _HEADER.pack(MAGIC, WIRE_VERSION, kind, len(payload), session, counter, seq) + payload
+def seal(kind: int, session: int, counter: int, seq: int, payload: bytes, mac: Mac,
+         sent_s: float = 0.0) -> bytes:
+    """One frame: the header (``sent_s``: the send time, s), ``payload`` and the tag under ``mac``."""
+    head = _HEADER.pack(MAGIC, WIRE_VERSION, kind, len(payload), session, counter, seq, sent_s) + payload
     return head + mac.tag(head)
 
 
@@ -119,7 +127,7 @@ def parse(data: bytes) -> Header:
     MessageError("wire: <reason>") if not. The tag is not checked here (:func:`verified`)."""
     if len(data) < HEADER_SIZE + TAG_SIZE:
         raise MessageError(f"wire: frame too short ({len(data)} bytes)")
-    magic, version, kind, length, session, counter, seq = _HEADER.unpack_from(data)
+    magic, version, kind, length, session, counter, seq, _ = _HEADER.unpack_from(data)
     if magic != MAGIC:
         raise MessageError(f"wire: bad magic {magic!r}")
     if version != WIRE_VERSION:
@@ -145,21 +153,32 @@ def payload(data: bytes) -> bytes:
     return data[HEADER_SIZE: len(data) - TAG_SIZE]
 
 
-def pack_message(msg: ToolCommand | ContactFeedback) -> tuple[int, bytes]:
-    """The type and payload of one message."""
+def pack_message(msg: ToolCommand | ContactFeedback, stamps: Stamps = NO_STAMPS) -> tuple[int, bytes]:
+    """The type and payload of one message (a reply's with ``stamps``' echo of its command)."""
     if isinstance(msg, ToolCommand):
         return TYPE_COMMAND, _COMMAND.pack(msg.t_s, *msg.p_m, *msg.R.reshape(-1), *msg.v_m_s,
                                            *msg.w_rad_s, 1 if msg.clutch else 0, *msg.energy_J)
     if isinstance(msg, ContactFeedback):
         return TYPE_FEEDBACK, _FEEDBACK.pack(msg.t_s, *msg.wrench_P, SLAVE_STATUSES.index(msg.status),
-                                             msg.command_seq, *msg.energy_J, *msg.damping_P[_UPPER], *msg.twist_P)
+                                             msg.command_seq, *msg.energy_J, *msg.damping_P[_UPPER], *msg.twist_P,
+                                             stamps.echo_sent_s, stamps.echo_received_s, stamps.echo_applied_s)
     raise MessageError(f"wire.encode: not a link message: {type(msg).__name__}")
 
 
-def encode(msg: ToolCommand | ContactFeedback, mac: Mac = PLAIN, session: int = 0, counter: int = 0) -> bytes:
-    """The frame of one message (bytes), tagged under ``mac``."""
-    kind, body = pack_message(msg)
-    return seal(kind, session, counter, msg.seq, body, mac)
+def encode(msg: ToolCommand | ContactFeedback, mac: Mac = PLAIN, session: int = 0, counter: int = 0,
+           stamps: Stamps = NO_STAMPS) -> bytes:
+    """The frame of one message (bytes), tagged under ``mac``, carrying ``stamps`` (its send time;
+    a reply's echo of its command's)."""
+    kind, body = pack_message(msg, stamps)
+    return seal(kind, session, counter, msg.seq, body, mac, stamps.sent_s)
+
+
+def stamps(data: bytes) -> Stamps:
+    """The stamps a message frame carries (:func:`decode` checked them finite)."""
+    sent = struct.unpack_from("<d", data, _SENT_AT)[0]
+    if data[5] == TYPE_FEEDBACK:
+        return Stamps(sent, *_ECHO.unpack_from(data, len(data) - TAG_SIZE - _ECHO.size))
+    return Stamps(sent)
 
 
 def encoded_size(msg: ToolCommand | ContactFeedback) -> int:
@@ -187,7 +206,7 @@ def unpack_message(head: Header, data: bytes) -> ToolCommand | ContactFeedback:
         raise MessageError(f"wire: sequence number out of range ({seq})")
     v = layout.unpack_from(data, HEADER_SIZE)
     floats = v[:19] + v[20:] if kind == TYPE_COMMAND else v[:7] + v[9:]
-    if not all(math.isfinite(x) for x in floats):
+    if not (all(math.isfinite(x) for x in floats) and math.isfinite(struct.unpack_from("<d", data, _SENT_AT)[0])):
         raise MessageError("wire: non-finite value in payload")
     if kind == TYPE_COMMAND:
         if v[19] > 1:
