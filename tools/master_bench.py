@@ -151,7 +151,7 @@ def measure(n_steps: int = 5000, yard=None) -> dict:
     samples = np.empty(n_steps)
     phases = {p: np.empty(n_steps) for p in PHASES}
     wrench_in = np.array([1.0, 0.2, 0, 0, 0, 0.01])
-    payloads = []  # the device's two frames per recorded cycle, but for the counter
+    payloads = []  # the device's two frames per recorded cycle, but for the counter (and the CRC over its count)
     for joints, wrench in frames:
         wrapped = np.r_[joints[:3], (joints[3:] + np.pi) % (2 * np.pi) - np.pi]  # the wire's angles
         payloads.append((("DEV_JOINTS", [*_in_range(db, "DEV_JOINTS", wrapped.tolist()), 2]),
@@ -159,9 +159,9 @@ def measure(n_steps: int = 5000, yard=None) -> dict:
     for i in range(n_steps):
         if i % 500 == 0:
             yard.block(100)
-        c = m.driver._sync % 256
+        count = m.driver._sync  # the SYNC this tick sends: the device's answer carries its low byte, its CRC the count
         for name, values in payloads[_replay_index(i, len(payloads))]:
-            fid, data, fd = db.encode_ordered(name, (*values, c))
+            fid, data, fd = db.encode_ordered(name, (*values, count % 256), count)
             replay.send(can.Message(arbitration_id=fid, data=data, is_fd=fd, is_extended_id=False))
         clock.take()
         t0 = time.perf_counter_ns()

@@ -1,17 +1,19 @@
 """The compiled frame codec agrees with cantools on every frame of the DBC (hypothesis): the same
 payload bytes, the same decoded values and types, the same strict range verdicts; its CRC-32 is
-crccheck's."""
+crccheck's; no frame tied to a SYNC passes when replayed whole counter wraps later."""
 
 import math
 
 import cantools
+import numpy as np
 import pytest
 from crccheck.crc import Crc32
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
+from teleop.master.cobot import frame_kernels as FK
 from teleop.master.cobot.codec import MessageCodec, compile_layout
-from teleop.master.cobot.database import FrameDatabase
+from teleop.master.cobot.database import Decoded, FrameDatabase, Rejected
 from teleop.util.crc32 import crc32_continue
 from teleop.util.errors import CanError
 
@@ -151,3 +153,74 @@ def test_codec_rejects_like_strict_cantools():
                        (dict(ok, CmdMode="run"), "number")):
         with pytest.raises(CanError, match=match):
             codec.encode(bad)
+
+
+TIED = [m for m in DB.db.messages if m.name in DB.counter]  # HOST_CMD, DEV_JOINTS, DEV_WRENCH
+
+
+def count_and_wraps():
+    """(k, count): k whole counter wraps (1 .. 2^23, up to 2^31 SYNCs) and a full count that a
+    receiver k wraps on can still hold (< 2^32)."""
+    return st.integers(1, 2**23).flatmap(lambda k: st.tuples(st.just(k), st.integers(0, 2**32 - 1 - 256 * k - 128)))
+
+
+def test_every_tied_message_carries_a_counter():
+    assert sorted(m.name for m in TIED) == ["DEV_JOINTS", "DEV_WRENCH", "HOST_CMD"]
+
+
+@pytest.mark.parametrize("msg", TIED, ids=[m.name for m in TIED])
+def test_any_replay_whole_counter_wraps_later_is_refused(msg):
+    """A frame of any values answering SYNC ``count`` decodes at a receiver within half a wrap of
+    that count, and is refused at one k * 256 SYNCs later (within half a wrap of it), for any k:
+    the counts differ only in the CRC's four implicit bytes, a burst CRC-32 always detects.
+    Stale while k <= STALE_WRAPS, a checksum failure beyond."""
+    ctr = DB.codecs[msg.name].names[DB.counter[msg.name]]
+
+    @settings(max_examples=200, deadline=None)
+    @given(physical_values(msg), count_and_wraps(), st.integers(-128, 127), st.integers(-128, 127))
+    def check(values, k_count, at, later):
+        k, count = k_count
+        values = {n: v for n, v in values.items() if not n.endswith("Checksum")}
+        values[ctr] = count % 256
+        try:
+            fid, data, _ = DB.encode(msg.name, values, sync_count=count)
+        except CanError:  # a value too wide for its bits: not a frame (test_encode_matches_cantools)
+            return
+        fresh = DB.decode(fid, data, sync_ref=count + at)
+        assert isinstance(fresh, Decoded) and fresh.count == count
+        replayed = DB.decode(fid, data, sync_ref=count + 256 * k + later)
+        assert isinstance(replayed, Rejected) and replayed.reason == ("stale" if k <= FK.STALE_WRAPS else "checksum")
+
+    check()
+
+
+@pytest.mark.parametrize("name", ["DEV_JOINTS", "DEV_WRENCH"])
+def test_the_host_never_applies_a_device_frame_replayed_whole_wraps_later(name):
+    """The host's receive kernel: a device frame applied at its SYNC, replayed k * 256 SYNCs
+    later (plus up to half a wrap), is refused (stale or checksum) and changes nothing."""
+    msg = DB.message(name)
+    ctr = DB.codecs[name].names[DB.counter[name]]
+
+    @settings(max_examples=100, deadline=None)
+    @given(physical_values(msg), count_and_wraps(), st.integers(0, 127))
+    def check(values, k_count, later):
+        k, count = k_count
+        values = {n: v for n, v in values.items() if not n.endswith("Checksum")}
+        values[ctr] = count % 256
+        try:
+            fid, data, _ = DB.encode(name, values, sync_count=count)
+        except CanError:
+            return
+        ds = np.zeros(1, FK.DRIVER_STATE)
+        ds["rows"] = DB.row["DEV_JOINTS"], DB.row["DEV_WRENCH"]
+        ds["jc"] = ds["wc"] = ds["jf"] = ds["wf"] = -1
+        ds["step_max"] = ds["wslew"] = -1.0  # the value checks off: freshness alone refuses
+        vals = np.empty(DB.tables[0]["sig_f"].shape[1])
+        verdict, _ = FK.rx_period_frame(DB.tables, ds, count + 1, fid, False, True, data, vals)
+        assert verdict == FK.APPLIED
+        before = ds.copy()
+        verdict, _ = FK.rx_period_frame(DB.tables, ds, count + 256 * k + later + 1, fid, False, True, data, vals)
+        assert verdict in (FK.STALE, FK.CHECKSUM)
+        assert ds.tobytes() == before.tobytes()
+
+    check()

@@ -53,7 +53,8 @@ def test_unknown_id_wrong_length_and_out_of_range_are_rejected(db):
     assert db.decode(0x040, bytes(8)).reason == "length"
     raw = bytearray(20)
     raw[0:2] = (32767).to_bytes(2, "little", signed=True)  # PosX = 0.819 m > 0.8 m range
-    raw[16:20] = Crc32.calc(b"\x40\x00" + bytes(raw[:16])).to_bytes(4, "little")  # crccheck, not ours
+    # crccheck, not ours: id, payload, the full SYNC count (JointsCounter 0: SYNC 0)
+    raw[16:20] = Crc32.calc(b"\x40\x00" + bytes(raw[:16]) + bytes(4)).to_bytes(4, "little")
     out = db.decode(0x040, bytes(raw))
     assert isinstance(out, Rejected) and out.reason == "range:PosX"
 
@@ -98,3 +99,45 @@ def test_no_random_frame_passes(db):
         weak += sum(Crc8SaeJ1850.calc(r[:-1]) == r[-1] for r in rows[:5000 // len(db.db.messages)])
     assert passed == 0
     assert 6 <= weak <= 34  # 4998 frames: 19.5 expected, +-3.3 sigma (binomial)
+
+
+def wrench(**kw):
+    sig = dict(ForceX=1.0, ForceY=2.0, ForceZ=-35.0, TorqueX=0.0, TorqueY=0.1, TorqueZ=0.0, WrenchCounter=3)
+    sig.update(kw)
+    return sig
+
+
+def test_a_frame_tied_to_a_sync_carries_its_full_count_in_the_crc(db):
+    """DEV_WRENCH answering SYNC 70 000: on the wire the counter is the count's low byte (112);
+    the CRC (crccheck's) runs over the frame id, the payload and the full count, 4 bytes LE. SYNC
+    carries its full count itself and is tied to none."""
+    count = 70_000
+    fid, data, _ = db.encode("DEV_WRENCH", wrench(WrenchCounter=count % 256), sync_count=count)
+    assert data[13] == count % 256
+    assert int.from_bytes(data[-4:], "little") == Crc32.calc(b"\x41\x00" + data[:-4] + count.to_bytes(4, "little"))
+    assert int.from_bytes(data[-4:], "little") == compute_crc32(fid, data[:-4], count)
+    out = db.decode(fid, data, sync_ref=count + 100)  # the receiver's latest count, 100 SYNCs on
+    assert isinstance(out, Decoded) and out.count == count
+    fid, data, _ = db.encode("SYNC", {"SyncCounter": count})
+    assert len(data) == 8 and int.from_bytes(data[:4], "little") == count
+    assert int.from_bytes(data[-4:], "little") == Crc32.calc(b"\x20\x00" + data[:-4])
+    assert db.decode(fid, data, sync_ref=5).count == -1
+
+
+def test_the_count_and_its_counter_must_agree(db):
+    with pytest.raises(CanError, match="low byte"):
+        db.encode("DEV_WRENCH", wrench(WrenchCounter=4), sync_count=70_000)
+    with pytest.raises(CanError, match="2\\^32"):
+        db.encode("DEV_WRENCH", wrench(WrenchCounter=0), sync_count=2**32)
+    with pytest.raises(CanError, match="SyncCounter"):
+        db.encode("SYNC", {"SyncCounter": 2**32})
+
+
+@pytest.mark.parametrize("wraps, reason", [(1, "stale"), (2, "stale"), (16, "stale"), (17, "checksum")])
+def test_a_replay_whole_wraps_later_fails_the_crc(db, wraps, reason):
+    """Recorded at SYNC 1000 and checked by a receiver 256 k SYNCs on: refused, as stale while
+    the CRC is tried that far back (STALE_WRAPS = 16), as a checksum failure beyond."""
+    fid, data, _ = db.encode("DEV_WRENCH", wrench(WrenchCounter=1000 % 256), sync_count=1000)
+    assert db.decode(fid, data, sync_ref=1000).count == 1000
+    for offset in (0, -128, 127):  # the receiver then rebuilds the count 256 k after the recorded one
+        assert db.decode(fid, data, sync_ref=1000 + 256 * wraps + offset).reason == reason

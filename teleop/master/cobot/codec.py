@@ -80,6 +80,30 @@ def _decode_slack(signal) -> float:
     return 1e-9 + (0.0 if signal.is_float else 0.5 * abs(signal.conversion.scale))
 
 
+#: the DBC message attribute that ties a message to a SYNC: 1 = its CRC covers the full SYNC count
+#: its 8-bit ``*Counter`` names (:func:`.frame_kernels.check_frame`)
+SYNC_FRESHNESS = "SyncFreshness"
+
+
+def sync_counter(message):
+    """The 8-bit counter signal of a message tied to a SYNC (its DBC attribute ``SyncFreshness``
+    is 1), or None for a message tied to none. The counter must be the message's one ``*Counter``
+    signal: unsigned, 8 bits in one byte, identity conversion (its raw value is the count's low
+    byte); anything else raises :class:`CanError`."""
+    attrs = message.dbc.attributes if message.dbc is not None else {}
+    attr = attrs.get(SYNC_FRESHNESS)
+    if attr is None or not attr.value:
+        return None
+    counters = [s for s in message.signals if s.name.endswith("Counter")]
+    s = counters[0] if len(counters) == 1 else None
+    aligned = s is not None and s.start % 8 == (0 if s.byte_order == "little_endian" else 7)
+    if not (aligned and s.length == 8 and not s.is_signed and not s.is_float and s.conversion.scale == 1
+            and s.conversion.offset == 0):
+        raise CanError(f"can database: {message.name} has {SYNC_FRESHNESS} 1 and must carry one *Counter signal "
+                       f"of 8 unsigned bits in one byte, scale 1, offset 0")
+    return s
+
+
 def _signal_order(message) -> tuple:
     compiled = compile_layout(message)
     return compiled[1] if compiled is not None else tuple(message.signals)
@@ -90,7 +114,8 @@ def layout_tables(messages, crc_of_id=None) -> np.ndarray:
     :mod:`.frame_kernels`) of
     ``messages`` (cantools ``Message`` objects), signals in :func:`compile_layout`'s order (the
     DBC's for a layout it cannot compile). ``crc_of_id(frame_id)``: the CRC of a protected
-    message's id (a message with a ``*Checksum`` signal), None: no message is protected."""
+    message's id (a message with a ``*Checksum`` signal), None: no message is protected; a
+    protected message tied to a SYNC (:func:`sync_counter`) gets its counter's byte in M_CTR."""
     messages = list(messages)
     n_sig = max([len(m.signals) for m in messages] + [1])
     msgs = np.zeros((len(messages), FK.MSG_COLS), np.int64)
@@ -100,9 +125,11 @@ def layout_tables(messages, crc_of_id=None) -> np.ndarray:
         compiled = compile_layout(m)
         signals = compiled[1] if compiled is not None else tuple(m.signals)
         protected = crc_of_id is not None and any(s.name.endswith("Checksum") for s in signals)
+        ctr = sync_counter(m) if protected else None
         msgs[row] = (m.frame_id, m.is_extended_frame, m.is_fd, m.length,
                      crc_of_id(m.frame_id) if protected else -1, len(signals),
-                     bool(signals) and signals[0].byte_order == "big_endian", compiled is not None)
+                     bool(signals) and signals[0].byte_order == "big_endian", compiled is not None,
+                     -1 if ctr is None else ctr.start // 8)
         for i, s in enumerate(signals):
             if compiled is not None:
                 sig_i[row, i] = compiled[0][i]
@@ -157,10 +184,11 @@ class MessageCodec:
             raise CanError(f"can encode {self.name}: missing signals {missing}, unknown signals {unknown}")
         return self.encode_ordered([values[n] for n in self.names])
 
-    def encode_ordered(self, values, seal: bool = False, tables=None, row: int = 0) -> bytes:
+    def encode_ordered(self, values, seal: bool = False, tables=None, row: int = 0, count: int = -1) -> bytes:
         """:meth:`encode` for values given in the order of :attr:`names` (no mapping to build).
-        ``seal``: put the frame's CRC-32 (of the id in ``tables``' message ``row``, the database's)
-        in its last four bytes instead of the checksum signal's value."""
+        ``seal``: put the frame's CRC-32 (of the id in ``tables``' message ``row``, the database's;
+        for a message tied to a SYNC continued over the full SYNC ``count``) in its last four bytes
+        instead of the checksum signal's value."""
         if len(values) != len(self.names):
             raise CanError(f"can encode {self.name}: expected {len(self.names)} values, got {len(values)}")
         tab = self.tables if tables is None else tables
@@ -173,7 +201,7 @@ class MessageCodec:
                 self._check_each(values)  # raises: a value that is not a number
                 raise
             out = bytearray(self.length)
-            bad = FK.pack_frame(tab, row, buf, out, seal)
+            bad = FK.pack_frame(tab, row, buf, out, seal, count)
             if bad < 0:
                 return bytes(out)
             self._check_each(values)  # raises, unless the value is in the signal's value table
@@ -189,7 +217,10 @@ class MessageCodec:
         if not seal or idcrc < 0:
             return data
         body = bytes(data[:-FK.CRC_BYTES])
-        return body + int(crc32_continue(idcrc, body, len(body))).to_bytes(FK.CRC_BYTES, "little")
+        crc = crc32_continue(idcrc, body, len(body))
+        if msgs[row, FK.M_CTR] >= 0:
+            crc = FK.crc32_count(crc, count)
+        return body + int(crc).to_bytes(FK.CRC_BYTES, "little")
 
     def _check_each(self, values) -> None:
         """The range check value by value, raising :class:`CanError` for the first bad one."""

@@ -7,11 +7,26 @@ the AUTOSAR E2E profiles does) followed by the payload before the CRC; with the 
 counter (``*Counter``, checked by the driver) this is the counter + CRC scheme of safety protocols
 on CAN. A frame is rejected with a reason (:class:`Rejected`), never an exception in the control
 loop, for: an unknown id, the wrong id type (extended/standard) or FD flag, a wrong length, a CRC
-mismatch, or a value outside the DBC range.
+mismatch (``checksum``), a replayed frame (``stale``, below), or a value outside the DBC range.
+
+Freshness a counter wrap cannot defeat (AUTOSAR SecOC's freshness value, kept implicit): the SYNC
+carries the host's full 32-bit count of SYNCs sent (``SyncCounter``; the device refuses one that
+does not advance), and the CRC of every message tied to a SYNC (DBC attribute ``SyncFreshness``
+1: HOST_CMD, DEV_JOINTS, DEV_WRENCH) continues over the full count it answers, four bytes
+little-endian after the payload, never sent: only its low byte is on the wire, in the frame's
+8-bit counter. The receiver rebuilds the full count from its own (the host: the last SYNC it
+sent; the device: the last SYNC it took; ``sync_ref`` of :meth:`FrameDatabase.decode`) and that
+byte, the one nearest its own, and checks the CRC with it. A frame recorded 256 (512, ...) SYNCs
+earlier and replayed has the right low byte and the wrong full count: the two differ only in those
+four implicit bytes, a burst of at most 32 bits, which CRC-32 always detects, so the replay is
+refused with certainty, not with probability 1 - 2^-32 (``stale`` when its CRC holds for the count
+a whole number of wraps back, up to :data:`.frame_kernels.STALE_WRAPS`; ``checksum`` beyond). The
+count wraps after 2^32 SYNCs (49.7 days at 1 kHz); the host refuses to send past it.
 
 Residual probability: a random payload on a known id, with the right id type, FD flag and length,
 passes the CRC with probability 2^-32 = 2.3e-10 (CRC-32 has Hamming distance 6 at these lengths,
-so any 1..5 flipped bits are always caught); tools/can_residual.py measures it.
+so any 1..5 flipped bits are always caught); tools/can_residual.py measures it, and that no replay
+passes.
 """
 
 from __future__ import annotations
@@ -24,7 +39,7 @@ import cantools
 import numpy as np
 
 from teleop.master.cobot import frame_kernels as FK
-from teleop.master.cobot.codec import MessageCodec, layout_tables
+from teleop.master.cobot.codec import MessageCodec, layout_tables, sync_counter
 from teleop.util.crc32 import crc32_continue
 from teleop.util.errors import CanError
 
@@ -34,27 +49,32 @@ DEFAULT_DBC = Path(__file__).with_name("protocol.dbc")
 CRC_BYTES = FK.CRC_BYTES
 
 
-def compute_crc32(frame_id: int, data: bytes) -> int:
+def compute_crc32(frame_id: int, data: bytes, count: int | None = None) -> int:
     """CRC-32/ISO-HDLC (crccheck's ``Crc32``; computed by :func:`teleop.util.crc32.crc32_continue`) of
-    the frame id (2 bytes, little-endian) then ``data``. tests/unit/test_can_database.py checks it
-    against crccheck on random frames."""
+    the frame id (2 bytes, little-endian) then ``data``, then, for a frame tied to a SYNC, its full
+    SYNC ``count`` (4 bytes, little-endian). tests/unit/test_can_database.py checks it against
+    crccheck on random frames."""
     head = crc32_continue(0, frame_id.to_bytes(2, "little"), 2)
-    return int(crc32_continue(head, bytes(data), len(data)))
+    crc = crc32_continue(head, bytes(data), len(data))
+    return int(crc if count is None else FK.crc32_count(crc, count))
 
 
 class Decoded(NamedTuple):
-    """A valid frame: message name, signals in SI units, timestamp (s), and the same values in the
-    order of the message codec's ``names`` (for readers that index them)."""
+    """A valid frame: message name, signals in SI units, timestamp (s), the same values in the
+    order of the message codec's ``names`` (for readers that index them), and for a frame tied to
+    a SYNC the full SYNC count its CRC holds for (-1: a frame tied to none)."""
 
     name: str
     signals: dict
     timestamp: float
     values: tuple = ()
+    count: int = -1
 
 
 class Rejected(NamedTuple):
     """A frame that never reaches the math: its id, and why (``unknown_id``, ``id_type``,
-    ``fd_flag``, ``length``, ``checksum``, ``range:<signal>``, ``nonfinite:<signal>``, ``decode``)."""
+    ``fd_flag``, ``length``, ``checksum``, ``stale`` (a frame tied to a SYNC, replayed whole
+    counter wraps later), ``range:<signal>``, ``nonfinite:<signal>``, ``decode``)."""
 
     frame_id: int
     reason: str
@@ -63,7 +83,18 @@ class Rejected(NamedTuple):
 
 #: check_frame's rejections by name
 _REASONS = {FK.UNKNOWN_ID: "unknown_id", FK.ID_TYPE: "id_type", FK.FD_FLAG: "fd_flag", FK.LENGTH: "length",
-            FK.CHECKSUM: "checksum"}
+            FK.CHECKSUM: "checksum", FK.STALE: "stale"}
+#: the reference of a decoder with no SYNC of its own (:meth:`FrameDatabase.decode`): a frame tied
+#: to a SYNC is then checked with its counter as its full count (a frame of the first 256 SYNCs)
+_NO_REF = 127
+
+
+def _integer(v) -> int:
+    """``v`` as an int when it is an integral number, else -1."""
+    try:
+        return int(v) if v == int(v) else -1
+    except (TypeError, ValueError, OverflowError):
+        return -1
 
 
 class FrameDatabase:
@@ -94,6 +125,9 @@ class FrameDatabase:
         #: the compiled codec's tables of every message (a record: frame_kernels' msgs, sig_i, sig_f, ids, order)
         self.tables = layout_tables(messages, crc_of_id=lambda fid: compute_crc32(fid, b""))
         self.row = {m.name: i for i, m in enumerate(messages)}
+        #: the index (in the codec's order) of the counter of each message tied to a SYNC
+        self.counter = {m.name: self.codecs[m.name].names.index(sync_counter(m).name)
+                        for m in messages if self.checksum[m.name] is not None and sync_counter(m) is not None}
         self._codec_by_row = [self.codecs[m.name] for m in messages]
         self._vals = np.empty(self.tables[0]["sig_f"].shape[1])
 
@@ -103,11 +137,13 @@ class FrameDatabase:
         except KeyError:
             raise CanError(f"can database: unknown message {name!r}; known: {sorted(self.by_name)}") from None
 
-    def encode(self, name: str, signals: dict) -> tuple[int, bytes, bool]:
+    def encode(self, name: str, signals: dict, sync_count: int | None = None) -> tuple[int, bytes, bool]:
         """(frame id, payload, is_fd) of message ``name``; values in SI units.
 
         strict: a value outside its DBC range raises :class:`CanError` naming the signal. The
-        checksum signal, when the layout has one, is computed here and need not be given.
+        checksum signal, when the layout has one, is computed here and need not be given. For a
+        message tied to a SYNC, ``sync_count`` is the full SYNC count it answers, whose low byte
+        its counter must hold (None: the counter is the count, a frame of the first 256 SYNCs).
         """
         msg = self.message(name)
         ck = self.checksum[name]
@@ -117,33 +153,53 @@ class FrameDatabase:
         codec = self.codecs[name]
         if len(signals) != len(codec.names) or not all(n in signals for n in codec.names):
             codec.encode(signals)  # raises, naming the missing and unknown signals
-        return msg.frame_id, self._encode(name, [signals[n] for n in codec.names]), bool(msg.is_fd)
+        return msg.frame_id, self._encode(name, [signals[n] for n in codec.names], sync_count), bool(msg.is_fd)
 
-    def encode_ordered(self, name: str, values) -> tuple[int, bytes, bool]:
+    def encode_ordered(self, name: str, values, sync_count: int | None = None) -> tuple[int, bytes, bool]:
         """:meth:`encode` with the values in the order of ``codecs[name].names`` without the
         checksum (for the per-period frames: no mapping to build)."""
         codec = self.codecs.get(name) or self.message(name)
         if self.checksum[name] is not None:
             values = (*values, 0)
-        return codec.frame_id, self._encode(name, values), bool(codec.message.is_fd)
+        return codec.frame_id, self._encode(name, values, sync_count), bool(codec.message.is_fd)
 
-    def _encode(self, name: str, values) -> bytes:
+    def _encode(self, name: str, values, sync_count: int | None = None) -> bytes:
         """The payload of ``values`` (codec order, the checksum's slot 0), sealed with its CRC-32
-        (compute_crc32(frame id, body)) when the layout has a checksum."""
-        return self.codecs[name].encode_ordered(values, seal=True, tables=self.tables, row=self.row[name])
+        (compute_crc32(frame id, body[, full SYNC count])) when the layout has a checksum."""
+        count = -1
+        i = self.counter.get(name)
+        if i is not None and sync_count is None:  # the counter is the count (a bad one: the codec names it)
+            count = _integer(values[i])
+            count = count if 0 <= count < 256 else 0
+        elif i is not None:
+            if not (isinstance(sync_count, (int, np.integer)) and 0 <= sync_count < FK.COUNT_MOD):
+                raise CanError(f"can encode {name}: SYNC count {sync_count!r} is not an integer in [0, 2^32)")
+            count = int(sync_count)
+            if _integer(values[i]) != count % 256:
+                raise CanError(f"can encode {name}.{self.codecs[name].names[i]}: {values[i]!r} is not the low byte "
+                               f"of the SYNC count {count}")
+        return self.codecs[name].encode_ordered(values, seal=True, tables=self.tables, row=self.row[name],
+                                                count=int(count))
 
     def decode(self, frame_id: int, data: bytes, timestamp: float = 0.0, is_extended_id: bool = False,
-               is_fd: bool = True) -> Decoded | Rejected:
+               is_fd: bool = True, sync_ref: int | None = None) -> Decoded | Rejected:
         """Decode and check one frame: a :class:`Decoded` in SI units, or a :class:`Rejected`.
         ``is_extended_id`` and ``is_fd`` are the frame's flags as received (every shipped message
-        is a standard-id CAN FD frame)."""
+        is a standard-id CAN FD frame). ``sync_ref``: the receiver's latest full SYNC count (the
+        device: the last SYNC it took); a frame tied to a SYNC is checked with the full count
+        nearest it whose low byte its counter holds (None: its counter is its count). The
+        freshness rules on that count (newer than the last applied) are the receiver's."""
         vals = self._vals
-        verdict, row = FK.check_frame(self.tables, int(frame_id), bool(is_extended_id), bool(is_fd), bytes(data), vals)
-        return self.verdict(verdict, row, frame_id, data, timestamp, vals)
+        ref = _NO_REF if sync_ref is None else int(sync_ref)
+        verdict, row, count = FK.check_frame(self.tables, int(frame_id), bool(is_extended_id), bool(is_fd),
+                                             bytes(data), vals, ref)
+        return self.verdict(verdict, row, frame_id, data, timestamp, vals, int(count))
 
-    def verdict(self, verdict: int, row: int, frame_id: int, data, timestamp: float, vals) -> Decoded | Rejected:
+    def verdict(self, verdict: int, row: int, frame_id: int, data, timestamp: float, vals,
+                count: int = -1) -> Decoded | Rejected:
         """The :class:`Decoded` or :class:`Rejected` of a :func:`.frame_kernels.check_frame` verdict
-        on message ``row`` with the decoded ``vals``."""
+        on message ``row`` with the decoded ``vals`` (and the full SYNC ``count`` of a frame tied to
+        one)."""
         if verdict in _REASONS:
             return Rejected(frame_id, _REASONS[verdict], timestamp)
         codec = self._codec_by_row[row]
@@ -161,8 +217,8 @@ class FrameDatabase:
             bad = codec.signals[i].is_float and not math.isfinite(vals[i])
             return Rejected(frame_id, f"{'nonfinite' if bad else 'range'}:{codec.names[i]}", timestamp)
         values = codec.values_from(vals)
-        return Decoded(codec.name, dict(zip(codec.names, values)), timestamp, values)
+        return Decoded(codec.name, dict(zip(codec.names, values)), timestamp, values, count)
 
-    def decode_message(self, msg) -> Decoded | Rejected:
+    def decode_message(self, msg, sync_ref: int | None = None) -> Decoded | Rejected:
         """:meth:`decode` of a :class:`can.Message` (its id, data, timestamp and flags)."""
-        return self.decode(msg.arbitration_id, msg.data, msg.timestamp, msg.is_extended_id, msg.is_fd)
+        return self.decode(msg.arbitration_id, msg.data, msg.timestamp, msg.is_extended_id, msg.is_fd, sync_ref)

@@ -7,11 +7,27 @@ SI values; ``send_*`` encode and transmit. Each frame's bytes go through one com
 frames the counter checks, the wrist unwrapping and the encoder check into the driver's state
 record); each frame sent is encoded and sealed by one (:func:`.frame_kernels.pack_frame`). Every
 frame that fails its id, id type, FD flag, length, CRC, counter or DBC range is rejected, counted by
-reason and logged; only finite, in-range values reach :attr:`joints_rad_m` and :attr:`wrench_S`.
+reason (:attr:`CobotDriver.rejected`, ``can_rejected_by_reason`` in :meth:`CobotDriver.stats`) and
+logged; only finite, in-range values reach :attr:`joints_rad_m` and :attr:`wrench_S`.
+
+The trust rules at this boundary (issue 22): the SYNC carries the host's full 32-bit count and the
+CRC of each frame tied to a SYNC covers the full count it answers (:mod:`.database`), so a device
+frame recorded 256 (512, ...) SYNCs earlier and replayed is refused (``stale``), one no newer than
+the last applied is dropped (late, a duplicate too: ``can_frames_late``), one answering a SYNC not
+sent yet is refused (``counter``). Each decoded value is checked against the last: a joint that
+moved more than the device can since the last reading latches ``encoder_fault``
+(``encoder_jump``); a load-cell reading that changed faster than the load cell can since the last
+applied one is refused and counted (``wrench_jump``), the last one kept. A refused reading is not
+fresh: it ages the feedback as a lost frame does, so a load cell that stays implausible for
+``stale_cycles`` SYNCs latches ``wrench_fault`` through the stale-feedback watchdog, while an
+isolated spike costs one reading and a real fast step is taken as soon as the allowance, which
+grows with every SYNC since the last applied reading, covers it.
+
 Error frames feed the host's own error counters (:mod:`teleop.can.confinement`: TEC/REC,
 error-passive at 128, bus-off at 256), never a fault by themselves. The watchdog latches a fault
-(``watchdog`` for stale feedback, ``heartbeat``, ``bus_off``, ``device_emergency``,
-``encoder_fault``, ``send_failed``); after a fault :meth:`send_command` sends zero velocity only.
+(``watchdog`` for stale feedback, ``wrench_fault`` for a load cell refused that long,
+``heartbeat``, ``bus_off``, ``device_emergency``, ``encoder_fault``, ``send_failed``); after a
+fault :meth:`send_command` sends zero velocity only.
 """
 
 from __future__ import annotations
@@ -41,6 +57,7 @@ JOINT_SIGNALS = ("PosX", "PosY", "PosZ", "AngA", "AngB", "AngC")
 WRENCH_SIGNALS = ("ForceX", "ForceY", "ForceZ", "TorqueX", "TorqueY", "TorqueZ")
 CMD_SIGNALS = ("CmdVelX", "CmdVelY", "CmdVelZ", "CmdRateA", "CmdRateB", "CmdRateC")
 #: frames the driver encodes or reads by position every period, and the signal order it assumes
+#: (all but SYNC tied to a SYNC: their CRC covers its full count)
 ORDERED_FRAMES = {"SYNC": ("SyncCounter",), "HOST_CMD": (*CMD_SIGNALS, "CmdMode", "CmdCounter"),
                   "DEV_JOINTS": (*JOINT_SIGNALS, "DevState", "JointsCounter"),
                   "DEV_WRENCH": (*WRENCH_SIGNALS, "WrenchCounter")}
@@ -59,12 +76,16 @@ class CobotDriver:
     encoder_step_max (6,): the largest change of a joint reading (m, rad) per SYNC the device can
     make (its velocity limit times the period, plus a count); a larger one latches
     ``encoder_fault`` (None: not checked).
+    wrench_step_max (6,): the largest change of a load-cell reading (N x3, N*m x3) per SYNC the
+    load cell can make (:attr:`teleop.master.config.CobotConfig.wrench_rate_max` times the period,
+    plus its noise); a larger change since the last applied reading is refused (``wrench_jump``)
+    and the last reading kept (None: not checked).
     """
 
     def __init__(self, bus: can.BusABC, db: FrameDatabase | None = None, clock=time.monotonic,
                  stale_cycles: int = 3, heartbeat_period_s: float = 0.01,
                  heartbeat_timeout_s: float = 0.05, own_bus: bool = False,
-                 max_frames_per_read: int = MAX_FRAMES_PER_READ, encoder_step_max=None):
+                 max_frames_per_read: int = MAX_FRAMES_PER_READ, encoder_step_max=None, wrench_step_max=None):
         self.bus, self.db, self.clock = bus, db or FrameDatabase(), clock
         for name, order in ORDERED_FRAMES.items():  # the per-period frames are encoded by position
             if self.db.codecs[name].names[: len(order)] != order:
@@ -73,6 +94,9 @@ class CobotDriver:
             if not self.db.codecs[name].compiled:
                 raise CanError(f"can database: {name} must be a byte-aligned layout (the driver decodes and "
                                f"encodes it compiled), found bit fields or a non-linear conversion")
+            if (name != "SYNC") != (name in self.db.counter):
+                raise CanError(f"can database: {name} must {'not ' if name == 'SYNC' else ''}be tied to a SYNC "
+                               f"(its SyncFreshness attribute {'0' if name == 'SYNC' else '1'})")
         self.stale_cycles = int(stale_cycles)
         self.hb_period, self.hb_timeout = float(heartbeat_period_s), float(heartbeat_timeout_s)
         self.own_bus = own_bus
@@ -81,8 +105,8 @@ class CobotDriver:
         #: attributes joints_rad_m, wrench_S, the counters and the fresh flags are its fields
         self._ds = np.zeros(1, FK.DRIVER_STATE)
         self._rs = self._ds[0]
-        self._ds["jc"] = self._ds["wc"] = -1
-        self._ds["step_max"] = -1.0  # no encoder check
+        self._ds["jc"] = self._ds["wc"] = self._ds["jf"] = self._ds["wf"] = -1
+        self._ds["step_max"] = self._ds["wslew"] = -1.0  # no encoder check, no load-cell check
         self._tables = self.db.tables
         self._vals = np.empty(self._tables[0]["sig_f"].shape[1])
         self._tx_vals = np.empty(self._tables[0]["sig_f"].shape[1])
@@ -91,7 +115,7 @@ class CobotDriver:
         self._cmd_id, self._cmd_fd, self._len_cmd = self._frame_format("HOST_CMD")
         self._sync_id, self._sync_fd, self._len_sync = self._frame_format("SYNC")
         self._row_sync = self.db.row["SYNC"]
-        self._sync = 0  # SYNCs sent
+        self._sync = 0  # SYNCs sent (the next SYNC's full count)
         self.last_device_hb_s: float | None = None
         self.fault: str | None = None
         self.rejected: Counter = Counter()
@@ -99,8 +123,9 @@ class CobotDriver:
         self.error_frames = self.read_bound_hits = 0
         self.max_frames_per_read = int(max_frames_per_read)
         self.encoder_step_max = encoder_step_max
+        self.wrench_step_max = wrench_step_max
         self.frames_rx = self.send_errors = self.watchdog_trips = 0
-        self._cmd = self._hb = 0
+        self._hb = 0
         self._next_hb_s = -math.inf
         self._lim_key, self._lim = None, _CMD_RANGE
         self.started = self.closed = False
@@ -120,7 +145,8 @@ class CobotDriver:
             return
         self.closed = True
         if self.started:
-            self._send("HOST_CMD", (0.0,) * 6 + (0, self._cmd % 256))  # zero velocity, mode 0
+            count = self._cycle_count()
+            self._send("HOST_CMD", (0.0,) * 6 + (0, count % 256), count)  # zero velocity, mode 0
             self._send("HOST_HEARTBEAT", {"HostState": 0, "HostHbCounter": self._hb % 256})
         if self.own_bus:
             self.bus.shutdown()
@@ -141,8 +167,14 @@ class CobotDriver:
     joints_rad_m = view("_rs", "joints", "the last joint reading (6,: 3 gantry positions m, 3 unwrapped wrist "
                         "angles rad); a view the next valid reading overwrites")
     wrench_S = view("_rs", "wrench", "the last load-cell reading (6,: N, N*m, load-cell frame); a view")
-    joints_counter = view("_rs", "jc", "the SYNC counter of the last joint reading applied (-1: none yet)", int)
-    wrench_counter = view("_rs", "wc", "the SYNC counter of the last load-cell reading applied (-1: none yet)", int)
+    joints_counter = view("_rs", "jc", "the SYNC counter (0..255) of the last joint reading applied (-1: none yet)",
+                          int)
+    wrench_counter = view("_rs", "wc", "the SYNC counter (0..255) of the last load-cell reading applied (-1: none "
+                          "yet)", int)
+    joints_sync = view("_rs", "jf", "the full SYNC count of the last joint reading applied (-1: none yet)", int)
+    wrench_sync = view("_rs", "wf", "the full SYNC count of the last load-cell reading applied (-1: none yet)", int)
+    wrench_refused = view("_rs", "wrefused", "load-cell readings refused (wrench_jump) since the last applied one",
+                          int)
     fresh_joints = view("_rs", "fresh_j", "a joint reading arrived in this cycle (cleared by end_cycle)", bool)
     fresh_wrench = view("_rs", "fresh_w", "a load-cell reading arrived in this cycle (cleared by end_cycle)", bool)
     cycles_since_joints = view("_rs", "since_j", "cycles since the last fresh joint reading", int)
@@ -160,13 +192,24 @@ class CobotDriver:
     def encoder_step_max(self, value) -> None:
         self._rs["step_max"][:] = -1.0 if value is None else np.broadcast_to(np.asarray(value, float), 6)
 
+    @property
+    def wrench_step_max(self):
+        """The load-cell check's limits (6,: N x3, N*m x3 per SYNC), or None: not checked."""
+        sm = self._rs["wslew"]
+        return None if sm[0] < 0.0 else sm.copy()
+
+    @wrench_step_max.setter
+    def wrench_step_max(self, value) -> None:
+        self._rs["wslew"][:] = -1.0 if value is None else np.broadcast_to(np.asarray(value, float), 6)
+
     # -- sending ------------------------------------------------------------------------------------
-    def _send(self, name: str, signals) -> bool:
-        """Encode and send; ``signals`` a mapping, or the values in codec order (no checksum)."""
+    def _send(self, name: str, signals, sync_count: int | None = None) -> bool:
+        """Encode and send; ``signals`` a mapping, or the values in codec order (no checksum);
+        ``sync_count``: the full SYNC count of a frame tied to one."""
         if isinstance(signals, dict):
-            frame_id, data, fd = self.db.encode(name, signals)
+            frame_id, data, fd = self.db.encode(name, signals, sync_count)
         else:
-            frame_id, data, fd = self.db.encode_ordered(name, signals)
+            frame_id, data, fd = self.db.encode_ordered(name, signals, sync_count)
         return self._transmit(name, frame_id, data, fd)
 
     def _transmit(self, name: str, frame_id: int, data, fd: bool) -> bool:
@@ -184,15 +227,23 @@ class CobotDriver:
             return False
 
     def send_sync(self) -> int:
-        """SYNC with the next counter; returns the counter (0..255)."""
-        c = self._sync % 256
-        self._sync += 1
-        self._tx_vals[0] = c
+        """SYNC with the next full count (the SYNCs sent before it); returns its low byte (0..255),
+        the counter the device's answers carry. Past 2^32 SYNCs (49.7 days at 1 kHz) the count
+        would repeat: :class:`CanError` (the host's period holds the device)."""
+        count = self._sync
+        self._tx_vals[0] = count
         out = bytearray(self._len_sync)
-        if FK.pack_frame(self._tables, self._row_sync, self._tx_vals, out, True) >= 0:
-            raise CanError(f"can encode SYNC: counter {c} outside the DBC's SyncCounter range")
+        if FK.pack_frame(self._tables, self._row_sync, self._tx_vals, out, True, -1) >= 0:
+            raise CanError(f"can encode SYNC: count {count} outside the DBC's SyncCounter range (2^32 SYNCs sent: "
+                           f"restart the session)")
+        self._sync += 1
         self._transmit("SYNC", self._sync_id, out, self._sync_fd)
-        return c
+        return count % 256
+
+    def _cycle_count(self) -> int:
+        """The full count of the cycle's SYNC (the last sent; 0 before the first), which HOST_CMD
+        answers."""
+        return max(self._sync - 1, 0)
 
     def send_heartbeat(self, force: bool = False) -> None:
         now = self.clock()
@@ -205,16 +256,16 @@ class CobotDriver:
     def send_command(self, qd_cmd, limits=None) -> None:
         """Joint velocity commands (6,: m/s x3, rad/s x3), clipped to ``limits`` (6,) and the DBC
         range; zero velocity with mode 0 after a fault or for non-finite input
-        (:func:`.frame_kernels.pack_command`)."""
+        (:func:`.frame_kernels.pack_command`). The frame answers the last SYNC sent (its counter,
+        and its full count in the CRC)."""
         qd = qd_cmd if type(qd_cmd) is np.ndarray and qd_cmd.dtype == np.float64 else np.asarray(qd_cmd, float)
         run = self.fault is None and qd.shape == (6,)
         if not run:
             qd = _ZERO6
         lim = _CMD_RANGE if limits is None else self._limits(limits)
         out = bytearray(self._len_cmd)
-        if FK.pack_command(self._tables, self._row_cmd, qd, lim, run, self._cmd, self._tx_vals, out) < 0:
+        if FK.pack_command(self._tables, self._row_cmd, qd, lim, run, self._cycle_count(), self._tx_vals, out) < 0:
             raise CanError("can encode HOST_CMD: a clipped command outside the DBC's ranges (check CMD_RANGE)")
-        self._cmd += 1
         self._transmit("HOST_CMD", self._cmd_id, out, self._cmd_fd)
 
     def _limits(self, limits) -> np.ndarray:
@@ -245,7 +296,7 @@ class CobotDriver:
                 n += 1
                 self.errors.rx_ok()
                 continue
-            if verdict == FK.FUTURE or verdict == FK.ENCODER_JUMP:
+            if verdict == FK.FUTURE or verdict == FK.ENCODER_JUMP or verdict == FK.WRENCH_JUMP:
                 n += 1
                 self.errors.rx_ok()
                 self._reject_counted(verdict)
@@ -265,10 +316,17 @@ class CobotDriver:
         return n
 
     def _reject_counted(self, verdict: int) -> None:
-        """A valid frame the period's checks refused: a counter not sent yet, or an encoder jump
-        (the fault latched)."""
+        """A valid frame the period's checks refused: a counter not sent yet, a load-cell jump (the
+        last reading kept), or an encoder jump (the fault latched)."""
         if verdict == FK.FUTURE:
             self.rejected["counter"] += 1
+            return
+        if verdict == FK.WRENCH_JUMP:
+            self.rejected["wrench_jump"] += 1
+            if self.rejected["wrench_jump"] <= 10:
+                i, size, gap = self._rs["wjump"].tolist()
+                self.log.warning("load-cell reading refused: axis %d changed %.4g in %d SYNC(s), faster than the "
+                                 "load cell can", int(i), size, int(gap))
             return
         self.rejected["encoder_jump"] += 1
         i, size, gap = self._rs["jump"].tolist()
@@ -319,7 +377,14 @@ class CobotDriver:
             self._trip("heartbeat", f"no device heartbeat for {self.hb_timeout} s")
 
     def trip_stale(self) -> None:
-        """Latch ``watchdog``: the feedback is ``stale_cycles`` old."""
+        """Latch ``watchdog``: the feedback is ``stale_cycles`` old; ``wrench_fault`` when it is
+        the load cell's alone, its readings arriving and refused (``wrench_jump``)."""
+        rs = self._rs
+        if rs["wrefused"] > 0 and rs["since_w"] >= self.stale_cycles > rs["since_j"]:
+            i, size, gap = rs["wjump"].tolist()
+            self._trip("wrench_fault", f"{int(rs['wrefused'])} load-cell readings refused, the last: axis {int(i)} "
+                       f"changed {size:.4g} in {int(gap)} SYNC(s), faster than the load cell can")
+            return
         self._trip("watchdog", f"no fresh feedback for {self.stale_cycles} cycles")
 
     def latch_fault(self, fault: str, why: str) -> None:

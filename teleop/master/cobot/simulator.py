@@ -19,14 +19,26 @@ each SYNC: a non-finite one, or no new load-cell sample for ``STUCK_SYNCS`` SYNC
 fault: servos to zero, state fault, DEV_EMERGENCY code 4.
 
 Device behaviour: on SYNC it samples encoders and load cell and answers DEV_JOINTS + DEV_WRENCH
-(counters echo the SYNC); HOST_CMD sets the servo velocities (mode 0 = zero); DEV_HEARTBEAT every
-``heartbeat_period_s``; without a host heartbeat for ``host_timeout_s`` or a command for
-``cmd_timeout_s`` the device zeroes its servos and sends DEV_EMERGENCY.
+(counters: the SYNC count's low byte; CRCs over its full count, :mod:`.database`); HOST_CMD sets
+the servo velocities (mode 0 = zero); DEV_HEARTBEAT every ``heartbeat_period_s``; without a host
+heartbeat for ``host_timeout_s`` or a command for ``cmd_timeout_s`` the device zeroes its servos
+and sends DEV_EMERGENCY.
+
+Freshness at the device (the host's SYNC count is the freshness value of the session): a SYNC
+whose count does not advance past the last one taken (a replay, a duplicate: ``sync_stale``) or
+jumps more than :data:`SYNC_WINDOW` ahead (``sync_future``) is refused and not answered. HOST_CMD
+is checked with the full count nearest the last SYNC taken (a command replayed whole counter wraps
+later fails its CRC: ``stale`` or ``checksum``), and one older than the last command applied, or
+a second run command for the same SYNC, is refused (``command_late``; a hold is always taken).
+Every refusal is counted by reason (``device_rejected_by_reason`` in :meth:`CobotSimulator.stats`).
+The device forgets the host's count when the host has been silent (no heartbeat) for
+``host_timeout_s``: a new host starts counting from 0.
 """
 
 from __future__ import annotations
 
 import heapq
+from collections import Counter
 
 import can
 import numpy as np
@@ -44,6 +56,9 @@ WRENCH_LIMITS = np.array([159.9] * 3 + [6.49] * 3)
 #: SYNCs without a new load-cell sample that the firmware takes for a stuck sensor
 STUCK_SYNCS = 3
 SENSOR_FAULTS = ("sensor_nan", "sensor_stuck", "encoder_jump")
+#: the most a SYNC's count may advance past the last one taken (SYNCs lost in between); a larger
+#: jump is refused as not the host's (the host's watchdog trips long before 128 SYNCs are lost)
+SYNC_WINDOW = 128
 
 
 class CobotSimulator:
@@ -69,6 +84,10 @@ class CobotSimulator:
         self._seq = 0
         self._counters = {"hb": 0, "emcy": 0}
         self.lost = self.corrupted = self.device_rejected = self.delivered = 0
+        #: the host frames the device refused, by reason
+        self.rejected_by_reason: Counter = Counter()
+        #: the full count of the last SYNC taken and of the last command applied (-1: none this session)
+        self.sync_count = self.cmd_count = -1
         self.tec = 0  # the device's transmit error counter (bus-off fault)
         self.sensor_fault: tuple | None = None  # (kind, from_s, axis, size)
         self._stuck_wrench, self._stale_samples = None, 0
@@ -86,13 +105,13 @@ class CobotSimulator:
         f = self.faults
         return not self.bus_off and (f.silent_after_s is None or t < f.silent_after_s)
 
-    def _device_send(self, name: str, signals: dict, t: float) -> None:
+    def _device_send(self, name: str, signals: dict, t: float, sync_count: int | None = None) -> None:
         if not self._transmitting(t):
             return
         if self.faults.loss_pct and self.rng.random() * 100.0 < self.faults.loss_pct:
             self.lost += 1
             return
-        fid, data, fd = self.db.encode(name, signals)
+        fid, data, fd = self.db.encode(name, signals, sync_count)
         msg = can.Message(arbitration_id=fid, data=data, is_extended_id=False, is_fd=fd, bitrate_switch=fd)
         self.wire.submit(t, fid, len(data), fd, ("device", msg))
 
@@ -114,24 +133,36 @@ class CobotSimulator:
             return
         if self.faults.corrupt_pct and self.rng.random() * 100.0 < self.faults.corrupt_pct:
             msg = self._corrupt(msg)
-        d = self.db.decode(msg.arbitration_id, msg.data, t, msg.is_extended_id, msg.is_fd)
+        d = self.db.decode(msg.arbitration_id, msg.data, t, msg.is_extended_id, msg.is_fd,
+                           sync_ref=max(self.sync_count, 0))
         if not isinstance(d, Decoded):
-            self.device_rejected += 1
+            self._refuse(d.reason)
             return
         s, dev = d.signals, self.plant
         if d.name == "SYNC":
-            dev.advance_to(t)
             c = int(s["SyncCounter"])
+            if self.sync_count >= 0 and t - self.last_host_hb > self.host_timeout:
+                self.sync_count = self.cmd_count = -1  # the host is gone: a new one counts from 0
+            if self.sync_count >= 0 and not 0 < c - self.sync_count <= SYNC_WINDOW:
+                self._refuse("sync_stale" if c <= self.sync_count else "sync_future")
+                return
+            self.sync_count = c
+            dev.advance_to(t)
             enc, wrench = self._sample(t)
             if enc is None:
                 return
             joints = dict(zip(JOINT_SIGNALS, (float(v) for v in enc)))
-            joints.update(DevState=self.state, JointsCounter=c)
-            self._device_send("DEV_JOINTS", joints, t)
+            joints.update(DevState=self.state, JointsCounter=c % 256)
+            self._device_send("DEV_JOINTS", joints, t, c)
             w = dict(zip(WRENCH_SIGNALS, (float(v) for v in wrench)))
-            w["WrenchCounter"] = c
-            self._device_send("DEV_WRENCH", w, t)
+            w["WrenchCounter"] = c % 256
+            self._device_send("DEV_WRENCH", w, t, c)
         elif d.name == "HOST_CMD":
+            hold = int(s["CmdMode"]) != 1
+            if d.count < self.cmd_count or (d.count == self.cmd_count and not hold):
+                self._refuse("command_late")
+                return
+            self.cmd_count = d.count
             self.last_cmd = t
             run = int(s["CmdMode"]) == 1 and self.state != STATE_FAULT
             dev.set_command([s[k] for k in CMD_SIGNALS] if run else np.zeros(6), t)
@@ -142,6 +173,10 @@ class CobotSimulator:
             if int(s["HostState"]) == 0 and self.state == STATE_RUNNING:
                 dev.set_command(np.zeros(6), t)
                 self.state = STATE_READY
+
+    def _refuse(self, reason: str) -> None:
+        self.device_rejected += 1
+        self.rejected_by_reason[reason] += 1
 
     def _sample(self, t: float):
         """(encoders, load cell) at a SYNC, through the injected sensor fault and the firmware's
@@ -255,5 +290,6 @@ class CobotSimulator:
             "can_frames_lost": self.lost,
             "can_frames_corrupted": self.corrupted,
             "device_frames_rejected": self.device_rejected,
+            "device_rejected_by_reason": dict(self.rejected_by_reason),
             "device_tec": self.tec,
         }
