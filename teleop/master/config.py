@@ -55,6 +55,18 @@ class CobotConfig(Checked):
     torque_noise_Nm: float = setting(0.0005, ge=0.0, le=10.0, doc="load-cell noise std, N*m")
     force_bias_N: Vec = setting((0.05, -0.03, 0.08), n=3, doc="load-cell bias, N (removed by the start-up tare)")
     torque_bias_Nm: Vec = setting((0.001, -0.0005, 0.0), n=3, doc="N*m")
+    #: the fastest a load-cell reading can change, per axis (N/s x3, N*m/s x3). The host refuses a
+    #: reading that changed by more than this times the time since the last applied one, plus six
+    #: noise deviations and two quanta of the wire (``wrench_jump``, the last reading kept; 50 N
+    #: and 3 N*m a SYNC at 1 kHz). Forces: the fastest wrench a hand puts on a handle is an impact,
+    #: whose force rises at the contact's stiffness times the closing speed: a palm (about 25
+    #: kN/m once compressed) striking at 2 m/s gives 50 kN/s; a voluntary push builds at most a
+    #: tenth of that (a few kN/s), and the handle's own inertia adds its mass times the servos'
+    #: jerk (0.15 kg x 20 m/s^2 / 0.8 ms = 3.75 kN/s). Torques: that force rate at the middle of
+    #: the 120 mm grip (60 mm from the load cell): 3 kN*m/s. So 0 to the cell's 160 N takes 4
+    #: SYNCs at 1 kHz, and a one-SYNC jump to full scale is refused.
+    wrench_rate_max: Vec = setting((50_000.0,) * 3 + (3_000.0,) * 3, n=6, broadcast=True, gt=0.0,
+                                   doc="fastest load-cell change (plausibility check), N/s x3, N*m/s x3")
     max_force_N: float = setting(100.0, gt=0.0, le=1e3, doc="saturation of the sensed hand force, N")
     max_torque_Nm: float = setting(5.0, gt=0.0, le=1e3, doc="saturation of the sensed hand torque, N*m")
     workspace_margin_m: float = setting(0.005, ge=0.0, le=10.0,

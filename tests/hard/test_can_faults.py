@@ -142,3 +142,45 @@ def test_a_tool_lighter_than_the_loop_renders_is_warned_about(caplog):
         assert bool(said) == warned, (mass, scale, comp)
         if warned:
             assert "tool.mass_kg" in said[0] and "0.15 kg handle" in said[0] and "commanded" in said[0]
+
+
+def test_replayed_and_implausible_frames_on_a_running_cobot_are_refused_and_counted():
+    """A third node on the cobot's bus records the device's frames and the host's command of one
+    SYNC and plays them back 256 SYNCs later (the 8-bit counters match again), then forges a
+    load-cell reading of 159.9 N for the SYNC about to be sent (the genuine one reads a few N).
+    The host refuses the three replays as stale (the command too: it hears every frame on the bus)
+    and the forged wrench as wrench_jump, the device the replayed command as stale; all counted in
+    the stats the run's summary carries; the run stays ok and its sphere accurate."""
+    import uuid
+
+    import can
+
+    tool = sphere_tool()
+    ch = f"spy-{uuid.uuid4().hex}"
+    m = make_cobot(tool, CobotConfig.from_dict({"channel": ch}, "cobot"), 1e-3, np.random.default_rng(5))
+    spy = can.Bus(interface="teleop_lockstep", channel=ch)
+    names = {m.db.message(n).frame_id: n for n in ("DEV_JOINTS", "DEV_WRENCH", "HOST_CMD")}
+    recorded, statuses, dev = {}, [], 0.0
+    with m:
+        for i in range(400):
+            if i == 300:  # 256 SYNCs after the recording
+                for msg in recorded.values():
+                    spy.send(msg)
+            if i == 350:
+                count = m.driver._sync  # the SYNC the next tick sends
+                fid, data, fd = m.db.encode("DEV_WRENCH", dict(ForceX=159.9, ForceY=0.0, ForceZ=0.0, TorqueX=0.0,
+                                                               TorqueY=0.0, TorqueZ=0.0, WrenchCounter=count % 256),
+                                            sync_count=count)
+                spy.send(can.Message(arbitration_id=fid, data=data, is_fd=fd, is_extended_id=False))
+            statuses.append(tick(m, tool, push(i * 1e-3, m.virtual_pose()[1]), None))
+            while (msg := spy.recv(timeout=0.0)) is not None:
+                if i == 44 and msg.arbitration_id in names:
+                    recorded[names[msg.arbitration_id]] = msg
+            dev = max(dev, abs(np.linalg.norm(m.virtual_pose()[0]) - 0.05))
+        stats = m.stats()
+    spy.shutdown()
+    assert set(recorded) == {"DEV_JOINTS", "DEV_WRENCH", "HOST_CMD"}
+    assert set(statuses) == {"ok"} and dev < 200e-6
+    assert stats["can_rejected_by_reason"] == {"stale": 3, "wrench_jump": 1}
+    assert stats["device_rejected_by_reason"].get("stale", 0) >= 1  # the command (and the device's own frames)
+    assert stats["link_fault"] is None

@@ -119,6 +119,11 @@ class CobotMaster(Master):
         # (with half again for the servo's timing) plus two encoder counts, m x3, rad x3
         counts = np.array([cfg.encoder_m] * 3 + [cfg.encoder_rad] * 3)
         step_max = 1.5 * np.array(cfg.max_velocity) * self.dt_s + 2.0 * counts
+        # the most a load-cell reading can change between two SYNCs: its rate limit over a period
+        # plus six noise deviations and two quanta of the wire, N x3, N*m x3 (cfg.wrench_rate_max)
+        quanta = np.array([abs(s.conversion.scale) for s in self.db.codecs["DEV_WRENCH"].signals[:6]])
+        noise = np.array([cfg.force_noise_N] * 3 + [cfg.torque_noise_Nm] * 3)
+        wrench_step_max = np.array(cfg.wrench_rate_max) * self.dt_s + 6.0 * noise + 2.0 * quanta
         channel = cfg.channel or f"teleop-cobot-{uuid.uuid4().hex}"
         simulated = cfg.interface in SIMULATED_INTERFACES
         extra = {"preserve_timestamps": True} if simulated else {}
@@ -127,7 +132,7 @@ class CobotMaster(Master):
                                   clock=lambda: self.t, stale_cycles=cfg.stale_cycles,
                                   heartbeat_period_s=cfg.heartbeat_period_s,
                                   heartbeat_timeout_s=cfg.heartbeat_timeout_s, own_bus=True,
-                                  encoder_step_max=step_max)
+                                  encoder_step_max=step_max, wrench_step_max=wrench_step_max)
         self.capture = Capture(cfg.capture_path) if cfg.capture_path else None
         self.sim = open_simulated_device(cfg, channel, self.model, self.joints0, rng, self.db, self.timing,
                                          self.capture) if simulated else None
