@@ -47,15 +47,15 @@ from teleop.app.session import (
     tick_count,
     tick_stats,
 )
+from teleop.link.schedule import ScheduleTap, hello_command, hello_reply
 from teleop.scenario.schema import Scene
-from teleop.tick.messages import ContactFeedback, ToolCommand
+from teleop.tick.messages import ToolCommand
 from teleop.util.errors import TeleopError
 
 GRACE_S = 2.0          # the slave's run beyond the scene's duration when the master is gone (s)
 CONNECT_TIMEOUT_S = 120.0  # the first message must come within this (s): a loaded machine is slow
 CONNECT_TRY_S = 5.0    # one connection attempt (s): a TLS port that answers but refuses ends it at once
 WARMUP_TICKS = 5       # ticks a side's twin runs before the clock starts
-_Z6 = np.zeros(6)
 _Z3 = np.zeros(3)
 
 
@@ -190,7 +190,7 @@ def _hello(side, link, timeout_s: float, stop=()) -> bool:
     while link.last_receive_s is None:
         if time.monotonic() > end or stop:
             return False
-        link.send_command(ToolCommand(0, -1.0, s.p, s.R, _Z3, _Z3, False))
+        link.send_command(hello_command(s.p, s.R))
         time.sleep(0.005)
     return True
 
@@ -208,7 +208,7 @@ def _answer_hellos(link, timeout_s: float, stop=()) -> bool:
         if cmd is not None:
             link.receive_command(0.0)  # a hello, taken
         if link.last_receive_s is not None:
-            link.send_feedback(ContactFeedback(0, -1.0, _Z6, "hold", -1))
+            link.send_feedback(hello_reply())
         time.sleep(0.001)
 
 
@@ -276,6 +276,20 @@ def _recording(path, scene: Scene, role: str):
         writer.close()
 
 
+def _on_record(link, side, writer, role: str):
+    """The link the side ticks on: with a record, a :class:`~teleop.link.schedule.ScheduleTap` in
+    front of it whose notes (what each tick was handed, the clock and heartbeat it read, the
+    messages' stamps) go on ``/<role>/link``, so that ``teleop replay --check`` can deliver the
+    same messages at the same ticks; without, the link itself."""
+    if writer is None:
+        return link
+    from teleop.app.record import LinkRecorderMcap
+
+    tap = ScheduleTap(link, role)
+    side.add_hooks(LinkRecorderMcap(writer, tap, f"/{role}"))
+    return tap
+
+
 def _own_stop(stop):
     """The caller's stop flag (set by its own Ctrl-C handler), or one of this side's own."""
     return nullcontext(stop) if stop is not None else _stop_requests()
@@ -307,6 +321,7 @@ def _run_master(scene, connect, listen, session, timeout_s, config_json5, pin, s
     status, late, steps, behind = "ok", 0, 0, 0.0
     ticks = np.zeros(n)
     wall0 = time.perf_counter()
+    port = _on_record(link, side, writer, "master")
     with link, side.master:
         status = side.master.status
         if status == "ok" and not _hello(side, link, timeout_s, stop):
@@ -322,7 +337,7 @@ def _run_master(scene, connect, listen, session, timeout_s, config_json5, pin, s
                 status = "interrupted"
                 break
             behind = max(behind, _lateness(side.heart, wall0, i, dt))
-            status = side.tick(i, i * dt, link)
+            status = side.tick(i, i * dt, port)
             say.tick(i)
             ticks[i], steps = side.tick_ns * 1e-3, i + 1
             if status != "ok":
@@ -366,6 +381,7 @@ def _run_slave(scene, listen, connect, session, timeout_s, config_json5, pin, st
     status, late, steps, behind = "ok", 0, 0, 0.0
     ticks = np.zeros(cap)
     wall0 = time.perf_counter()
+    port = _on_record(link, side, writer, "slave")
     with link:
         if not _answer_hellos(link, timeout_s, stop):
             status = "interrupted" if stop else "link_lost"
@@ -383,7 +399,7 @@ def _run_slave(scene, listen, connect, session, timeout_s, config_json5, pin, st
             lateness = _lateness(side.heart, wall0, i, dt)
             behind = max(behind, lateness)
             late += lateness > dt  # past its timeout: a tick owed, run back to back
-            side.tick(i, i * dt, link)
+            side.tick(i, i * dt, port)
             say.tick(i)
             ticks[i], steps = side.tick_ns * 1e-3, i + 1
             if side.last_seq >= n:

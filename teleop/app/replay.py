@@ -17,6 +17,8 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING
 
+import numpy as np
+
 from teleop.util.errors import ConfigError
 
 if TYPE_CHECKING:
@@ -187,7 +189,6 @@ def _check_two(folder: Path, master, slave) -> CheckResult:
     record says it was (:class:`teleop.link.schedule.ScheduleLink`)."""
     from teleop.app.record import RecordWriter
     from teleop.app.record.reader import RawRecord
-    from teleop.app.schedule_run import run_schedule
 
     (raw_m, _, scene), (raw_s, _, _) = master, slave
     with tempfile.TemporaryDirectory() as tmp:
@@ -219,3 +220,58 @@ def _verdict(folder: Path, scene, raw, replayed, topics: list[str], steps: int, 
         return CheckResult(True, f"replay {folder}: identical: {steps} ticks of {scene.name} ({how}), {n} messages "
                                  f"on {len(topics)} channels, bit for bit", steps, n)
     return CheckResult(False, f"replay {folder}: differs at {d.text()}", steps, n, d)
+
+
+def _schedule(raw, prefix: str) -> np.ndarray:
+    """A side's delivery schedule from its record's ``<prefix>/link``: (ticks, 4) seq, hello,
+    clock_s, heard_s (NaN: never heard); ConfigError when the record has none."""
+    items = raw.messages.get(f"{prefix}/link")
+    if items is None:
+        raise ConfigError(f"{prefix[1:]}.mcap: no {prefix}/link channel (the delivery schedule a two-process check "
+                          f"follows)")
+    rows = np.empty((len(items), 4))
+    for k, (_, _, data) in enumerate(items):
+        m = json.loads(data)
+        heard = m["heard_s"]
+        rows[k] = (m["seq"], bool(m["hello"]), m["clock_s"], np.nan if heard is None else heard)
+    return rows
+
+
+def run_schedule(scene, raw_master, raw_slave, writer) -> tuple[int, int]:
+    """Both sides of a two-process run in this process, built as the two processes built them
+    (:mod:`teleop.app.assembly`, networked), their ticks interleaved in lockstep on a
+    :class:`~teleop.link.schedule.ScheduleLink` that hands each tick the message its record says
+    it was handed (a side's tick runs once its peer has sent that message), both recorded into
+    ``writer``. Returns the ticks run (master, slave)."""
+    from teleop.app.assembly import build_master, build_slave
+    from teleop.link.schedule import ScheduleError, ScheduleLink
+
+    sched_m, sched_s = _schedule(raw_master, "/master"), _schedule(raw_slave, "/slave")
+    n_m, n_s = min(len(sched_m), _steps(raw_master, "/master")), min(len(sched_s), _steps(raw_slave, "/slave"))
+    mb = build_master(scene, max(n_m, 1), np.random.default_rng(scene.seed), networked=True, record=writer)
+    sb = build_slave(scene, max(n_s, 1), networked=True, record=writer)
+    link = ScheduleLink(sched_m, sched_s)
+    m_end, s_end, dt = link.master_end, link.slave_end, scene.dt_s
+    with mb.side.master:
+        try:
+            _interleave(mb.side, sb.side, m_end, s_end, n_m, n_s, dt)
+        except ScheduleError as e:
+            raise ConfigError(str(e)) from None
+    return n_m, n_s
+
+
+def _interleave(master, slave, m_end, s_end, n_m: int, n_s: int, dt: float) -> None:
+    """The two sides' ticks in an order the schedule allows (the master's first when both may)."""
+    i = j = 0
+    while i < n_m or j < n_s:
+        if i < n_m and m_end.needs(i) <= j:  # reply k is sent by the slave's tick k - 1
+            m_end.at(i)
+            master.tick(i, i * dt, m_end)
+            i += 1
+        elif j < n_s and s_end.needs(j) <= i:  # command k is sent by the master's tick k - 1
+            s_end.at(j)
+            slave.tick(j, j * dt, s_end)
+            j += 1
+        else:
+            raise ConfigError(f"schedule: the master's tick {i} waits for reply {m_end.needs(i)} and the slave's "
+                              f"tick {j} for command {s_end.needs(j)}: no run sends them so")

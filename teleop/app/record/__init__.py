@@ -22,9 +22,9 @@ file is written after the run), ``mode="thread"`` for a writer in the run's own 
 The Foxglove layout is ``docs/foxglove/teleop_layout.json``.
 """
 
-from teleop.app.record.hooks import LoopRecorderMcap, MasterRecorderMcap, SlaveRecorderMcap
+from teleop.app.record.hooks import LinkRecorderMcap, LoopRecorderMcap, MasterRecorderMcap, SlaveRecorderMcap
 from teleop.app.record.reader import Channel, Record, read_record, recover
 from teleop.app.record.writer import RecordError, RecordWriter
 
-__all__ = ["Channel", "LoopRecorderMcap", "MasterRecorderMcap", "Record", "RecordError", "RecordWriter",
-           "SlaveRecorderMcap", "read_record", "recover"]
+__all__ = ["Channel", "LinkRecorderMcap", "LoopRecorderMcap", "MasterRecorderMcap", "Record", "RecordError",
+           "RecordWriter", "SlaveRecorderMcap", "read_record", "recover"]

@@ -385,4 +385,24 @@ class SlaveEmitter(Emitter):
         self.out.add_ticks(ns, seq, chans)
 
 
-EMITTERS = {"master": MasterEmitter, "slave": SlaveEmitter}
+class LinkEmitter(Emitter):
+    """A side's link, tick by tick, on ``<prefix>/link`` (JSON): its delivery schedule and stamps
+    (:mod:`teleop.link.schedule`)."""
+
+    def __init__(self, out: McapOut, meta: dict) -> None:
+        super().__init__(out, meta)
+        c = self.cols
+        self.ch = out.json_channel(f"{self.prefix}/link", schemas.LINK_TICK)
+        j = JsonTemplate().open()
+        j.integer("tick", c.col("i")).num("t_s", c.col("t")).integer("seq", c.col("seq"))
+        j.boolean("hello", c.col("hello")).num("clock_s", c.col("clock_s")).num("heard_s", c.col("heard_s"))
+        j.num("sent_s", c.col("sent_s")).vec("chain_s", c["chain"])
+        self.json = j.close().compile()
+
+    def emit(self, rows: np.ndarray) -> None:
+        ns, _, _ = stamp(rows[:, self.cols.col("t")])
+        self.out.add_ticks(ns, rows[:, self.cols.col("i")].astype(np.int64),
+                           [(self.ch, self.json.render(rows, self.names))])
+
+
+EMITTERS = {"master": MasterEmitter, "slave": SlaveEmitter, "link": LinkEmitter}

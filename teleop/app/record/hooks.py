@@ -35,6 +35,10 @@ topic                      schema                          what
                                                            twist, guard
 /tf_static                 tf2_msgs/msg/TFMessage          patient -> master (the registration)
 /link/events               JSON teleop.LinkEvent           what :meth:`RecordWriter.link_event` was given
+/master/link, /slave/link  JSON teleop.LinkTick            a two-process side's link per tick: the
+                                                           delivery schedule and the time stamps
+                                                           (:class:`LinkRecorderMcap`)
+/operator/keys             JSON teleop.OperatorKeys        a keyboard session's reads, by tick
 =========================  ==============================  ============================================
 
 ``reference_tool_M`` and ``blade_tip`` are frames at the tool's position and the blade tip with
@@ -341,3 +345,37 @@ class LoopRecorderMcap(Hook):
         self.master.record(i, t_s, loop.master_side)
         if loop.slave_side is not None:
             self.slave.after_tick(i, t_s, loop.slave_side)
+
+
+_LINK_ROW = struct.Struct("<13d")
+
+
+class LinkRecorderMcap(Hook):
+    """A side hook recording its link's answers tick by tick on ``<prefix>/link``: ``tap`` (a
+    :class:`~teleop.link.schedule.ScheduleTap`, the link the side ticks on) is reset before each
+    tick and read after it. What a two-process run needs to be run again
+    (:class:`~teleop.link.schedule.ScheduleLink`), and its latency per tick."""
+
+    def __init__(self, writer: RecordWriter, tap: Any, prefix: str) -> None:
+        from teleop.link.schedule import COLUMNS
+
+        c = Columns()
+        c.add("i")
+        c.add("t")
+        for k in COLUMNS[:5]:
+            c.add(k)
+        c.add("chain", 6)
+        assert c.width == _LINK_ROW.size // 8
+        self.tap, self.source = tap, Source(writer, "link", c, {"prefix": prefix})
+
+    def before_tick(self, i: int, t_s: float, side: Any) -> None:
+        self.tap.begin()
+
+    def after_tick(self, i: int, t_s: float, side: Any) -> None:
+        src = self.source
+        if not src.live:
+            return
+        o = src.next_row()
+        if o >= 0:
+            _LINK_ROW.pack_into(src.region, o, i, t_s, *self.tap.row())
+            src.publish()

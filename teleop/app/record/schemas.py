@@ -142,6 +142,18 @@ LINK_EVENT = _obj("teleop.LinkEvent", {
 }, "An event of the link between the sides")
 
 
+LINK_TICK = _obj("teleop.LinkTick", {
+    "tick": {"type": "integer", "description": "the side's tick"},
+    "t_s": _num("the tick's simulated time (s); the log time"),
+    "seq": {"type": "integer", "description": "the message the link handed the tick (its seq; -1 none)"},
+    "hello": {"type": "boolean", "description": "that message was the start-up's hello"},
+    "clock_s": _num("the link's clock as the tick read it (s; time.monotonic: CLOCK_MONOTONIC on this host)"),
+    "heard_s": _num("when the side last heard its peer, as its heartbeat read it (s, same clock; null: never)"),
+    "sent_s": _num("when the tick's own message was sent (s, same clock)"),
+    "chain_s": _vec(6, "the master: T1..T6 of the reply applied (command sent, received, applied; reply sent, "
+                       "received, applied); the slave: T1..T3 of the command applied (s; null: none)"),
+}, "A side's link at one tick: the delivery schedule a replay follows, and the messages' time stamps")
+
 OPERATOR_KEYS = _obj("teleop.OperatorKeys", {
     "tick": {"type": "integer", "description": "the tick whose hand read the keys"},
     "t_s": _num("the run's simulated time of that tick (s); the log time"),
