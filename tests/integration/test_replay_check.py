@@ -125,3 +125,92 @@ def test_bad_records_are_one_line_naming_the_file_and_the_reason(cut, tmp_path, 
     (half / "master.mcap").write_bytes(data)
     assert "half/slave.mcap: missing" in _bad(["replay", str(half), "--check"], capsys)
     assert "--check" in _bad(["replay", str(cut), "--check", "--viewer"], capsys)
+
+
+def _record_run(folder, scene, operator: str = "script", **kw):
+    """A run recorded as `teleop run --out` records it (open_run_record, run_scene's side hooks)."""
+    from teleop.app.record.runinfo import open_run_record
+    from teleop.app.runtime import run_scene
+
+    folder.mkdir(parents=True)
+    writer = open_run_record(folder / "record.mcap", scene, runner="one_process", operator=operator,
+                             realtime=kw.get("realtime", False))
+    try:
+        return run_scene(scene, record=writer, **kw)
+    finally:
+        writer.close()
+
+
+def _seeded_runs():
+    from teleop.scenario.schema import list_scenes
+
+    runs = [(name, 11 + k, ()) for k, name in enumerate(list_scenes())]  # every shipped scene
+    runs += [("straight_incision", seed, ()) for seed in (1, 2)]
+    runs += [("straight_incision", 5, ("master='cobot'",)),  # the cobot master, its CAN faults on
+             ("straight_incision", 6, ("master='cobot'", "effects=['coriolis','damping','tissue','cutting',"
+                                                         "'can_faults','sensor_noise','servo_lag']")),
+             ("can_faults_incision", 7, ()),
+             ("straight_incision", 8, ("link.round_trip_ms=40", "link.jitter_ms=3", "link.loss=0.05")),
+             ("straight_incision", 9, ("link.round_trip_ms=12", "link.loss=0.2", "link.burst_enter=0.02")),
+             ("stiff_contact", 10, ("link.round_trip_ms=30", "link.loss=0.02")),
+             ("tremor_incision", 12, ("link.round_trip_ms=6",)),
+             ("paper_rolling_disk", 13, ("integrator='rk4'",))]
+    return runs
+
+
+def test_the_seeded_runs_are_at_least_twenty():
+    assert len(_seeded_runs()) >= 20
+
+
+@pytest.mark.parametrize("name, seed, sets", _seeded_runs(), ids=lambda x: str(x).replace(" ", ""))
+def test_every_seeded_run_replays_identical(tmp_path, name, seed, sets):
+    """Every shipped scene, the cobot master with CAN faults, delayed and lossy simulated links:
+    each recorded and checked bit for bit (0.3 s each; the 20 take some 25 s here, so they are not
+    marked long)."""
+    from teleop.scenario.schema import load_scene
+
+    scene = load_scene(name, sets=["duration_s=0.3", f"seed={seed}", *sets])
+    result = _record_run(tmp_path / "run", scene)
+    res = check_run(tmp_path / "run")
+    assert res.identical, res.line
+    assert res.ticks == result.summary["steps"] > 0
+
+
+def test_a_scripted_keyboard_session_replays_identical(tmp_path):
+    """A person's keys (read from a pipe here, in real time) on record, tick by tick, and the
+    session run again from them: identical; without the keys it would not be."""
+    import os
+    import threading
+    import time
+
+    from teleop.app.keyboard import run_at_keyboard
+    from teleop.app.record.runinfo import open_run_record
+    from teleop.scenario.schema import load_scene
+
+    scene = load_scene("scalpel_fixture", sets=["duration_s=3.0", "seed=4"])
+    r, w = os.pipe()
+
+    def type_keys():
+        for text, pause in ((b"w", 0.15), (b"ww", 0.2), (b"\x1b[C", 0.2), (b"r", 0.1), (b" ", 0.15), (b" q", 0.2),
+                            (b"x", 0.0)):
+            os.write(w, text)
+            time.sleep(pause)
+
+    folder = tmp_path / "run"
+    folder.mkdir()
+    writer = open_run_record(folder / "record.mcap", scene, runner="one_process", operator="keyboard", realtime=True)
+    typist = threading.Thread(target=type_keys)
+    typist.start()
+    try:
+        result = run_at_keyboard(scene, quiet=True, fd=r, record=writer)
+    finally:
+        typist.join()
+        writer.close()
+        os.close(r)
+        os.close(w)
+    assert result.summary["stopped_by_operator"]
+    keys = read_record(folder / "record.mcap", topics="/operator/keys")["/operator/keys"]
+    assert "".join(keys["text"]) == "www\x1b[Cr  qx"
+    res = check_run(folder)
+    assert res.identical, res.line
+    assert res.ticks == result.summary["steps"] > 100
