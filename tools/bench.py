@@ -191,6 +191,22 @@ def scene_ticks(seconds: float, statuses: dict | None = None) -> dict:
     return out
 
 
+def bench_record(seconds: float) -> dict:
+    """The straight cut's tick with the MCAP recorder's side hooks and without, in one run
+    (interleaved blocks: :func:`record_bench.interleaved`); prints both medians and the difference
+    (issue 24's target: at most 5 us)."""
+    import tempfile
+
+    import record_bench
+
+    with tempfile.TemporaryDirectory() as tmp:
+        r = record_bench.interleaved("straight_incision", seconds, 250, Path(tmp))
+    w, wo = r["with"]["wall_us"], r["without"]["wall_us"]
+    print(f"{'tick wall_us, straight cut':34s} median {wo['median']:8.2f} without the recorder, {w['median']:8.2f} "
+          f"with it: {r['added_median_us']['wall_us']:+.2f} us (target <= 5; p99 {wo['p99']:.1f} / {w['p99']:.1f})")
+    return r
+
+
 def fuzz_point(seed: int) -> dict:
     """One random valid scene, drawn from its own seed, run to its end: the seed, status and nan."""
     import logging
@@ -230,6 +246,9 @@ def main(argv=None) -> int:
                     help="simulated seconds per scene for tick_us, s (default 2)")
     ap.add_argument("--link-frames", type=int, default=3000,
                     help="frames for the link round trip, Zenoh against raw UDP, two processes at 1 kHz (0: skip)")
+    ap.add_argument("--record-seconds", type=float, default=4.0,
+                    help="simulated seconds of the straight cut with and without the MCAP recorder, interleaved "
+                         "(tools/record_bench.py), s (default 4; 0: skip)")
     args = ap.parse_args(argv)
     check_sweep_args(ap, args)
     if args.fuzz < 0:
@@ -291,6 +310,8 @@ def _bench(args) -> int:
         for name, t in result["scene_tick_us"].items():
             ended = "" if statuses.get(name, "ok") == "ok" else f"   (ended {statuses[name]}: see below)"
             print(f"tick_us {name:60s} median {t['median']:8.1f}  p99 {t['p99']:8.1f}{ended}")
+    if args.record_seconds > 0 and not args.engine_only:
+        result["record"] = bench_record(args.record_seconds)
     if args.link_frames > 0 and not args.engine_only:
         import link_bench
 

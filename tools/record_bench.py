@@ -3,8 +3,9 @@
     python tools/record_bench.py [--scene straight_incision] [--seconds 5] [--block 250]
                                  [--mode process|thread] [--spool] [--realtime SECONDS] [--json OUT.json]
 
-Two loops of the same scene and seed are built side by side, one with the recorder's loop hook
-(``LoopRecorderMcap`` on a ``RecordWriter``), one without, and ticked in interleaved blocks of
+Two loops of the same scene and seed are built side by side, one with the recorder's side hooks
+(``build_master(record=)``, ``build_slave(record=)`` on a ``RecordWriter``: what ``teleop run
+--out`` records with), one without, and ticked in interleaved blocks of
 ``--block`` ticks on the simulated clock (as fast as they go), so both see the same machine,
 the same caches and the same physics. Per tick, for each:
 
@@ -49,27 +50,31 @@ def _cpu_s(pid: int) -> float:
         return float("nan")
 
 
-def _loop(scene, hooks=()):
+def _loop(scene, record=None):
+    """The scene's loop as runs build it (:mod:`teleop.app.assembly`), with the record's side
+    hooks (``build_master(record=)``, ``build_slave(record=)``: what ``teleop run --out`` uses)
+    when ``record`` is a writer."""
     from teleop.app.assembly import build_master, build_slave, make_link
     from teleop.app.session import tick_count
     from teleop.tick.loop import BilateralLoop
 
     n = tick_count(scene.duration_s, scene.dt_s)
     rng = np.random.default_rng(scene.seed)
-    mb, sb = build_master(scene, n, rng), build_slave(scene, n)
+    mb, sb = build_master(scene, n, rng, record=record), build_slave(scene, n, record=record)
     link = make_link(scene, rng) if sb is not None else None
-    return BilateralLoop(mb.side, sb.side if sb is not None else None, link, hooks), n
+    return BilateralLoop(mb.side, sb.side if sb is not None else None, link), n
 
 
 def interleaved(scene_name: str, seconds: float, block: int, folder: Path, **opts) -> dict:
-    from teleop.app.record import LoopRecorderMcap, RecordWriter
+    """The scene's loop with the record's side hooks and without, ticked in interleaved blocks
+    of ``block`` ticks; the figures of each (see the module docstring)."""
+    from teleop.app.record import RecordWriter
     from teleop.scenario.schema import load_scene
 
     scene = load_scene(scene_name, sets=[f"duration_s={seconds}"])
     writer = RecordWriter(folder / "record.mcap", metadata={"scene": scene.name, "bench": "record_bench"}, **opts)
-    loop, n = _loop(scene)
-    loop.hooks = (LoopRecorderMcap(writer, loop=loop),)  # the rings laid out before the clock starts
-    loops = {"with": (loop, n), "without": _loop(scene)}
+    loops = {"with": _loop(scene, writer), "without": _loop(scene)}  # the rings laid out before the clock starts
+    n = loops["with"][1]
     tick = {k: np.zeros(n) for k in loops}
     wall = {k: np.zeros(n) for k in loops}
     pid = writer.pid
@@ -102,7 +107,7 @@ def interleaved(scene_name: str, seconds: float, block: int, folder: Path, **opt
 
 
 def realtime(scene_name: str, seconds: float, folder: Path, **opts) -> dict:
-    from teleop.app.record import LoopRecorderMcap, RecordWriter
+    from teleop.app.record import RecordWriter
     from teleop.app.runtime import run_scene
     from teleop.scenario.schema import load_scene
 
@@ -112,7 +117,7 @@ def realtime(scene_name: str, seconds: float, folder: Path, **opts) -> dict:
         for k in ("with", "without"):
             if k == "with":
                 with RecordWriter(folder / f"rt{rep}.mcap", realtime=True, **opts) as w:
-                    s = run_scene(scene, realtime=True, hooks=[LoopRecorderMcap(w)]).summary
+                    s = run_scene(scene, realtime=True, record=w).summary
             else:
                 s = run_scene(scene, realtime=True).summary
             out[k].append({"late_ticks": s["late_ticks"], "tick_us": s["tick_us"],

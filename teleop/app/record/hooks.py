@@ -60,9 +60,10 @@ from teleop.tick.ports import Hook
 #: a row's first nine numbers (the side's scalars), and one number
 _HEAD = struct.Struct("<9d")
 _ONE = struct.Struct("<d")
-#: what a mis-sized or non-contiguous array raises when copied into the shared memory (then the
-#: row is filled the slow way, with numpy's casting)
+#: what a non-contiguous array raises when joined (then the row is filled the slow way, with numpy's
+#: casting, as it is when the joined bytes are not the row's size)
 _COPY_ERRORS = (BufferError, ValueError, TypeError, IndexError, struct.error)
+_JOIN = b"".join
 _MASTER_FIXED = ("i", "t", "wall", "status", "gain", "lost", "peer_lost", "tick_ns", "cmd_err", "p", "R", "V",
                  "hand", "felt", "fb")
 _SLAVE_FIXED = ("i", "t", "wall", "status", "lost", "tick_ns", "last_seq", "without", "skipped", "p_t", "R_t",
@@ -163,44 +164,44 @@ class MasterRecorderMcap(Hook):
         return src
 
     def before_tick(self, i: int, t_s: float, side: Any) -> None:
-        if self._held:
-            self.commit(side.status)
-        elif not self._begun:
+        if not self._begun:
             self._begin(i, t_s, side, before=True)
 
     def after_tick(self, i: int, t_s: float, side: Any) -> None:
-        if self._held:  # no before_tick since the last one (a side driven without its hooks' pair)
-            self.commit(side.status)
+        src = self.source
+        if self._held and src is not None:  # tick i - 1's row: the side holds its status until after these hooks
+            self._held = False
+            code = src._codes.get(side.status)
+            _ONE.pack_into(src.region, self._at + 24, src.code(side.status) if code is None else code)
+            src.publish()
         if self._fill(i, t_s, side, 0.0):
             self._held = True
 
     def _fill(self, i: int, t_s: float, side: Any, code: float) -> bool:
-        """Tick i's row (status ``code``); False when it was not recorded."""
+        """Tick i's row (status ``code``), not yet published; False when it was not recorded."""
         src = self.source if self._begun and self.source is not None else self._begin(i, t_s, side, before=False)
-        if not src.live:
+        ring = src.ring
+        w = ring.w
+        if not src.live or (w - ring.r >= ring.cap and not ring.room()):
+            ring.dropped += src.live
             return False
-        o = src.next_row()
-        if o < 0:
-            return False
-        st, region = side.state, src.region
-        try:  # the arrays' bytes straight into the shared row (the offsets are _MASTER_FIXED's)
-            _HEAD.pack_into(region, o, i, t_s, time.time(), code, side.gain, side.heart.lost, side.peer_lost,
-                            side.tick_ns, side.command_errors)
-            region[o + 72:o + 96] = st.p
-            region[o + 96:o + 168] = st.R
-            region[o + 168:o + 216] = st.V
-            region[o + 216:o + 264] = side.hand_W
-            region[o + 264:o + 312] = side.felt_W
-            region[o + 312:o + 360] = side.feedback_W
-            if self._extra:
-                self._fill_extra(region, o + 360, side)
+        st = side.state
+        parts = (_HEAD.pack(i, t_s, time.time(), code, side.gain, side.heart.lost, side.peer_lost, side.tick_ns,
+                            side.command_errors), st.p, st.R, st.V, side.hand_W, side.felt_W, side.feedback_W)
+        o = ring.data + (w % ring.cap) * ring.row_bytes
+        try:  # the arrays' bytes, joined, into the shared row in one copy (_MASTER_FIXED's order)
+            data = _JOIN(parts + self._extras(side) if self._extra else parts)
         except _COPY_ERRORS:
-            self._fill_slow(src.row(src.w), i, t_s, side, code)
+            data = b""
+        if len(data) == ring.row_bytes:
+            src.region[o:o + len(data)] = data
+        else:  # an array not contiguous float64: numpy's casting
+            self._fill_slow(src.row(w), i, t_s, side, code)
         self._at = o
         return True
 
-    def _extras(self, side: Any) -> list:
-        out: list = []
+    def _extras(self, side: Any) -> tuple:
+        out: tuple = ()
         if self.source is not None and "joints" in self.source.cols.at:
             m = side.master
             pv, Rv = m.virtual_pose()
@@ -209,12 +210,6 @@ class MasterRecorderMcap(Hook):
             port = side.guard.port
             out += (port.W, port.E_diss, port.action)
         return out
-
-    def _fill_extra(self, region: Any, o: int, side: Any) -> None:
-        for a in self._extras(side):
-            n = a.nbytes
-            region[o:o + n] = a
-            o += n
 
     def _fill_slow(self, row: np.ndarray, i: int, t_s: float, side: Any, code: float) -> None:
         st = side.state
@@ -228,7 +223,8 @@ class MasterRecorderMcap(Hook):
         if not self._held or src is None:
             return
         self._held = False
-        _ONE.pack_into(src.region, self._at + 24, src.code(status))
+        code = src._codes.get(status)
+        _ONE.pack_into(src.region, self._at + 24, src.code(status) if code is None else code)
         src.publish()
 
     def record(self, i: int, t_s: float, side: Any) -> None:
@@ -289,40 +285,30 @@ class SlaveRecorderMcap(Hook):
 
     def after_tick(self, i: int, t_s: float, side: Any) -> None:
         src = self.source or self._make(side)
-        if not src.live:
+        ring = src.ring
+        w = ring.w
+        if not src.live or (w - ring.r >= ring.cap and not ring.room()):
+            ring.dropped += src.live
             return
-        o = src.next_row()
-        if o < 0:
-            return
-        s, arm, region = side.state, side.arm, src.region
-        try:  # the arrays' bytes straight into the shared row (the offsets are _SLAVE_FIXED's)
-            _HEAD.pack_into(region, o, i, t_s, time.time(), src.code(s.status), side.heart.lost, side.tick_ns,
-                            side.last_seq, side.without_command, side.skipped)
-            region[o + 72:o + 96] = s.p_t
-            region[o + 96:o + 168] = s.R_t
-            region[o + 168:o + 192] = s.p
-            region[o + 192:o + 264] = s.R
-            region[o + 264:o + 288] = s.v
-            region[o + 288:o + 312] = s.w
-            region[o + 312:o + 336] = s.tip
-            region[o + 336:o + 384] = s.contact_P
-            q = arm.q
-            n = q.nbytes
-            region[o + 384:o + 384 + n] = q
-            region[o + 384 + n:o + 384 + 2 * n] = arm.qd
-            if side.guard is not None:
-                port, at = side.guard.port, o + 384 + 2 * n
-                region[at:at + 48] = port.W
-                region[at + 48:at + 96] = port.E_diss
-                region[at + 96:at + 144] = port.offset
+        s, arm, guard = side.state, side.arm, side.guard
+        code = src._codes.get(s.status)
+        parts = (_HEAD.pack(i, t_s, time.time(), src.code(s.status) if code is None else code, side.heart.lost,
+                            side.tick_ns, side.last_seq, side.without_command, side.skipped),
+                 s.p_t, s.R_t, s.p, s.R, s.v, s.w, s.tip, s.contact_P, arm.q, arm.qd)
+        o = ring.data + (w % ring.cap) * ring.row_bytes
+        try:  # the arrays' bytes, joined, into the shared row in one copy (_SLAVE_FIXED's order)
+            data = _JOIN(parts if guard is None else (*parts, guard.port.W, guard.port.E_diss, guard.port.offset))
         except _COPY_ERRORS:
-            parts = [(i, t_s, time.time(), src.code(s.status), side.heart.lost, side.tick_ns, side.last_seq,
-                      side.without_command, side.skipped), s.p_t, s.R_t, s.p, s.R, s.v, s.w, s.tip, s.contact_P,
-                     arm.q, arm.qd]
-            if side.guard is not None:
-                port = side.guard.port
-                parts += (port.W, port.E_diss, port.offset)
-            np.concatenate([np.ravel(a) for a in parts], out=src.row(src.w))
+            data = b""
+        if len(data) == ring.row_bytes:
+            src.region[o:o + len(data)] = data
+        else:  # an array not contiguous float64: numpy's casting
+            slow = [(i, t_s, time.time(), src.code(s.status), side.heart.lost, side.tick_ns, side.last_seq,
+                     side.without_command, side.skipped), s.p_t, s.R_t, s.p, s.R, s.v, s.w, s.tip, s.contact_P,
+                    arm.q, arm.qd]
+            if guard is not None:
+                slow += (guard.port.W, guard.port.E_diss, guard.port.offset)
+            np.concatenate([np.ravel(a) for a in slow], out=src.row(w))
         src.publish()
 
 
