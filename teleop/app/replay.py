@@ -93,7 +93,7 @@ def check_run(source) -> CheckResult:
     line naming the file and the reason) when there is no record, or one cut short, or one of
     another record version."""
     folder = Path(source)
-    if folder.suffix == ".mcap":
+    if folder.suffix in (".mcap", ".npz") and not folder.is_dir():  # a file of the run folder
         folder = folder.parent
     one, master, slave = (folder / n for n in ("record.mcap", "master.mcap", "slave.mcap"))
     if one.is_file():
