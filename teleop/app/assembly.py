@@ -197,7 +197,8 @@ def build_master(scene: Scene, n: int, rng: np.random.Generator, operator=None, 
     reg = build_registration(scene)
     feedback = None
     if scene.slave is not None:
-        feedback = FeedbackPath(reg, scene.mapping.feedback_cutoff_hz, scene.dt_s, scene.mapping.feedback_local_damping)
+        feedback = FeedbackPath(reg, scene.mapping.feedback_cutoff_hz, scene.dt_s, scene.mapping.feedback_local_damping,
+                                tip_B=getattr(spec_M, "tip_m", (0.0, 0.0, 0.0)))
     guard = make_guard(scene, reg, n, networked)
     master = make_master(scene, tool, rng)
     recorder = MasterRecorder(tool, n)

@@ -14,15 +14,17 @@ One frame, all little-endian::
     40     n     payload    (below)
     40+n   32    tag        HMAC-SHA256 over bytes [0, 40+n), keyed per session and direction
 
-ToolCommand payload (209 bytes): t_s f64 (s), p_m 3 f64 (m), R 9 f64 row-major, v_m_s 3 f64 (m/s),
+ToolCommand payload (201 bytes): t_s f64 (s), p_m 3 f64 (m), R 9 f64 row-major, v_m_s 3 f64 (m/s),
 w_rad_s 3 f64 (rad/s), clutch u8, energy_J 6 f64 (J).
-ContactFeedback payload (361 bytes): t_s f64 (s), wrench_P 6 f64 (N, N*m), status u8 (index in
+ContactFeedback payload (417 bytes): t_s f64 (s), wrench_P 6 f64 (N, N*m), status u8 (index in
 SLAVE_STATUSES), command_seq i64, energy_J 6 f64 (J), damping_P 21 f64 (the upper triangle, row by
-row: N*s/m, N*s, N*m*s/rad), twist_P 6 f64 (m/s, rad/s), then the stamps of the command it
+row: N*s/m, N*s, N*m*s/rad), twist_P 6 f64 (m/s, rad/s), plane_P 8 f64 (the estimated contact
+plane: unit normal, anchor m, stiffness N/m, confidence), then the stamps of the command it
 answered (s, :class:`~teleop.link.latency.Stamps`): its send time as the master stamped it, and
 when the slave received it and when its tick applied it (the slave's clock; all 0: none).
 
-Version 5 added the send time and the reply's echo of its command's stamps (the latency accounting
+Version 6 added the contact plane (model-mediated rendering, :mod:`teleop.contact.estimate`);
+version 5 the send time and the reply's echo of its command's stamps (the latency accounting
 of :mod:`teleop.link.latency`); version 4 the session and counter fields and the tag in place of
 a CRC-32: a frame whose tag does not verify under the receiver's key is refused before anything
 in it is read (any changed bit, and any frame made without the key). The HMAC is
@@ -50,7 +52,7 @@ from teleop.link.latency import NO_STAMPS, Stamps
 from teleop.tick.messages import SLAVE_STATUSES, ContactFeedback, MessageError, ToolCommand
 
 MAGIC = b"TLNK"
-WIRE_VERSION = 5
+WIRE_VERSION = 6
 TYPE_COMMAND = 1
 TYPE_FEEDBACK = 2
 TYPE_HELLO, TYPE_WELCOME, TYPE_REFUSE, TYPE_CONFIRM, TYPE_ACCEPT = 16, 17, 18, 19, 20
@@ -61,7 +63,7 @@ _HEADER = struct.Struct("<4sBBHQQQd")
 HEADER_SIZE = _HEADER.size
 _SENT_AT = 32  # the header's sent_s
 _COMMAND = struct.Struct("<19dB6d")
-_FEEDBACK = struct.Struct("<7dBq36d")
+_FEEDBACK = struct.Struct("<7dBq44d")
 _ECHO = struct.Struct("<3d")  # the last 24 bytes of a feedback payload
 _UPPER = np.triu_indices(6)
 _PAYLOAD = {TYPE_COMMAND: _COMMAND, TYPE_FEEDBACK: _FEEDBACK}
@@ -161,7 +163,8 @@ def pack_message(msg: ToolCommand | ContactFeedback, stamps: Stamps = NO_STAMPS)
     if isinstance(msg, ContactFeedback):
         return TYPE_FEEDBACK, _FEEDBACK.pack(msg.t_s, *msg.wrench_P, SLAVE_STATUSES.index(msg.status),
                                              msg.command_seq, *msg.energy_J, *msg.damping_P[_UPPER], *msg.twist_P,
-                                             stamps.echo_sent_s, stamps.echo_received_s, stamps.echo_applied_s)
+                                             *msg.plane_P, stamps.echo_sent_s, stamps.echo_received_s,
+                                             stamps.echo_applied_s)
     raise MessageError(f"wire.encode: not a link message: {type(msg).__name__}")
 
 
@@ -220,4 +223,5 @@ def unpack_message(head: Header, data: bytes) -> ToolCommand | ContactFeedback:
     D[_UPPER] = v[15:36]
     D.T[_UPPER] = v[15:36]
     return ContactFeedback(seq=seq, t_s=v[0], wrench_P=np.array(v[1:7]), status=SLAVE_STATUSES[v[7]],
-                           command_seq=v[8], energy_J=np.array(v[9:15]), damping_P=D, twist_P=np.array(v[36:42]))
+                           command_seq=v[8], energy_J=np.array(v[9:15]), damping_P=D, twist_P=np.array(v[36:42]),
+                           plane_P=np.array(v[42:50]))

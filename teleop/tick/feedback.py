@@ -30,6 +30,23 @@ the two ports disagree at the stick, and the guard drifted 0.5 mm at a 1 ms roun
 without contact carries D = 0 (nothing rendered beyond W_s, and the filtered D, once it has
 decayed, is zero again); a D that is not positive semidefinite is not rendered (counted in
 ``refused``). A tick with no new message holds the last model.
+
+The contact's stiffness is the same mechanism one order down. The slave estimates the surface it
+touches from its own force and tip motion (:mod:`teleop.contact.estimate`: a plane, its normal n,
+stiffness k and the estimate's confidence) and sends it with an anchor a: where its tip was, less
+the guard's drift, i.e. where the master's tip was when it asked for that pose. The master renders
+
+    W = F0 + k' n max(n . (a - x_tip), -n . F0 / k'),   k' = confidence x k (in M units),
+
+the reported force corrected by the wall's stiffness for how far the master's tip has moved into
+(or out of) the surface since: a unilateral spring, so the master leaves the surface freely and
+the normal force never pulls it in. At rest the slave catches up, a = x_tip and W = F0: what the
+operator feels in steady state is what the slave measures, whatever the estimate; the estimate
+only shapes how quickly the wall is felt, which is now at the master's own rate, not a round trip
+later. The spring's part at the present pose is part of the channel's force the guard observes
+(:meth:`update`); its change over the step is rendered implicitly with the damping
+((D + dt K) in place of D, K = k' n n^T at the tip, moved to the origin), so a stiff estimate
+cannot make the light tool's step unstable (backward Euler on a spring dissipates).
 """
 
 from __future__ import annotations
@@ -39,6 +56,7 @@ from typing import Any
 
 import numpy as np
 
+from teleop.contact.damping import moved_to_origin
 from teleop.control.kernels import render_local_damping
 from teleop.control.mapping import Registration
 from teleop.dynamics.effects import total_wrench
@@ -56,12 +74,16 @@ class FeedbackPath:
     the slave reported; ``render(wrench, tool, f_other, dt)`` -> the wrench the tool steps under.
     ``local_damping`` False renders the reported wrench alone."""
 
-    def __init__(self, registration: Registration, cutoff_hz: float, dt_s: float, local_damping: bool = True):
+    def __init__(self, registration: Registration, cutoff_hz: float, dt_s: float, local_damping: bool = True,
+                 tip_B: Any = (0.0, 0.0, 0.0), contact_plane: bool = True):
         if not (math.isfinite(cutoff_hz) and cutoff_hz >= 0):
             raise ValueError(f"feedback cutoff: expected a number >= 0 Hz, got {cutoff_hz!r}")
         self.reg = registration
         self.alpha = 1.0 - math.exp(-2.0 * math.pi * cutoff_hz * dt_s) if cutoff_hz > 0 else 1.0
+        self.dt = dt_s
         self.local_damping = bool(local_damping)
+        self.contact_plane = bool(contact_plane) and self.local_damping
+        self.tip_B = np.asarray(tip_B, dtype=float)  # the tool's tip in its body frame (m, M units)
         self.refused = 0                    # replies whose damping was not positive semidefinite
         self.reset()
 
@@ -74,18 +96,23 @@ class FeedbackPath:
         self._target = np.zeros(6)
         self._offset = np.zeros(6)
         self._D = _ZERO66
+        self._plane: tuple[np.ndarray, np.ndarray, float] | None = None  # n (3,), a (3,) m, k' N/m, in M
+        self.spring_K: np.ndarray | None = None  # the spring's stiffness at the origin while it acts (6, 6)
 
-    def update(self, msg: ContactFeedback | None) -> np.ndarray:
+    def update(self, msg: ContactFeedback | None, state: ToolState | None = None) -> np.ndarray:
         """The newest reply (None: hold the last) filtered in; returns the force the channel
         brings to the master, F0 = W_s + D V_s (the model's offset; W_s alone without the local
-        damping): what the passivity guard observes and damps before :meth:`render`. F0 is
-        filtered as it is (not from a filtered W_s, D and V_s), so the master's port counts the
-        force the slave's port counted."""
+        damping), plus the contact plane's spring at the tool's ``state`` (the tool as the tick
+        read it; None: no spring): what the passivity guard observes and damps before
+        :meth:`render`. F0 is filtered as it is (not from a filtered W_s, D and V_s), so the
+        master's port counts the force the slave's port counted."""
         if msg is not None:
             self._target = self.reg.wrench_to_master(msg.wrench_P)
             self._offset, self._D = self._target, _ZERO66
             if self.local_damping and np.any(msg.damping_P):
                 self._take_model(msg)
+            if self.contact_plane:
+                self._take_plane(msg.plane_P)
         a = self.alpha
         self.wrench_M = lowpass(self.wrench_M, self._target, a)
         if not self.local_damping:
@@ -95,7 +122,40 @@ class FeedbackPath:
             self.damping_M = _ZERO66  # decayed after the contact ended: nothing left to render
         else:
             self.damping_M = lowpass(self.damping_M, self._D, a)
-        return self.offset_M
+        self.spring_K = None
+        if self._plane is None or state is None:
+            return self.offset_M
+        return self.offset_M + self._spring(state)
+
+    def _take_plane(self, plane_P: np.ndarray) -> None:
+        """The slave's contact plane (normal, anchor, stiffness, confidence in P) in M, or None."""
+        k = float(plane_P[6] * plane_P[7])
+        if not k > 0.0:
+            self._plane = None
+            return
+        reg = self.reg
+        n = reg.X_PM_R.T @ plane_P[:3]
+        self._plane = (n, reg.point_to_master(plane_P[3:6]), k * float(reg.force_scale) / float(reg.scale))
+
+    def _spring(self, state: ToolState) -> np.ndarray:
+        """The plane's unilateral spring (6,: N, N*m at the origin, M) at the tool's ``state``;
+        sets ``spring_K`` while the spring acts (the normal force is not clipped at zero)."""
+        n, a, k = self._plane  # type: ignore[misc]  # only called with a plane
+        p, R, _ = state
+        d = R @ self.tip_B
+        into = float(n @ (a - p - d))          # m: how far the tip is past the anchor, into the surface
+        f0n = float(n @ self.offset_M[:3])     # N: the reported force along the normal
+        fn = k * into
+        out = np.zeros(6)
+        if fn <= -f0n:                         # the model's normal force would pull: none at all
+            out[:3] = -f0n * n
+        else:
+            out[:3] = fn * n
+            K_tip = np.zeros((6, 6))
+            K_tip[:3, :3] = k * np.outer(n, n)
+            self.spring_K = moved_to_origin(K_tip, d)
+        out[3:] = np.cross(d, out[:3])
+        return out
 
     def _take_model(self, msg: ContactFeedback) -> None:
         with np.errstate(over="ignore", invalid="ignore"):  # a hostile size is refused just below
@@ -118,6 +178,8 @@ class FeedbackPath:
         read here).
         Returns ``gain * channel_M`` when there is no damping to render."""
         D = self.damping_M
+        if self.spring_K is not None:  # the spring's change over the step, implicitly (see the module docstring)
+            D = D + self.dt * self.spring_K
         if not self.local_damping or D is _ZERO66 or not D.any():
             return channel_M if gain == 1.0 else gain * channel_M
         if state is None:

@@ -134,8 +134,12 @@ class SlaveGuard:
             pull_M = np.asarray(p.drift_stiffness) * off * np.minimum(self.speed / p.drift_speed, 1.0)
             R, fs, ts = self.reg.X_PM_R, float(self.reg.force_scale), float(self.reg.torque_scale or 1.0)
             wrench_P = wrench_P + np.concatenate((R @ pull_M[:3] / fs, R @ pull_M[3:] / ts))
+        plane = fb.plane_P
+        if off[:3].any() and plane[7] > 0.0:  # the anchor where the master's tip was: less the drift
+            plane = plane.copy()
+            plane[3:6] -= self.reg.X_PM_R @ off[:3] / float(self.reg.scale)
         return ContactFeedback(fb.seq, fb.t_s, wrench_P, fb.status, fb.command_seq, self.port.energy_J,
-                               fb.damping_P, fb.twist_P)
+                               fb.damping_P, fb.twist_P, plane)
 
 
 def tdpa_params(link: Any, dt_s: float, mass_kg: float, inertia_kgm2: Any, enabled: bool) -> TdpaParams:

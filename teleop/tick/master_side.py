@@ -180,7 +180,7 @@ class MasterSide:
         """The reply (or None: hold the last) mapped and filtered; damped by the guard."""
         if self.feedback is None:
             return
-        self.feedback_W = self.feedback.update(msg)
+        self.feedback_W = self.feedback.update(msg, self.state)
         if self.guard is not None:
             self.feedback_W = self.guard.feedback(self.feedback_W, self.state.V, msg, t_s)
 

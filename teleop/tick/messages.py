@@ -70,6 +70,20 @@ def _well_formed(x: np.ndarray, kind: int, r: int, e: int) -> bool:
 _F64 = np.dtype(np.float64)
 
 
+_NO_PLANE = np.zeros(8)
+_NO_PLANE.flags.writeable = False
+
+
+def _check_plane(plane: np.ndarray) -> None:
+    """A contact plane (normal, anchor, stiffness, confidence) as :class:`ContactFeedback` takes it."""
+    if abs(float(plane[:3] @ plane[:3]) - 1.0) > 1e-6:
+        raise MessageError("ContactFeedback.plane_P: the normal is not a unit vector")
+    if not plane[6] >= 0.0:
+        raise MessageError(f"ContactFeedback.plane_P: stiffness {plane[6]!r} N/m is negative")
+    if not 0.0 <= plane[7] <= 1.0:
+        raise MessageError(f"ContactFeedback.plane_P: confidence {plane[7]!r} outside [0, 1]")
+
+
 def _fast_flat(parts: tuple[ArrayLike, ...], energy: ArrayLike | None, n: int, kind: int,
                r: int) -> np.ndarray | None:
     """The parts (``n`` numbers) and ``energy`` (None: none; else 6 more) as one read-only float
@@ -196,7 +210,12 @@ class ContactFeedback:
     ``damping_P`` (6, 6) the contact's local damping D = -dW/dV at the tool's twist ``twist_P``
     (6,: m/s, rad/s), both in P at the tool frame's origin (:mod:`teleop.contact.damping`; None:
     zeros, no contact). D must be symmetric; the master renders it only when positive
-    semidefinite."""
+    semidefinite.
+
+    ``plane_P`` (8,) the contact as the slave estimates it (:mod:`teleop.contact.estimate`): the
+    surface's unit normal (3), the anchor (3, m: the tip's position the model is measured at, less
+    the guard's drift), the stiffness along the normal (N/m, >= 0) and the estimate's confidence
+    in [0, 1]; all zeros (None): no model, nothing rendered beyond the wrench and the damping."""
 
     seq: int
     t_s: float
@@ -206,30 +225,35 @@ class ContactFeedback:
     energy_J: np.ndarray
     damping_P: np.ndarray
     twist_P: np.ndarray
+    plane_P: np.ndarray
 
     def __init__(self, seq: int, t_s: float, wrench_P: ArrayLike, status: str, command_seq: int = -1,
                  energy_J: ArrayLike | None = None, damping_P: ArrayLike | None = None,
-                 twist_P: ArrayLike | None = None) -> None:
+                 twist_P: ArrayLike | None = None, plane_P: ArrayLike | None = None) -> None:
         """Checked as made (each field written once, with its checked value)."""
         object.__setattr__(self, "seq", _seq(seq, "ContactFeedback.seq"))
         object.__setattr__(self, "t_s", _time(t_s, "ContactFeedback.t_s"))
         D = _ZERO36 if damping_P is None else damping_P
         V = _ZERO6 if twist_P is None else twist_P
-        parts = (wrench_P, D, V)
-        f = _fast_flat(parts, energy_J, 48, 2, 6)
+        parts = (wrench_P, D, V, _NO_PLANE if plane_P is None else plane_P)
+        f = _fast_flat(parts, energy_J, 56, 2, 6)
         if f is not None:  # well formed (the usual case): checked in one pass
-            W, D, V = f[0:6], f[6:42].reshape(6, 6), f[42:48]
-            energy = _NO_ENERGY if f.size == 48 else f[48:]
+            W, D, V, plane = f[0:6], f[6:42].reshape(6, 6), f[42:48], f[48:56]
+            energy = _NO_ENERGY if f.size == 56 else f[56:]
         else:  # the checks field by field, naming the first that fails
-            W, D, V = _packed(parts, (6, 36, 6),
-                              ("ContactFeedback.wrench_P", "ContactFeedback.damping_P", "ContactFeedback.twist_P"))
+            W, D, V, plane = _packed(parts, (6, 36, 6, 8),
+                                     ("ContactFeedback.wrench_P", "ContactFeedback.damping_P",
+                                      "ContactFeedback.twist_P", "ContactFeedback.plane_P"))
             D = D.reshape(6, 6)
             if float(np.abs(D - D.T).max()) > 1e-9 * max(1.0, float(np.abs(D).max())):
                 raise MessageError("ContactFeedback.damping_P: not symmetric")
             energy = None
+        if plane[6] != 0.0 or plane[7] != 0.0 or plane[:3].any():
+            _check_plane(plane)
         object.__setattr__(self, "wrench_P", W)
         object.__setattr__(self, "damping_P", D)
         object.__setattr__(self, "twist_P", V)
+        object.__setattr__(self, "plane_P", plane)
         if status not in SLAVE_STATUSES:
             raise MessageError(f"ContactFeedback.status: unknown status {status!r}")
         object.__setattr__(self, "status", status)

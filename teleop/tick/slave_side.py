@@ -34,6 +34,7 @@ from typing import Any
 import numpy as np
 
 from teleop.contact.damping import contact_damping, moved_to_origin
+from teleop.contact.estimate import PlaneEstimator
 from teleop.control.mapping import Registration
 from teleop.dynamics.rotations import cross
 from teleop.slave.projection import project_onto_fixture
@@ -82,8 +83,11 @@ class SlaveSide:
     def __init__(self, arm: SlaveArm, registration: Registration, tissue: Any = None,
                  tip_B: Sequence[float] = (0.0, 0.0, 0.0),
                  guard: SlaveGuard | None = None, heartbeat_s: float = HEARTBEAT_S,
-                 hooks: Sequence[Hook] = (), limits: CommandLimits | None = None) -> None:
+                 hooks: Sequence[Hook] = (), limits: CommandLimits | None = None,
+                 contact_plane: bool = True) -> None:
         self.arm, self.reg, self.tissue = arm, registration, tissue
+        #: the contact plane estimated from the measured force and the tip's motion (None: not sent)
+        self.estimator = PlaneEstimator(arm.dt) if contact_plane and tissue is not None else None
         self.tip_B = np.asarray(tip_B, dtype=float)
         self._tip_at_origin = not self.tip_B.any()
         self._written_damping = hasattr(tissue, "damping")  # the model writes its damping out
@@ -243,9 +247,14 @@ class SlaveSide:
                 damping = moved_to_origin(self.tissue.damping(tip, R, v_tip, w), d)
             else:
                 damping = contact_damping(lambda V: self._wrench_at_origin(tip, R, d, V), twist)
+        plane = None
+        if self.estimator is not None:
+            self.estimator.update(tip, v_tip, contact[:3])
+            # anchored where the master asked the tip to be: at rest there, the master feels what is measured
+            plane = self.estimator.plane(p_t + (R_t @ self.tip_B if not self._tip_at_origin else _Z3))
         self._seq += 1
         return ContactFeedback(self._seq, t_s, at_origin, s.status, -1 if cmd is None else cmd.seq,
-                               damping_P=damping, twist_P=twist)
+                               damping_P=damping, twist_P=twist, plane_P=plane)
 
     def _wrench_at_origin(self, tip: np.ndarray, R: np.ndarray, d: np.ndarray, V: np.ndarray) -> np.ndarray:
         """The tissue's wrench (N, N*m, P) at the tool frame origin for the origin twist V (6,)."""

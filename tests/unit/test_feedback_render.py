@@ -176,3 +176,68 @@ def test_the_model_offset_is_one_formula_for_both_ports():
     W = np.array([-4.0, 1.0, 2.0, 0.0, 0.5, 0.0])
     msg = ContactFeedback(1, 0.0, W, "ok", 0, damping_P=D, twist_P=V)
     np.testing.assert_allclose(msg.model_offset_P, [-1.0, 1.2, 1.4, 0.1, 0.5, -0.3], atol=1e-12)
+
+
+def _plane_path(k=1e4, conf=1.0, W_z=2.0, anchor_z=0.0):
+    """A path that took a reply pressing on the plane z = anchor_z - W_z / k (normal +z)."""
+    fb = FeedbackPath(Registration([0, 0, 0], np.eye(3)), cutoff_hz=0.0, dt_s=DT)
+    fb.update(ContactFeedback(1, 0.0, [0, 0, W_z, 0, 0, 0], "ok", 0,
+                              plane_P=[0, 0, 1, 0, 0, anchor_z, k, conf]))
+    return fb
+
+
+def _state(z, vz=0.0):
+    from teleop.tick.ports import ToolState
+
+    return ToolState(np.array([0.0, 0.0, z]), np.eye(3), np.array([0.0, 0.0, vz, 0.0, 0.0, 0.0]))
+
+
+def test_the_plane_renders_the_measured_force_at_the_anchor_and_the_wall_around_it():
+    """At the anchor the master feels what the slave measured; 0.1 mm deeper, 1 N more (10 kN/m);
+    above the plane, no normal force at all (the spring never pulls the tool in)."""
+    fb = _plane_path(k=1e4, W_z=2.0)
+    msg = None
+    assert fb.update(msg, _state(0.0))[2] == pytest.approx(2.0)
+    assert fb.update(msg, _state(-1e-4))[2] == pytest.approx(3.0)
+    assert fb.update(msg, _state(1e-4))[2] == pytest.approx(1.0)
+    assert fb.update(msg, _state(3e-4))[2] == pytest.approx(0.0) and fb.spring_K is None  # 0.1 mm off the surface
+    assert fb.update(msg, _state(0.0), )[2] == pytest.approx(2.0) and fb.spring_K[2, 2] == pytest.approx(1e4)
+    half = _plane_path(k=1e4, conf=0.5, W_z=2.0)
+    assert half.update(None, _state(-1e-4))[2] == pytest.approx(2.5)  # the confidence scales the stiffness
+
+
+def test_the_plane_is_rendered_implicitly_a_stiff_wall_does_not_throw_a_light_tool():
+    """A 1e6 N/m wall on a 0.1 kg tool at 1 kHz (k dt^2 / m = 10: an explicit spring diverges):
+    the tool dropped on it at 0.1 m/s bounces off no faster than it came (backward Euler on the
+    spring dissipates), never deeper than the tick it arrives in (100 um) and the wall (32 um) allow."""
+    from teleop.tick.ports import ToolState
+
+    fb = _plane_path(k=1e6, W_z=0.0, anchor_z=0.0)
+    tool = _Tool(V=[0, 0, -0.1, 0, 0, 0])
+    z, speeds, z_min = 0.0, [], 0.0
+    for _ in range(300):
+        st_ = ToolState(np.array([0.0, 0.0, z]), np.eye(3), tool.V.copy())
+        W = fb.render(fb.update(None, st_), tool, np.zeros(6), DT, st_)
+        tool.V = tool.V + DT * W / 0.1 * np.array([1, 1, 1, 0, 0, 0])
+        z += DT * tool.V[2]
+        speeds.append(abs(tool.V[2]))
+        z_min = min(z_min, z)
+    assert max(speeds) <= 0.1 + 1e-12 and tool.V[2] > 0.0 and z_min > -1e-4 - 0.1 * DT  # one tick at 0.1 m/s in
+
+
+@pytest.mark.parametrize("plane, why", [([0, 0, 2, 0, 0, 0, 1e4, 1], "unit"), ([0, 0, 1, 0, 0, 0, -1, 1], "negative"),
+                                        ([0, 0, 1, 0, 0, 0, 1e4, 1.5], "confidence"),
+                                        ([0, 0, 1, 0, 0, np.nan, 1e4, 1], "not finite")])
+def test_a_plane_no_estimator_sends_is_refused(plane, why):
+    from teleop.tick.messages import MessageError
+
+    with pytest.raises(MessageError, match=why):
+        ContactFeedback(1, 0.0, np.zeros(6), "ok", 0, plane_P=plane)
+
+
+def test_the_plane_crosses_the_wire_whole():
+    from teleop.link import wire
+
+    msg = ContactFeedback(3, 0.5, [0, 0, 2, 0, 0, 0], "ok", 2, plane_P=[0, 0.6, 0.8, 0.1, 0.2, 0.3, 12345.0, 0.7])
+    back = wire.decode(wire.encode(msg))
+    assert np.array_equal(back.plane_P, msg.plane_P)

@@ -137,7 +137,7 @@ class _Slave:
 class _Feedback:
     refused = 0
 
-    def update(self, msg):
+    def update(self, msg, state=None):
         return np.zeros(6) if msg is None else np.asarray(msg.wrench_P)
 
     def render(self, wrench, tool, f_other, dt, state=None, gain=1.0):  # no contact damping to render
