@@ -39,7 +39,8 @@ def find_chromium() -> str:
 
 def render(html, png, width: int = 1280, height: int = 720, budget_ms: int | None = None,
            timeout_s: float = 30.0, attempts: int = 3) -> float:
-    """Screenshot ``html`` (a file) into ``png`` at width x height px; returns the seconds taken.
+    """Screenshot ``html`` (a file, or the http(s) URL of a live view) into ``png`` at width x
+    height px; returns the seconds taken.
 
     Chromium takes the shot once the page has loaded and drawn (about 1 s for a recording). A
     ``budget_ms`` of virtual time can be given, but chromium 150 hangs on about a third of such
@@ -47,9 +48,14 @@ def render(html, png, width: int = 1280, height: int = 720, budget_ms: int | Non
     ``timeout_s`` and tried again, ``attempts`` times in all. Record with
     ``save_html(..., autoplay=False)`` to see the last frame of a run.
     """
-    html, png = Path(html).resolve(), Path(png).resolve()
-    if not html.is_file():
-        raise FileNotFoundError(f"no such HTML file: {html}")
+    png = Path(png).resolve()
+    if str(html).startswith(("http://", "https://")):  # a live page (a view's url)
+        target = str(html)
+    else:
+        html = Path(html).resolve()
+        if not html.is_file():
+            raise FileNotFoundError(f"no such HTML file: {html}")
+        target = html.as_uri()
     png.parent.mkdir(parents=True, exist_ok=True)
     exe = find_chromium()
     errors = []
@@ -63,7 +69,7 @@ def render(html, png, width: int = 1280, height: int = 720, budget_ms: int | Non
                 d.mkdir(mode=0o700)
                 env[var] = str(d)
             cmd = [exe, *FLAGS, f"--user-data-dir={Path(scratch) / 'profile'}",
-                   f"--window-size={width},{height}", f"--screenshot={png}", html.as_uri()]
+                   f"--window-size={width},{height}", f"--screenshot={png}", target]
             if budget_ms:
                 cmd.insert(-1, f"--virtual-time-budget={budget_ms}")
             t0 = time.perf_counter()

@@ -5,6 +5,8 @@ Meshcat 0.3.2 facts this relies on: commands go over a ZMQ REQ socket to a serve
 outlives its parent unless stopped (we start it with a watchdog that exits when its parent dies,
 and stop it in ``close()``, in a finalizer and at exit); ``vis.wait()`` is never called;
 ``set_animation`` followed by ``static_html()`` gives a recording that plays without a server.
+The server is meshcat's own with the pages of :mod:`teleop.viz.meshcat_server`: the live page and
+the recording both hold the whole scene drawn so far when they load (labels, legend, meshes).
 """
 
 from __future__ import annotations
@@ -34,30 +36,9 @@ from teleop.viz.shapes import COLORS, VIEW_HEIGHT_M, VIEW_WIDTH_M, polyline
 
 log = logging.getLogger(__name__)
 
-#: run the meshcat server, exiting as soon as the process that started it is gone. Its ZMQ socket
-#: binds 127.0.0.1 always (only this process talks to it); its web server binds argv[2] (meshcat's
-#: own main() listens on every interface: tornado's listen() without an address)
-_SERVER = """
-import os, sys, threading, time
-from meshcat.servers import zmqserver
-parent, web_host = int(sys.argv[1]), sys.argv[2]
-def watch():
-    while os.getppid() == parent:
-        time.sleep(0.25)
-    os._exit(0)
-threading.Thread(target=watch, daemon=True).start()
-class Bridge(zmqserver.ZMQWebSocketBridge):
-    def make_app(self):
-        app = super().make_app()
-        listen = app.listen
-        app.listen = lambda port, **kw: listen(port, address=web_host, **kw)
-        return app
-bridge = Bridge(host="127.0.0.1")
-shown = "[" + web_host + "]" if ":" in web_host else web_host
-print("zmq_url=" + bridge.zmq_url)
-print("web_url=http://%s:%d/static/" % (shown, bridge.fileserver_port))
-bridge.run()
-"""
+#: the meshcat server (teleop/viz/meshcat_server.py), run by its path: a page it serves, and a
+#: recording it writes, hold the whole scene when they load; it exits when its parent is gone
+_SERVER = "import runpy, sys; sys.argv = sys.argv[1:]; runpy.run_path(sys.argv[0], run_name='__main__')"
 #: the address the viewer's web server binds unless the command line asks for another
 DEFAULT_HOST = "127.0.0.1"
 SOCKET_TIMEOUT_MS = 10000
@@ -66,7 +47,8 @@ SOCKET_TIMEOUT_MS = 10000
 def start_server(timeout_s: float = 30.0, host: str = DEFAULT_HOST):
     """Start a meshcat server subprocess whose web server binds ``host``; returns (process,
     zmq_url, web_url)."""
-    proc = subprocess.Popen([sys.executable, "-u", "-c", _SERVER, str(os.getpid()), host],
+    script = str(Path(__file__).with_name("meshcat_server.py"))
+    proc = subprocess.Popen([sys.executable, "-u", "-c", _SERVER, script, str(os.getpid()), host],
                             stdin=subprocess.DEVNULL, stdout=subprocess.PIPE,
                             stderr=subprocess.DEVNULL, start_new_session=True)
     lines: queue.Queue = queue.Queue()

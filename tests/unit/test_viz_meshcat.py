@@ -154,3 +154,72 @@ def test_the_page_labels_both_sides_and_carries_a_legend(scene, tmp_path):
     paths = {c.get("path", "") for c in _commands(html) if c.get("type") == "set_object"}
     for part in ("labels/master/sign", "labels/slave/sign", "labels/legend"):
         assert any(p.endswith(part) for p in paths), part
+
+
+def test_a_recording_applies_its_whole_scene_while_it_loads(scene, tmp_path):
+    """save_html: the viewer's javascript inline and every command applied by the page's own
+    script, in order, as the page loads (meshcat's own page applies each through a fetch() whose
+    promise settles after the load event: a screenshot then missed the labels); no websocket."""
+    with make_view("meshcat", scene, record=True) as view:
+        view.publish(_frame(0))
+        html = view.save_html(tmp_path / "run.html").read_text()
+    cmds = _commands(html)
+    assert html.count('teleop_command("data:application/octet-binary;base64,') == len(cmds) > 20
+    assert ".then(buffer => viewer.handle_command_bytearray" not in html
+    assert "/?since=" not in html  # a recording connects to nothing
+    objects = [c["path"] for c in cmds if c["type"] == "set_object"]
+    for part in ("labels/master/sign", "labels/slave/sign", "labels/legend", "slave/tissue/block"):
+        assert any(p.endswith(part) for p in objects), part
+    assert sum(c["type"] == "set_animation" for c in cmds) == 1  # its tracks find their nodes by path
+
+
+def _ws_messages(url: str, query: str, idle_s: float = 1.0) -> list:
+    """The decoded commands a websocket to a view's server gets until it is quiet for idle_s."""
+    import asyncio
+
+    from tornado.websocket import websocket_connect
+
+    async def read():
+        conn = await websocket_connect(url.replace("http://", "ws://").replace("/static/", "/") + query)
+        out = []
+        while True:
+            try:
+                msg = await asyncio.wait_for(conn.read_message(), idle_s)
+            except TimeoutError:
+                break
+            if msg is None:
+                break
+            out.append(umsgpack.unpackb(msg))
+        conn.close()
+        return out
+
+    return asyncio.run(read())
+
+
+def test_the_live_page_holds_the_scene_and_its_socket_sends_only_what_came_after(scene):
+    """The page at the view's url holds the scene drawn so far (complete when it loads) and
+    connects asking for the commands after those it holds; a socket that says nothing gets the
+    whole scene, as meshcat's own does."""
+    import urllib.request
+
+    with make_view("meshcat", scene) as view:
+        view.publish(_frame(0))
+        view.flush()
+        with urllib.request.urlopen(view.url, timeout=10) as r:
+            html = r.read().decode("utf-8")
+        held = _commands(html)
+        objects = {c["path"] for c in held if c["type"] == "set_object"}
+        for part in ("labels/master/sign", "labels/legend", "master/fixture/sphere", "slave/tissue/block"):
+            assert any(p.endswith(part) for p in objects), part
+        assert '<script src="main.min.js"></script>' in html
+        since = int(re.search(r'"/\?since=(\d+)"', html).group(1))
+        assert since > 0
+        view.publish(_frame(100))  # 0.1 s later: a new frame, moving nodes only
+        view.flush()
+        later = _ws_messages(view.url, f"?since={since}")
+        assert later and {c["type"] for c in later} <= {"set_transform", "set_object", "delete"}
+        assert not any(c["path"].endswith("labels/legend") for c in later)
+        assert any(c["path"].endswith("master/reference") for c in later)
+        whole = _ws_messages(view.url, "")
+        assert any(c.get("path", "").endswith("labels/legend") for c in whole) and len(whole) > len(later)
+        assert len(_ws_messages(view.url, "?since=999999999")) == len(whole)  # not one this server gave
