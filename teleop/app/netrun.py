@@ -49,7 +49,7 @@ from teleop.app.session import (
 )
 from teleop.link.schedule import ScheduleTap, hello_command, hello_reply
 from teleop.scenario.schema import Scene
-from teleop.tick.messages import ToolCommand
+from teleop.tick.messages import ContactFeedback, ToolCommand
 from teleop.util.errors import TeleopError
 
 GRACE_S = 2.0          # the slave's run beyond the scene's duration when the master is gone (s)
@@ -213,25 +213,34 @@ def _answer_hellos(link, timeout_s: float, stop=()) -> bool:
 
 
 class _Bench:
-    """A link that goes nowhere, for a side's warm-up twin: sends nothing, hears nothing, and to
-    a slave hands a command holding ``pose`` (master frame) with the clutch engaged."""
+    """A link that goes nowhere, for a side's warm-up twin: sends nothing; to a slave it hands a
+    command holding ``pose`` (master frame) with the clutch engaged, to a master (``contact``) a
+    reply in light contact every tick, with a damping and a plane, so that the feedback path's
+    kernels load before the clock starts too (the first real reply loaded them in the master's
+    first ticks: 25 ms late, and the slave's 20 ms heartbeat tripped)."""
 
-    def __init__(self, pose=None):
-        self.pose, self.k = pose, 0
+    def __init__(self, pose=None, contact: bool = False):
+        self.pose, self.k, self.contact, self.t = pose, 0, contact, None
 
     def clock(self, t_s: float) -> float:
+        self.t = t_s
         return t_s
 
-    def last_heard_s(self, side: str) -> None:
-        return None
+    def last_heard_s(self, side: str) -> float | None:
+        return self.t if self.contact else None
 
     def send_command(self, msg) -> None:
         pass
 
     send_feedback = send_command
 
-    def receive_feedback(self, t_s: float) -> None:
-        return None
+    def receive_feedback(self, t_s: float) -> ContactFeedback | None:
+        if not self.contact:
+            return None
+        self.k += 1
+        D = np.diag([5.0, 5.0, 5.0, 0.0, 0.0, 0.0])
+        return ContactFeedback(self.k, t_s, [0.0, 0.0, 0.01, 0.0, 0.0, 0.0], "ok", self.k, np.zeros(6), D,
+                               np.zeros(6), [0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1e3, 0.5])
 
     def receive_command(self, t_s: float) -> ToolCommand:
         self.k += 1
@@ -245,8 +254,9 @@ def warm_up(scene: Scene, role: str) -> None:
     if role == "master":
         side = build_master(scene, WARMUP_TICKS, np.random.default_rng(scene.seed), networked=True).side
         with side.master:
+            bench = _Bench(contact=scene.slave is not None)
             for i in range(WARMUP_TICKS):
-                side.tick(i, i * scene.dt_s, _Bench())
+                side.tick(i, i * scene.dt_s, bench)
         return
     sb = build_slave(scene, WARMUP_TICKS, networked=True)
     bench = _Bench(_start_pose(scene))
