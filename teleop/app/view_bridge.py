@@ -97,17 +97,22 @@ def slave_robot_for(scene):
 
 
 def viz_scene_for(scene, view: str = "perspective", follow: bool = True):
-    """The VizScene of a run: master fixture geometry (in the master frame), tool shape, arm,
+    """The VizScene of a run: the fixture as each side builds it (the master's in the master
+    frame, the slave's in the patient frame; drawn from their constraints), the map between the
+    two (the tissue is drawn on both sides), the tool shape the fixture implies, the arm, the
     tissue, the cobot device when it is the master; ``view`` one of teleop.viz.frames.VIEW_KINDS."""
     from dataclasses import asdict
 
     from teleop.viz import VizScene
+    from teleop.viz.environment import tool_shape_for
 
     spec = master_fixture_spec(scene)
     custom = isinstance(spec, CustomFixture)
     params = {} if custom else {k: v for k, v in asdict(spec).items()
-                                if k not in ("type", "euler_sequence", "knife_edge", "trocar_m")}
-    shape = {"rolling_disk": "disk", "sphere": "disk", "scalpel": "scalpel"}.get(spec.type, "box")
+                                if k not in ("type", "euler_sequence", "knife_edge")}
+    frame = master_frame(scene)
+    master_fixture = scene.fixture.build(frame)
+    slave_fixture = scene.fixture.build(None) if scene.slave is not None else None
     tissue = None
     if scene.tissue is not None or (scene.slave is not None and not custom):
         t = scene.tissue
@@ -121,10 +126,12 @@ def viz_scene_for(scene, view: str = "perspective", follow: bool = True):
     if radius is None and spec.type == "sphere":  # a small disk on a big sphere (Faulring et al. Ex. 2)
         radius = 0.2 * spec.radius_m
     return VizScene(
-        fixture_type=spec.type, fixture_params=params, tool_shape=shape,
+        fixture_type=spec.type, fixture_params=params,
+        tool_shape=tool_shape_for(master_fixture.constraints, scene.slave is not None),
         slave_robot=slave_robot_for(scene), tissue=tissue, tool_radius_m=radius,
         master_robot=master_robot_for(scene), view=view, follow=follow,
-        fixture_object=spec.params if custom else None, fixture_frame=master_frame(scene) if custom else None,
+        fixture_object=spec.params if custom else None, fixture_frame=frame if scene.slave is not None else None,
+        master_fixture=master_fixture, slave_fixture=slave_fixture,
     )
 
 

@@ -13,8 +13,9 @@ import numpy as np
 
 from teleop.util.errors import ConfigError
 
-#: fixture types the viewer draws itself (the scene schema's FIXTURES); a user's own type is drawn
-#: by its ``draw(frame)`` method or generically (see :func:`teleop.viz.shapes.custom_fixture_parts`)
+#: the built-in fixture types (the scene schema's FIXTURES), built from ``fixture_params`` when no
+#: built fixture is given; a user's own type is drawn from its constraints or by its ``draw(frame)``
+#: method (see :mod:`teleop.viz.environment`)
 FIXTURE_TYPES = ("free", "rolling_disk", "sphere", "scalpel")
 #: camera views: a perspective from slightly above, or level and orthographic (a vertical blade
 #: looks vertical)
@@ -131,9 +132,15 @@ class VizScene:
     the cobot's URDF through ``pin.buildModelsFromUrdf``): drawn from its visuals, posed from
     ``master_q``; replaces the stick drawing of ``master_model``. tool_radius_m: the drawn disk's
     radius (m; None: the fixture's radius_m). follow: each side's aim follows its tool. view: one
-    of VIEW_KINDS. fixture_object / fixture_frame: a user's fixture (an instance of a type named by
-    ``fixture_type``, registered with ``teleop.dynamics.registry.register_fixture``) and the
-    FrameMap into the master workspace, for its ``draw(frame)``.
+    of VIEW_KINDS. fixture_object: a user's fixture (an instance of a type named by
+    ``fixture_type``, registered with ``teleop.dynamics.registry.register_fixture``), for its
+    ``draw(frame)`` or its ``build(frame)``. fixture_frame: the FrameMap from the patient frame (the
+    slave side's, where the tissue is) into the master workspace: the tissue is drawn through it
+    on the master side, and a user's fixture placed by it. master_fixture / slave_fixture: the
+    fixture as built for each side (``teleop.dynamics.fixtures.Fixture``: the master's in the
+    master workspace, the slave's in the patient frame), drawn from its constraints (see
+    :mod:`teleop.viz.environment`); None: the master's is built from ``fixture_type`` and
+    ``fixture_params`` (or ``fixture_object``), the slave side draws none but its tissue.
     """
 
     fixture_type: str
@@ -152,6 +159,8 @@ class VizScene:
     view: str = "perspective"
     fixture_object: object = None
     fixture_frame: object = None
+    master_fixture: object = None
+    slave_fixture: object = None
 
     def __post_init__(self):
         if self.fixture_type not in FIXTURE_TYPES and self.fixture_object is None:
@@ -203,6 +212,11 @@ class VizScene:
             if self.slave_tool_frame is not None and not self.slave_robot.model.existFrame(self.slave_tool_frame):
                 raise ConfigError(f"VizScene.slave_tool_frame: {self.slave_tool_frame!r} is not a frame of the "
                                   "slave model")
+        for name in ("master_fixture", "slave_fixture"):
+            fx = getattr(self, name)
+            if fx is not None and not hasattr(fx, "constraints"):
+                raise ConfigError(f"VizScene.{name}: expected a built fixture (teleop.dynamics.fixtures.Fixture), "
+                                  f"got {type(fx).__name__}")
         if self.master_model is not None and not hasattr(self.master_model, "njoints"):
             raise ConfigError("VizScene.master_model: expected a pinocchio Model")
 

@@ -3,15 +3,18 @@ transforms of the moving parts for each frame. Geometry helpers live in :mod:`te
 
 from __future__ import annotations
 
+import logging
+
 import numpy as np
 import pinocchio as pin
 from meshcat import geometry as g
 from pinocchio.visualize import meshcat_visualizer as pmv
 
+from teleop.dynamics.registry import FrameMap
 from teleop.util.errors import ConfigError
+from teleop.viz.environment import LEGEND, environment_parts, mapped_tissue
 from teleop.viz.shapes import (
     COLORS,
-    FIXTURE_DRAWN,
     TINY,
     VIEW_HEIGHT_M,
     VIEW_WIDTH_M,
@@ -20,20 +23,22 @@ from teleop.viz.shapes import (
     arrow_parts,
     contact_line_matrix,
     contact_line_part,
-    custom_fixture_parts,
     device_joint_part,
-    fixture_parts,
     material,
     pose_matrix,
     scalpel_parts,
     segment_matrix,
-    text_part,
-    tissue_parts,
+    sign_part,
     tool_parts,
     triad_parts,
 )
 
+log = logging.getLogger(__name__)
+
 PITCH = np.radians(20.0)
+#: meshcat's default camera looks at the origin from (3, 0, 1) m: down by this angle (rad); the
+#: side view's camera looks level
+CAMERA_ELEVATION = float(np.arctan2(1.0, 3.0))
 #: layout metres between the two sides' anchors; each side's content is scaled to about SIDE_M
 SIDE_M = 1.0
 #: how far each frame moves a side's aim toward its tool (1: locked on the tool, 0: fixed)
@@ -42,9 +47,13 @@ FOLLOW = 0.15
 SCALE_N = 5.0
 #: the longest arrow drawn (layout m); a longer force is drawn this long (the legend says so)
 ARROW_MAX_M = 0.6
+#: the height of a row of the legend (layout m)
+LEGEND_ROW_M = 0.05 * SIDE_M
+#: the cobot's opacity: translucent, so the tool it holds shows through its wrist
+DEVICE_OPACITY = 0.45
 
 
-def _visual_parts(robot, prefix: str, color: int | None = None) -> list:
+def _visual_parts(robot, prefix: str, color: int | None = None, opacity: float = 1.0) -> list:
     """(part index, group path, part) of each visual of a RobotWrapper-like ``robot``, each made by
     Pinocchio's own Meshcat loader (``loadPrimitive`` / ``loadMesh``); the group is posed from
     ``GeometryData.oMg`` with the mesh scale applied, as Pinocchio's MeshcatVisualizer does."""
@@ -61,7 +70,7 @@ def _visual_parts(robot, prefix: str, color: int | None = None) -> list:
             continue
         c = gobj.meshColor
         rgb = color if color is not None else (int(c[0] * 255) << 16) | (int(c[1] * 255) << 8) | int(c[2] * 255)
-        out.append((k, f"{prefix}/{gobj.name}", g.Mesh(obj, material(rgb))))
+        out.append((k, f"{prefix}/{gobj.name}", g.Mesh(obj, material(rgb, opacity))))
     return out
 
 
@@ -82,52 +91,100 @@ class Drawing:
 
     def __init__(self, scene):
         self.pin, self.scene = pin, scene
-        p = scene.fixture_params
+        self._layout()
+        self.has_slave = scene.slave_robot is not None or scene.tissue is not None
+        self.n_per_m = {"master": self.zoom / scene.force_scale_m_per_N,
+                        "slave": self.slave_zoom / scene.force_scale_m_per_N}
+        extent = {"master": self.size, "slave": self.slave_size}
+        parts, self.legend_keys, self.generic = environment_parts(scene, self.has_slave, self.master_tissue, extent)
+        parts += self._tools()
+        parts += self._device()
+        self.arm = scene.slave_robot
+        self.arm_parts = []
+        if self.arm is not None:
+            self.adata = self.arm.model.createData()
+            self.gdata = pin.GeometryData(self.arm.visual_model)
+            for k, path, obj in _visual_parts(self.arm, "slave/arm", COLORS["arm"]):
+                self.arm_parts.append((k, path))
+                parts.append((f"{path}/shape", obj, np.eye(4)))
+            self.tool_fid = (self.arm.model.getFrameId(scene.slave_tool_frame)
+                             if scene.slave_tool_frame is not None else None)
+        parts += self._labels()
+        self.parts = parts
+        self.fixed["root"] = self._root_matrix()
+        # nodes that move: hidden until a frame places them
+        groups = {p.rsplit("/", 1)[0] for p, _, _ in parts}
+        self.moving = sorted(p for p, _, _ in parts if "/arrows/" in p)
+        self.moving += sorted(p for p in groups if (p.count("/") == 1 and p.split("/")[1] in (
+            "reference", "virtual", "contact", "handle", "tool"))
+            or p.startswith(("slave/arm/", "master/device/visuals/")))
+        self.moving += sorted(p for p, _, _ in parts if p.startswith("master/device/link"))
+        self.moving += sorted(p for p in groups if p.startswith("master/device/joint"))
+        self.followed = ("master", "slave") if scene.follow else ()
+
+    def _layout(self) -> None:
+        """Each side's size (m), zoom, aim, anchor and turn. With a map into the master workspace
+        (``fixture_frame``) and a tissue, the master side is the slave side under the map: its
+        tissue where the map puts the slave's, its tool the slave's scaled, its zoom the slave's
+        over the scale, so the two sides are drawn alike."""
+        scene = self.scene
+        p, ft, frame, tissue = scene.fixture_params, scene.fixture_type, scene.fixture_frame, scene.tissue
         self.radius = p.get("radius_m", 0.03)
-        tool_r = scene.tool_radius_m or self.radius
-        tip = p.get("tip_m", (0.0, 0.0, 0.0))
-        ft = scene.fixture_type
-        self.size = {"rolling_disk": max(8.0 * self.radius, 0.1), "sphere": min(3.0 * self.radius, 10.0 * tool_r),
+        self.tool_scale = 1.0 if frame is None else frame.scale  # the master's tool: the slave's, scaled
+        self.master_tissue = None if tissue is None or frame is None else mapped_tissue(tissue, frame)
+        self.size = {"rolling_disk": max(8.0 * self.radius, 0.1),
+                     "sphere": min(3.0 * self.radius, 10.0 * (scene.tool_radius_m or self.radius)),
                      "scalpel": 0.2}.get(ft, 0.15)
-        self.zoom = scene.master_zoom or float(np.clip(0.6 * SIDE_M / self.size, 1.0, 10.0))
-        tissue = scene.tissue
         self.slave_size = max(tissue["size_m"]) if tissue is not None else 0.6
         self.slave_zoom = float(np.clip(0.6 * SIDE_M / self.slave_size, 0.5, 3.0))
+        self.zoom = scene.master_zoom or float(np.clip(0.6 * SIDE_M / self.size, 1.0, 10.0))
         centre = np.asarray(p.get("center_m" if ft == "sphere" else "plane_origin_m", (0.0, 0.0, 0.0)), dtype=float)
+        if self.master_tissue is not None:
+            self.size = max(self.master_tissue["size_m"])
+            self.zoom = scene.master_zoom or self.slave_zoom / self.tool_scale
+            centre = np.asarray(self.master_tissue["origin_m"], dtype=float)
         self.aim = {"master": centre.copy(),
                     "slave": np.asarray(tissue["origin_m"], dtype=float) if tissue is not None else np.zeros(3)}
         self.anchor = {"master": np.zeros(3), "slave": np.asarray(scene.slave_offset_m, dtype=float)}
         self.turn = {"master": np.eye(3), "slave": self._arm_behind(pin)}
         self.fixed = {side: self._side_matrix(side) for side in ("master", "slave")}
-        self.n_per_m = {"master": self.zoom / scene.force_scale_m_per_N,
-                        "slave": self.slave_zoom / scene.force_scale_m_per_N}
-        if ft in FIXTURE_DRAWN:
-            parts = [(f"master/fixture/{n}", o, M) for n, o, M in fixture_parts(ft, p, 1.3 * self.size)]
-        else:
-            parts = [(f"master/fixture/{n}", o, M)
-                     for n, o, M in custom_fixture_parts(scene.fixture_object, scene.fixture_frame)]
+
+    def _tools(self) -> list:
+        """Both tools on the master side (the reference tool and the virtual tool's halo, and the
+        tool's axes when the fixture could not be drawn), the slave's tool, the force arrows."""
+        scene, p = self.scene, self.scene.fixture_params
+        tip = p.get("tip_m", (0.0, 0.0, 0.0))
+        if scene.fixture_object is not None and hasattr(scene.fixture_object, "tip_m"):
+            tip = (scene.fixture_frame or FrameMap.identity()).body_point(scene.fixture_object.tip_m)
+        tool_r = scene.tool_radius_m or self.radius
+        parts = []
         for name, ghost in (("reference", False), ("virtual", True)):
-            parts += [(f"master/{name}/{n}", o, M) for n, o, M in tool_parts(scene.tool_shape, tool_r, tip, ghost)]
-        self.generic = ft not in FIXTURE_DRAWN and not hasattr(scene.fixture_object, "draw")
-        if self.generic:  # a user's fixture without a drawing: the tool's frame triad (and a trace)
+            drawn = tool_parts(scene.tool_shape, tool_r, tip, ghost, self.tool_scale)
+            parts += [(f"master/{name}/{n}", o, M) for n, o, M in drawn]
+        if self.generic:  # a fixture the view cannot draw: the tool's frame triad (and a trace)
             parts += [(f"master/reference/triad/{n}", o, M) for n, o, M in triad_parts(0.4 * self.size)]
         self.trace_master = [] if self.generic else None
-        if ft == "rolling_disk":
+        if scene.fixture_type == "rolling_disk":
             parts += [(f"master/contact/{n}", o, M) for n, o, M in contact_line_part(self.radius)]
         r_m = 0.0015 * 5.0 / self.zoom
         for name, r, where in (("operator", r_m, "master"), ("constraint", r_m, "master"),
                                ("contact", 0.0075 / self.slave_zoom, "slave")):
             parts += [(f"{where}/arrows/{name}/{n}", o, M) for n, o, M in arrow_parts(r, COLORS[name])]
         parts += [(f"slave/tool/{n}", o, M) for n, o, M in scalpel_parts((0, 0, 0), 1.0, COLORS["tool"])]
-        if tissue is not None:
-            parts += [(f"slave/tissue/{n}", o, M) for n, o, M in tissue_parts(tissue)]
+        return parts
+
+    def _device(self) -> list:
+        """The master device: the cobot from its URDF's visuals (translucent, so the tool it holds
+        shows through), or a stick drawing of a bare model, and its handle."""
+        scene, parts = self.scene, []
         self.master = scene.master_model
         self.device_parts = []
         if scene.master_robot is not None:
             self.master = scene.master_robot.model
             self.mdata = self.master.createData()
             self.dgdata = pin.GeometryData(scene.master_robot.visual_model)
-            for k, path, obj in _visual_parts(scene.master_robot, "master/device/visuals", COLORS["device"]):
+            for k, path, obj in _visual_parts(scene.master_robot, "master/device/visuals", COLORS["device"],
+                                              DEVICE_OPACITY):
                 self.device_parts.append((k, path))
                 parts.append((f"{path}/shape", obj, np.eye(4)))
             self.handle_fid = self.master.getFrameId("handle") if self.master.existFrame("handle") else None
@@ -147,29 +204,7 @@ class Drawing:
             parts += [("master/handle/knob", g.Mesh(knob, material(COLORS["handle"])), np.eye(4)),
                       ("master/handle/grip", g.Mesh(grip, material(COLORS["handle"])),
                        pose_matrix((0, 0, -0.025), Y_TO_Z))]
-        self.arm = scene.slave_robot
-        self.arm_parts = []
-        if self.arm is not None:
-            self.adata = self.arm.model.createData()
-            self.gdata = pin.GeometryData(self.arm.visual_model)
-            for k, path, obj in _visual_parts(self.arm, "slave/arm", COLORS["arm"]):
-                self.arm_parts.append((k, path))
-                parts.append((f"{path}/shape", obj, np.eye(4)))
-            self.tool_fid = (self.arm.model.getFrameId(scene.slave_tool_frame)
-                             if scene.slave_tool_frame is not None else None)
-        self.has_slave = self.arm is not None or tissue is not None
-        parts += self._labels()
-        self.parts = parts
-        self.fixed["root"] = self._root_matrix()
-        # nodes that move: hidden until a frame places them
-        groups = {p.rsplit("/", 1)[0] for p, _, _ in parts}
-        self.moving = sorted(p for p, _, _ in parts if "/arrows/" in p)
-        self.moving += sorted(p for p in groups if (p.count("/") == 1 and p.split("/")[1] in (
-            "reference", "virtual", "contact", "handle", "tool"))
-            or p.startswith(("slave/arm/", "master/device/visuals/")))
-        self.moving += sorted(p for p, _, _ in parts if p.startswith("master/device/link"))
-        self.moving += sorted(p for p in groups if p.startswith("master/device/joint"))
-        self.followed = ("master", "slave") if scene.follow else ()
+        return parts
 
     def _side_matrix(self, side: str) -> np.ndarray:
         """Layout transform of a side: anchor + zoom * (x - aim)."""
@@ -195,39 +230,57 @@ class Drawing:
         return np.array([[c, -s_, 0.0], [s_, c, 0.0], [0.0, 0.0, 1.0]])
 
     def _labels(self) -> list:
-        """The "master" / "slave" signs above each side and the legend (bottom left), in layout m
-        (under the root, not the zoomed sides); the legend's scale arrow is SCALE_N newtons long
-        at the arrows' common scale."""
+        """The "master" / "slave" signs above each side and the legend (bottom left, or beside a
+        master alone), in layout m (under the root, not the zoomed sides), each on an opaque card
+        drawn over everything; the legend's scale arrow is SCALE_N newtons long at the arrows'
+        common scale, and it names only what is drawn."""
         h, top = 0.1 * SIDE_M, 0.42 * SIDE_M
-        c_, s_ = np.cos(self._pitch()), np.sin(self._pitch())
-        face = pose_matrix(R=np.array([[1.0, 0.0, 0.0], [0.0, c_, s_], [0.0, -s_, c_]]))  # square to the camera
-        label = COLORS["label"]
+        a = self._pitch() + (CAMERA_ELEVATION if self.scene.view == "perspective" else 0.0)
+        c_, s_ = np.cos(a), np.sin(a)
+        # parallel to the image plane (the camera looks down CAMERA_ELEVATION on the layout tipped
+        # by the pitch), so a card is drawn as a rectangle wherever it is on the page
+        face = pose_matrix(R=np.array([[1.0, 0.0, 0.0], [0.0, c_, s_], [0.0, -s_, c_]]))
         out = []
         for side in ("master", "slave") if self.has_slave else ("master",):
-            name, obj, M = text_part("sign", [(side, label)], h)
+            name, obj, M = sign_part("sign", [[("text", side, COLORS["label"])]], h)
             M = pose_matrix(self.anchor[side] + [-0.15 * SIDE_M, 0.0, top]) @ face @ M
             out.append((f"labels/{side}/{name}", obj, M))
-        m_per_N = self.scene.force_scale_m_per_N
-        px_row = 56 * 1.3
-        row_m = 0.05 * SIDE_M
-        px_per_m = px_row / row_m
-        L = SCALE_N * m_per_N * px_per_m  # the scale arrow: SCALE_N newtons, in pixels
-        text = COLORS["text"]
-        entries = [("operator's hand force", COLORS["operator"]), ("fixture (constraint) force", COLORS["constraint"])]
-        if self.has_slave:
-            entries.append(("tissue contact force", COLORS["contact"]))
-        entries.append((f"{SCALE_N:g} N (longest drawn: {ARROW_MAX_M / m_per_N:.0f} N)", text))
-        arrows = {k: (c, L) for k, (_, c) in enumerate(entries)}
-        rows = [(t, text) for t, _ in entries] + [("blue: reference tool  cyan: virtual tool (device)", text)]
-        names = (["violet: cobot"] if self.master is not None else []) + (
-            ["orange: slave arm", "pink: tissue"] if self.has_slave else [])
-        if names:
-            rows.append(("  ".join(names), text))
-        name, obj, M = text_part("legend", rows, row_m * len(rows) * 1.0 + 24 / px_per_m, arrows=arrows)
-        where = (-0.55, 0.0, -0.62) if self.has_slave else (0.62, 0.0, -0.15)  # bottom left, or beside
-        M = pose_matrix(np.asarray(where) * SIDE_M) @ face @ M
+        rows = self.legend_rows()
+        row_m = LEGEND_ROW_M
+        height = row_m * (len(rows) + 1)  # the card's padding: half a row above and below
+        name, obj, M = sign_part("legend", rows, height)
+        x, z_top = (-0.55, -0.42) if self.has_slave else (0.62, 0.2)  # bottom left, or beside the master
+        self.legend_bottom = z_top * SIDE_M - height
+        self.legend_right = x * SIDE_M + 2.0 * M[0, 3]  # the sign spans [0, width] from its anchor
+        M = pose_matrix((x * SIDE_M, 0.0, z_top * SIDE_M - 0.5 * height)) @ face @ M
         out.append((f"labels/{name}", obj, M))
         return out
+
+    def legend_rows(self) -> list:
+        """The legend's rows (teleop.viz.shapes.sign_png items): the force arrows and their
+        scale, the tools, the machines, and what the fixtures and the environment drew."""
+        text, m_per_N = COLORS["text"], self.scene.force_scale_m_per_N
+        L = SCALE_N * m_per_N / LEGEND_ROW_M * 56 * 1.3  # the scale arrow: SCALE_N newtons, in the sign's pixels
+        forces = [("operator's hand force", "operator"), ("fixture (constraint) force", "constraint")]
+        if self.has_slave:
+            forces.append(("tissue contact force", "contact"))
+        rows = [[("arrow", COLORS[key], L), ("text", words, text)] for words, key in forces]
+        rows.append([("arrow", text, L), ("text", f"{SCALE_N:g} N (longest drawn: {ARROW_MAX_M / m_per_N:.0f} N)",
+                                          text)])
+        rows.append([("box", COLORS["tool"]), ("text", "reference tool", text),
+                     ("ring", COLORS["ghost"]), ("text", "virtual tool (device)", text)])
+        things = [(COLORS["device"], "cobot")] if self.master is not None else []
+        if self.scene.slave_robot is not None:
+            things.append((COLORS["arm"], "slave arm"))
+        things += [LEGEND[k][::-1] for k in self.legend_keys]
+        if self.generic:
+            things += [(COLORS["axis_x"], "tool x"), (COLORS["axis_y"], "y"), (COLORS["tool"], "z axes")]
+        for k in range(0, len(things), 3):
+            row: list = []
+            for color, words in things[k:k + 3]:
+                row += [("box", color), ("text", words, text)]
+            rows.append(row)
+        return rows
 
     def _pitch(self) -> float:
         """How far the layout is tipped toward the camera (rad): PITCH, 0 in the side view."""
@@ -236,8 +289,10 @@ class Drawing:
     def _root_matrix(self) -> np.ndarray:
         h = 0.5 * SIDE_M
         off = np.asarray(self.scene.slave_offset_m)
-        right = off[0] + h + 0.1 if self.has_slave else 1.7 * SIDE_M  # the slave side, or the legend
-        xs, zs = [-h if self.has_slave else -1.6 * h, right], [-0.75 * SIDE_M, 0.6 * SIDE_M]
+        # the slave side, or the legend beside the master
+        right = off[0] + h + 0.1 if self.has_slave else self.legend_right + 0.05 * SIDE_M
+        bottom = min(-0.75 * SIDE_M, self.legend_bottom - 0.05 * SIDE_M)
+        xs, zs = [-h if self.has_slave else -1.6 * h, right], [bottom, 0.6 * SIDE_M]
         c = np.array([0.5 * (min(xs) + max(xs)), 0.0, 0.5 * (min(zs) + max(zs))])
         s = min(0.9 * VIEW_WIDTH_M / (max(xs) - min(xs)), 0.9 * VIEW_HEIGHT_M / (max(zs) - min(zs)))
         Rz = np.array([[0.0, -1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, 1.0]])  # layout +x -> screen right

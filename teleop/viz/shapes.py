@@ -16,31 +16,41 @@ from matplotlib import font_manager
 from meshcat import geometry as g
 from PIL import Image, ImageDraw, ImageFont
 
-from teleop.dynamics.registry import FrameMap
-from teleop.util.errors import ConfigError
-
-#: colours, chosen to be told apart in a screenshot (see tests/integration/test_browser_render.py)
+#: colours (0xRRGGBB). The three force arrows own their hues (green, magenta, red); every other
+#: colour is at least ARROW_CONTRAST (CIEDE2000) from each of them, so nothing drawn reads as a
+#: force (tests/unit/test_viz_palette.py checks it; docs/viewer.md lists the palette)
 COLORS = {
-    "tool": 0x1F4FFF,        # the reference tool, solid blue
-    "ghost": 0x33CCFF,       # the virtual tool, translucent cyan
-    "marker": 0xFFD400,      # the disk's spoke, so rolling shows
-    "handle": 0x404040,
-    "device": 0x6A4FC8,      # the cobot master device, violet
-    "plane": 0x9A9AA0,
-    "depth": 0xE0B030,
-    "sphere": 0x50B070,
-    "contact_line": 0xD02020,
     "operator": 0x10B010,    # operator force arrow, green
     "constraint": 0xC010C0,  # constraint force arrow, magenta
     "contact": 0xE01010,     # tissue contact force arrow, red
+    "tool": 0x1A6BE0,        # the reference tool, solid blue
+    "ghost": 0x00C8E0,       # the virtual tool, a translucent cyan halo around where the device holds it
+    "marker": 0xFFD400,      # the disk's spoke, so rolling shows
+    "handle": 0x404040,
+    "device": 0x5E6E9A,      # the cobot master device, translucent slate
+    "plane": 0x9A9AA0,       # a plane the tool rolls or rests on, grey
+    "depth": 0xE0B030,       # where the blade is held: a depth plane or surface, amber
+    "sphere": 0x8A9AB4,      # a sphere the tool is held on, blue-grey
+    "trocar": 0x505C6E,      # a trocar (remote centre of motion), dark slate
+    "contact_line": 0x202020,  # the rolling disk's contact line
     "arm": 0xFF8000,         # the slave arm, orange
     "blade": 0xC8C8D0,
-    "tissue": 0xF04890,      # the tissue block, pink
-    "cut": 0x600000,
-    "label": 0x00A070,       # the "master" / "slave" labels, sea green
-    "trace": 0x3050A0,       # the generic drawing's trace of the tool
+    "tissue": 0xF0C8B0,      # tissue (block or curved surface), peach
+    "cut": 0x402018,         # the cut trace, dark brown
+    "label": 0x1B2A4A,       # the "master" / "slave" labels, navy
+    "trace": 0x3060B0,       # the generic drawing's trace of the tool
+    "axis_x": 0x303030,      # the generic drawing's tool axes: x near-black, y grey, z the tool's blue
+    "axis_y": 0x8C8C8C,
     "text": 0x202020,        # legend text
+    "panel": 0xF8F6EE,       # the opaque card behind the labels and the legend
+    "border": 0x8A8A8A,      # its edge
 }
+#: the force arrows' colours, which nothing else may resemble
+ARROW_KEYS = ("operator", "constraint", "contact")
+#: the least CIEDE2000 difference between any other colour of COLORS and an arrow's
+ARROW_CONTRAST = 25.0
+#: drawn after everything else and over it (no depth test): the labels and the legend
+ON_TOP = 1000
 #: a scale that hides a part without deleting it (arrows with no force, zero-length links)
 TINY = 1e-6
 
@@ -52,58 +62,108 @@ def material(color: int, opacity: float = 1.0, **kw) -> g.MeshLambertMaterial:
     return g.MeshLambertMaterial(color=color, opacity=opacity, transparent=opacity < 1.0, **kw)
 
 
-def text_png(lines, px: int = 56, pad: int = 12, arrows: dict | None = None) -> tuple[bytes, float]:
-    """A transparent PNG of text ``lines`` [(text, colour)], one per row, through Pillow with
-    matplotlib's DejaVu Sans; a row whose key is in ``arrows`` ({row: (colour, length px)}) starts
-    with an arrow of that colour and length. Returns (PNG bytes, width / height)."""
+def _rgba(color: int, alpha: int = 255) -> tuple:
+    return ((color >> 16) & 255, (color >> 8) & 255, color & 255, alpha)
+
+
+def sign_png(rows, px: int = 56, panel: bool = True) -> tuple[bytes, float]:
+    """A PNG of ``rows`` of items, each row a list of ``("text", text, colour)``, ``("arrow",
+    colour, length px)`` (a right-pointing arrow), ``("box", colour)`` (a filled swatch) or
+    ``("ring", colour)`` (an outlined swatch), left to right, through Pillow with matplotlib's
+    DejaVu Sans (bold, ``px`` tall). ``panel``: on an opaque card (COLORS "panel", edged with
+    "border"), else on a transparent ground. Returns (PNG bytes, width / height)."""
     font = ImageFont.truetype(
         font_manager.findfont(font_manager.FontProperties(family="DejaVu Sans", weight="bold")), px)
-    arrows = arrows or {}
-    lead = {k: int(v[1]) + px // 2 for k, v in arrows.items()}
-    widths = [font.getbbox(t)[2] + lead.get(k, 0) for k, (t, _) in enumerate(lines)]
-    row = int(px * 1.3)
-    img = Image.new("RGBA", (max(widths) + 2 * pad, row * len(lines) + 2 * pad), (255, 255, 255, 0))
+    row, gap, pad = int(px * 1.3), px // 2, (px // 2 if panel else 12)
+
+    def width(item) -> int:
+        kind = item[0]
+        if kind == "text":
+            return int(font.getbbox(item[1])[2])
+        return int(item[2]) if kind == "arrow" else px
+
+    widths = [sum(width(it) for it in items) + gap * max(len(items) - 1, 0) for items in rows]
+    img = Image.new("RGBA", (max(widths) + 2 * pad, row * len(rows) + 2 * pad), (255, 255, 255, 0))
     d = ImageDraw.Draw(img)
-    for k, (text, color) in enumerate(lines):
+    if panel:
+        edge = max(2, px // 16)
+        d.rounded_rectangle([0, 0, img.width - 1, img.height - 1], radius=px // 3, fill=_rgba(COLORS["panel"]),
+                            outline=_rgba(COLORS["border"]), width=edge)
+    for k, items in enumerate(rows):
         y = pad + k * row
-        x = pad
-        if k in arrows:
-            c, L = arrows[k]
-            rgb = ((c >> 16) & 255, (c >> 8) & 255, c & 255, 255)
-            yc = y + row // 2
-            d.line([(x, yc), (x + L - px // 3, yc)], fill=rgb, width=max(4, px // 4))
-            d.polygon([(x + L, yc), (x + L - px // 3, yc - px // 5), (x + L - px // 3, yc + px // 5)], fill=rgb)
-            x += lead[k]
-        d.text((x, y), text, font=font, fill=((color >> 16) & 255, (color >> 8) & 255, color & 255, 255))
+        yc, x = y + row // 2, pad
+        for item in items:
+            kind, color = item[0], item[-1] if item[0] == "text" else item[1]
+            if kind == "text":
+                d.text((x, y), item[1], font=font, fill=_rgba(color))
+            elif kind == "arrow":
+                L = int(item[2])
+                d.line([(x, yc), (x + L - px // 3, yc)], fill=_rgba(color), width=max(6, px // 4))
+                d.polygon([(x + L, yc), (x + L - px // 3, yc - px // 4), (x + L - px // 3, yc + px // 4)],
+                          fill=_rgba(color))
+            else:  # a swatch: filled, or outlined (a translucent part)
+                s = int(0.7 * px)
+                box = [x + (px - s) // 2, yc - s // 2, x + (px + s) // 2, yc + s // 2]
+                if kind == "box":
+                    d.rectangle(box, fill=_rgba(color))
+                else:
+                    d.rectangle(box, outline=_rgba(color), width=max(5, px // 8))
+            x += width(item) + gap
     buf = io.BytesIO()
     img.save(buf, format="PNG")
     return buf.getvalue(), img.width / img.height
 
 
-def text_part(name: str, lines, height_m: float, arrows: dict | None = None) -> tuple:
-    """A flat, camera-facing (layout x right, z up; seen from layout -y) sign of ``lines`` of
-    text ``height_m`` tall (layout m): (name, meshcat object, fixed transform). Anchored at its
-    left edge, vertically centred."""
-    png, aspect = text_png(lines, arrows=arrows)
+def text_png(lines, px: int = 56, arrows: dict | None = None, panel: bool = False) -> tuple[bytes, float]:
+    """A PNG of text ``lines`` [(text, colour)], one per row (:func:`sign_png`); a row whose
+    index is in ``arrows`` ({row: (colour, length px)}) starts with an arrow of that colour and
+    length. Returns (PNG bytes, width / height)."""
+    arrows = arrows or {}
+    rows = [([("arrow", *arrows[k])] if k in arrows else []) + [("text", t, c)] for k, (t, c) in enumerate(lines)]
+    return sign_png(rows, px, panel)
+
+
+class OnTop(g.Mesh):
+    """A mesh drawn after everything else (three.js ``renderOrder`` ON_TOP): with a material
+    that skips the depth test, nothing in the scene covers it, translucent planes included."""
+
+    def lower(self):
+        data = super().lower()
+        data["object"]["renderOrder"] = ON_TOP
+        return data
+
+
+def sign_part(name: str, rows, height_m: float, panel: bool = True) -> tuple:
+    """A flat, camera-facing (layout x right, z up; seen from layout -y) sign of ``rows``
+    (:func:`sign_png`) ``height_m`` tall (layout m), drawn on top of everything: (name, meshcat
+    object, fixed transform). Anchored at its left edge, vertically centred."""
+    png, aspect = sign_png(rows, panel=panel)
     w = height_m * aspect
     tex = g.ImageTexture(g.PngImage(png))
     # front faces only (meshcat's default is both: the mirrored back face would show through);
-    # no depth test, so the text stays readable in front of the arm or the device
-    mat = g.MeshBasicMaterial(map=tex, transparent=True, side=0, depthTest=False)
-    obj = g.Mesh(g.Box((w, height_m, 1e-5)), mat)
+    # no depth test and drawn last, so the sign stays readable over the arm, the device or a plane
+    mat = g.MeshBasicMaterial(map=tex, transparent=True, side=0, depthTest=False, depthWrite=False)
+    obj = OnTop(g.Box((w, height_m, 1e-5)), mat)
     # box x, y, z -> layout -x, z, y: the camera (at layout -y) sees the box's -z face, whose
     # texture three.js lays right to left along box x, so the text reads left to right
     R = np.array([[-1.0, 0.0, 0.0], [0.0, 0.0, 1.0], [0.0, 1.0, 0.0]])
     return (name, obj, pose_matrix((0.5 * w, 0.0, 0.0), R))
 
 
+def text_part(name: str, lines, height_m: float, arrows: dict | None = None, panel: bool = True) -> tuple:
+    """:func:`sign_part` of text ``lines`` [(text, colour)] (and ``arrows``, as :func:`text_png`)."""
+    rows = [([("arrow", *(arrows or {})[k])] if k in (arrows or {}) else []) + [("text", t, c)]
+            for k, (t, c) in enumerate(lines)]
+    return sign_part(name, rows, height_m, panel)
+
+
 def triad_parts(length: float) -> list:
-    """A frame triad: x red, y green, z blue unit-ish axes of ``length`` m (the generic drawing of
-    a tool whose fixture has no drawing of its own)."""
+    """A frame triad of ``length`` m (the generic drawing of a tool whose fixture the viewer
+    cannot draw): x near-black, y grey, z the tool's blue (no red or green: those are forces)."""
     r = 0.04 * length
     out = []
-    for k, (axis, c) in enumerate((((1.0, 0.0, 0.0), 0xE02020), ((0.0, 1.0, 0.0), 0x20A020),
-                                   ((0.0, 0.0, 1.0), 0x2040E0))):
+    for k, (axis, c) in enumerate((((1.0, 0.0, 0.0), COLORS["axis_x"]), ((0.0, 1.0, 0.0), COLORS["axis_y"]),
+                                   ((0.0, 0.0, 1.0), COLORS["tool"]))):
         out.append((f"axis{k}", g.Mesh(g.Cylinder(1.0, r), material(c)),
                     segment_matrix((0.0, 0.0, 0.0), np.asarray(axis) * length)))
     return out
@@ -186,7 +246,7 @@ def disk_parts(radius: float, opacity: float, color: int) -> list:
 
 
 def scalpel_parts(tip, opacity: float, handle_color: int, blade_len: float = 0.03,
-                  handle_len: float = 0.09) -> list:
+                  handle_len: float = 0.09, blade_color: int = COLORS["blade"]) -> list:
     """A scalpel whose blade tip is the body point ``tip`` (m): the blade runs back from the tip
     along body -z (body z points into the tissue), wide along x (the cutting direction), thin
     along y; the handle continues it."""
@@ -194,77 +254,49 @@ def scalpel_parts(tip, opacity: float, handle_color: int, blade_len: float = 0.0
     blade = g.Box((0.012, 0.0015, blade_len))
     handle = g.Cylinder(handle_len, 0.005)
     return [
-        ("blade", g.Mesh(blade, material(COLORS["blade"], opacity)),
+        ("blade", g.Mesh(blade, material(blade_color, opacity)),
          pose_matrix(tip - [0.0, 0.0, 0.5 * blade_len])),
         ("grip", g.Mesh(handle, material(handle_color, opacity)),
          pose_matrix(tip - [0.0, 0.0, blade_len + 0.5 * handle_len], Y_TO_Z)),
     ]
 
 
-def tool_parts(shape: str, radius: float, tip, ghost: bool) -> list:
-    """The reference tool (solid) or the virtual tool (``ghost``: translucent) of a shape."""
-    color, opacity = (COLORS["ghost"], 0.35) if ghost else (COLORS["tool"], 1.0)
+#: the virtual tool's halo: its drawing this much larger than the reference tool's, about its middle
+HALO = 1.35
+
+
+def tool_parts(shape: str, radius: float, tip, ghost: bool, scale: float = 1.0) -> list:
+    """The reference tool (solid blue) or the virtual tool (``ghost``: a translucent cyan halo,
+    HALO times the tool's size about its middle, so it shows around the reference tool when the
+    two coincide, and beside it when the device lags) of a shape. ``scale``: a scalpel or box
+    drawn that many times its size (the master's tool is the slave's under the motion scale; its
+    ``tip`` (m) is given already scaled); a disk is drawn at ``radius`` (m)."""
+    color, opacity = (COLORS["ghost"], 0.4) if ghost else (COLORS["tool"], 1.0)
     if shape == "disk":
-        return disk_parts(radius, opacity, color)
-    if shape == "scalpel":
-        return scalpel_parts(tip, opacity, color)
-    return [("box", g.Mesh(g.Box((0.04, 0.03, 0.02)), material(color, opacity)), np.eye(4))]
+        parts = disk_parts(radius, opacity, color)
+    else:
+        if shape == "scalpel":
+            blade = color if ghost else COLORS["blade"]  # the halo all in its one colour
+            parts = scalpel_parts(np.asarray(tip, dtype=float) / scale, opacity, color, blade_color=blade)
+        else:
+            parts = [("box", g.Mesh(g.Box((0.04, 0.03, 0.02)), material(color, opacity)), np.eye(4))]
+        parts = [(n, o, pose_matrix(scale=(scale,) * 3) @ M) for n, o, M in parts]
+    if not ghost:
+        return parts
+    c = np.mean([M[:3, 3] for _, _, M in parts], axis=0)
+    S = pose_matrix(c) @ pose_matrix(scale=(HALO,) * 3) @ pose_matrix(-c)
+    return [(n, o, S @ M) for n, o, M in parts]
 
 
-def plane_part(name: str, origin, normal, size: float, color: int, opacity: float) -> tuple:
-    """A thin square slab (size m) whose top face is the plane through origin with normal."""
+def plane_part(name: str, origin, normal, size, color: int, opacity: float, R=None) -> tuple:
+    """A thin slab whose top face is the plane through ``origin`` with ``normal``: a square of
+    ``size`` m, or a ``size`` = (lx, ly) m rectangle; its in-plane axes those of ``R`` (a rotation
+    whose z is the normal; default :func:`frame_from_normal`)."""
     n = np.asarray(normal, dtype=float)
-    thin = 0.002 * size
-    M = pose_matrix(np.asarray(origin, dtype=float) - 0.5 * thin * n, frame_from_normal(n))
-    return (name, g.Mesh(g.Box((size, size, thin)), material(color, opacity)), M)
-
-
-def fixture_parts(fixture_type: str, params: dict, size: float) -> list:
-    """The static geometry of a fixture on the master side (m): the rolling plane, the sphere
-    (translucent with a wireframe), or the tissue plane and the blade's depth plane."""
-    if fixture_type == "rolling_disk":
-        return [plane_part("plane", params.get("plane_origin_m", (0, 0, 0)),
-                           params.get("plane_normal", (0, 0, 1)), size, COLORS["plane"], 0.6)]
-    if fixture_type == "sphere":
-        c, r = params.get("center_m", (0.0, 0.0, 0.0)), params.get("radius_m", 0.05)
-        M = pose_matrix(c)
-        return [("sphere", g.Mesh(g.Sphere(r), material(COLORS["sphere"], 0.3)), M),
-                ("wire", g.Mesh(g.Sphere(r), g.MeshBasicMaterial(color=COLORS["sphere"], wireframe=True)), M)]
-    if fixture_type == "scalpel":
-        o = np.asarray(params.get("plane_origin_m", (0.0, 0.0, 0.0)), dtype=float)
-        n = np.asarray(params.get("plane_normal", (0.0, 0.0, 1.0)), dtype=float)
-        d = params.get("depth_m", 0.005)
-        return [plane_part("tissue_plane", o, n, size, COLORS["tissue"], 0.35),
-                plane_part("depth_plane", o - d * n, n, size, COLORS["depth"], 0.35)]
-    return []
-
-
-#: fixture types drawn by :func:`fixture_parts`; any other is a user's (see custom_fixture_parts)
-FIXTURE_DRAWN = ("free", "rolling_disk", "sphere", "scalpel")
-
-
-def custom_fixture_parts(fixture, frame=None) -> list:
-    """A user's fixture type's own drawing, the one small protocol the viewer asks of it: a
-    method ``draw(frame)`` returning an iterable of ``(name, meshcat object, 4x4 transform)``
-    (m, in the frame ``frame`` maps the patient frame into: a
-    :class:`teleop.dynamics.registry.FrameMap`, the master workspace for the master side), the
-    same map its ``build(frame)`` uses. A fixture without ``draw`` gets nothing here: the view
-    then draws the tool's frame triad and the trace of its path instead."""
-    draw = getattr(fixture, "draw", None)
-    if draw is None:
-        return []
-    if frame is None:
-        frame = FrameMap.identity()
-    out = []
-    for k, item in enumerate(draw(frame)):
-        try:
-            name, obj, M = item
-            M = np.asarray(M, dtype=float).reshape(4, 4)
-        except (TypeError, ValueError):
-            raise ConfigError(f"{type(fixture).__name__}.draw: item {k} is not "
-                              "(name, meshcat object, 4x4 transform)") from None
-        out.append((str(name), obj, M))
-    return out
+    lx, ly = (size, size) if np.isscalar(size) else size
+    thin = 0.002 * max(lx, ly)
+    M = pose_matrix(np.asarray(origin, dtype=float) - 0.5 * thin * n, frame_from_normal(n) if R is None else R)
+    return (name, g.Mesh(g.Box((lx, ly, thin)), material(color, opacity)), M)
 
 
 def contact_line_part(radius: float) -> tuple:
@@ -286,15 +318,6 @@ def contact_line_matrix(p, R, params: dict) -> np.ndarray:
         heading = np.cross(n, [1.0, 0.0, 0.0] if abs(n[0]) < 0.9 else [0.0, 1.0, 0.0])
     x = heading / np.linalg.norm(heading)
     return pose_matrix(c, np.column_stack([x, np.cross(n, x), n]))
-
-
-def tissue_parts(tissue: dict) -> list:
-    """A tissue block (translucent, so a cut below the surface shows): top face on the plane."""
-    n = np.asarray(tissue["normal"], dtype=float)
-    lx, ly = tissue["size_m"]
-    t = tissue["thickness_m"]
-    M = pose_matrix(np.asarray(tissue["origin_m"], dtype=float) - 0.5 * t * n, frame_from_normal(n))
-    return [("block", g.Mesh(g.Box((lx, ly, t)), material(COLORS["tissue"], 0.75)), M)]
 
 
 def polyline(points, color: int = COLORS["cut"]) -> g.Line:

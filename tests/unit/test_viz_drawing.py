@@ -134,3 +134,43 @@ def test_scene_refuses_an_unknown_type_without_its_object_and_a_bad_view():
         VizScene("groove", {})
     with pytest.raises(ConfigError, match=r"VizScene\.view"):
         VizScene("free", {}, view="fisheye")
+
+
+def test_labels_and_legend_are_opaque_cards_drawn_over_everything():
+    """Readable over any plane: the signs are drawn last (three.js renderOrder) without a depth
+    test, on an opaque card; the translucent fixture planes once covered the legend."""
+    import io
+
+    d = L.Drawing(VizScene("scalpel", {}, "scalpel", tissue={"size_m": (0.1, 0.1)}))
+    signs = [(p, o) for p, o, _ in d.parts if p.startswith("labels/")]
+    assert {p for p, _ in signs} == {"labels/master/sign", "labels/slave/sign", "labels/legend"}
+    for _, obj in signs:
+        lowered = obj.lower()
+        assert lowered["object"]["renderOrder"] == S.ON_TOP
+        mat = lowered["materials"][0]
+        assert mat["depthTest"] is False and mat["depthWrite"] is False
+    others = [o.lower()["object"].get("renderOrder", 0) for p, o, _ in d.parts if not p.startswith("labels/")]
+    assert max(others) < S.ON_TOP
+    png, _ = S.sign_png([[("text", "master", S.COLORS["label"])]])
+    img = np.asarray(Image.open(io.BytesIO(png)).convert("RGBA"))
+    h, w = img.shape[:2]
+    assert np.all(img[h // 2, 5:15, 3] == 255)  # the card is opaque at its edge
+    assert tuple(img[h // 2, w // 2 - 60:w // 2 + 60, :3].reshape(-1, 3).max(axis=0)) <= (0xF8, 0xF6, 0xEE)
+
+
+def test_the_virtual_tool_is_a_halo_around_the_reference_tool():
+    d = L.Drawing(VizScene("scalpel", {}, "scalpel"))
+    parts = {p: (o, M) for p, o, M in d.parts}
+    for piece in ("blade", "grip"):
+        ref, ghost = parts[f"master/reference/{piece}"], parts[f"master/virtual/{piece}"]
+        assert np.linalg.norm(ghost[1][:3, 0]) == pytest.approx(S.HALO * np.linalg.norm(ref[1][:3, 0]))
+        assert ghost[0].material.color == S.COLORS["ghost"] and ghost[0].material.opacity < 1.0
+    words = [item[1] for row in d.legend_rows() for item in row if item[0] == "text"]
+    assert "reference tool" in words and "virtual tool (device)" in words
+
+
+def test_the_cobot_is_translucent_so_the_tool_it_holds_shows():
+    d = L.Drawing(VizScene("rolling_disk", {"radius_m": 0.03}, "disk", master_robot=Device()))
+    device = [o for p, o, _ in d.parts if p.startswith("master/device/visuals/")]
+    assert device and all(o.material.opacity == L.DEVICE_OPACITY < 1.0 for o in device)
+    assert all(o.material.color == S.COLORS["device"] for o in device)
