@@ -95,6 +95,8 @@ class TdpaParams:
         would only lift the hand; on stiff_contact it took the contact force from 0.16 to 0.03 N).
         0.01 m/s and 0.2 s: the step-gated version (full spring while moving away from the
         target) chattered on the cut at 50 ms, 0.6 mm of 2-50 Hz motion; this one 0.33 mm.
+    slows_motion: the master port also scales the tool's velocity after each step so that its
+        observer never goes below zero (:meth:`MasterPassivity.motion_scale`; off by default).
     """
 
     dt_s: float
@@ -108,6 +110,7 @@ class TdpaParams:
     drift_stiffness: float | tuple = 0.0
     drift_speed: float = 0.01
     drift_speed_tau_s: float = 0.2
+    slows_motion: bool = False
 
     def __post_init__(self):
         a = self.alpha_max
@@ -229,6 +232,23 @@ class MasterPassivity(_Port):
         self.E_out = self.E_out + np.maximum(p_done, 0.0) * dt
         self.E_in = self.E_in + np.minimum(np.maximum(-self.f_channel * v_m, 0.0), np.maximum(-p_done, 0.0)) * dt
         self._counted = True
+
+    def motion_scale(self, v_m) -> float:
+        """The largest sigma in [0, 1] such that the force rendered last, working against the
+        master's velocity ``sigma * v_m`` (6,) after its step, keeps the observer ``E_remote -
+        E_out`` at or above zero on every axis: scale the step's velocity by it before
+        :meth:`account` and the port is passive by construction, whatever the force and however
+        still the hand is (the damping alone acts only on a tool already moving, a tick late)."""
+        if not (self.params.enabled and self.params.slows_motion) or self._counted:
+            return 1.0
+        dt = self.params.dt_s
+        p_done = self.f_rendered * np.asarray(v_m, dtype=float) * dt  # J this step would put out, per axis
+        room = self.E_remote - self.E_out
+        sigma = 1.0
+        for i in range(6):
+            if p_done[i] > 0.0 and p_done[i] > room[i]:
+                sigma = min(sigma, max(room[i], 0.0) / p_done[i])
+        return sigma
 
     def energy_after(self, v_m) -> np.ndarray:
         """(6,) J: ``E_in`` with the work of the force rendered last counted at the master's

@@ -208,6 +208,17 @@ class ReferenceTool:
         if self.state.zd is not None:
             self.state.zd = np.zeros_like(self.state.zd)
 
+    def scale_velocity(self, sigma: float) -> None:
+        """Scale the tool's velocity by ``sigma`` in [0, 1] (the pose and time unchanged): the
+        passivity guard's action on the rendered motion (:meth:`teleop.tick.guard.MasterGuard.
+        motion_scale`). The constraint rows are homogeneous in the velocity, so the scaled
+        velocity satisfies them as the step's did; the kinetic energy only falls."""
+        if not 0.0 <= sigma <= 1.0:
+            raise ValueError(f"scale_velocity: sigma must be in [0, 1], got {sigma!r}")
+        self.state.qd = self.state.qd * sigma
+        if self.state.zd is not None:
+            self.state.zd = self.state.zd * sigma
+
     # -- read-outs ----------------------------------------------------------------------------------
     @property
     def q(self) -> np.ndarray:

@@ -428,6 +428,9 @@ class LinkSpec(Checked):
     dv_max_m_s: float = setting(0.5, gt=0.0, le=MAX_QD0,
                                 doc=f"slave velocity correction cap, m/s (rad/s on rotation axes), in (0, {MAX_QD0:g}]")
     drift_gain: float = setting(2.0, ge=0.0, le=1e3, doc="position drift compensation rate, 1/s (0: off), at most 1e3")
+    guard_slows_motion: bool = setting(False, doc="the guard's master port also slows the rendered motion so that "
+                                                  "its observed energy never goes below zero (passive by "
+                                                  "construction; off by default: see docs/design/link.md)")
     heartbeat_ms: float = setting(20.0, gt=0.0, le=10_000.0,
                                   doc="over Zenoh: a side that hears nothing for this long goes to its safe state, ms")
 

@@ -45,6 +45,7 @@ class MasterGuard:
     def __init__(self, params: TdpaParams, log_capacity: int = 0) -> None:
         self.port = MasterPassivity(params, log_capacity)
         self.W_min_J = float("inf")  # the observer's lowest sum over the axes, seen at the ends of ticks (J)
+        self.motion_scaled = 0  # ticks whose rendered motion the guard slowed to keep the port passive
 
     def observe(self) -> None:
         """At the end of the master side's tick: the observer's sum into the running minimum."""
@@ -53,12 +54,22 @@ class MasterGuard:
     def summary(self) -> dict:
         """``dissipated_master_J`` (J, all axes) and ``W_master_min_J`` (J) so far."""
         return {"dissipated_master_J": self.port.dissipated_J,
-                "W_master_min_J": self.W_min_J if self.W_min_J != float("inf") else 0.0}
+                "W_master_min_J": self.W_min_J if self.W_min_J != float("inf") else 0.0,
+                "motion_scaled_ticks": self.motion_scaled}
 
     @property
     def energy_J(self) -> np.ndarray:
         """(6,) J: the master port's input energy counted so far."""
         return self.port.energy_J
+
+    def motion_scale(self, twist_M: np.ndarray) -> float:
+        """sigma in [0, 1]: the tool's twist after its step scaled by it keeps this port's
+        observer >= 0 (:meth:`teleop.control.passivity.MasterPassivity.motion_scale`); counted in
+        ``motion_scaled`` when below 1."""
+        sigma = self.port.motion_scale(twist_M)
+        if sigma < 1.0:
+            self.motion_scaled += 1
+        return sigma
 
     def energy_after(self, twist_M: np.ndarray) -> np.ndarray:
         """(6,) J: the input energy for the command sent this tick, with the work of the force
@@ -153,4 +164,5 @@ def tdpa_params(link: Any, dt_s: float, mass_kg: float, inertia_kgm2: Any, enabl
     cap = (mass_kg / dt_s,) * 3 + (j_min / dt_s,) * 3
     return TdpaParams(dt_s=dt_s, enabled=enabled, alpha_max=tuple(link.alpha_max * c for c in cap),
                       dv_max=link.dv_max_m_s, drift_gain=link.drift_gain,
-                      drift_stiffness=tuple(link.drift_gain * link.alpha_max * c for c in cap))
+                      drift_stiffness=tuple(link.drift_gain * link.alpha_max * c for c in cap),
+                      slows_motion=bool(getattr(link, "guard_slows_motion", False)))

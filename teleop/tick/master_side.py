@@ -150,6 +150,11 @@ class MasterSide:
         if self.feedback is not None:
             self.felt_W = self.feedback.render(self.feedback_W, tool, f_in, self.dt, state, g)
         st = tool.step(self.dt, f_in + self.felt_W)                   # §II: eqs. 8-11
+        if self.guard is not None:  # the port passive by construction: the rendered motion slowed if need be
+            v, w = tool.twist()
+            sigma = self.guard.motion_scale(np.concatenate((v, w)))
+            if sigma < 1.0:
+                tool.scale_velocity(sigma)
         return st, self.master.command(state.p, state.R, state.V, tool.acceleration_W)  # eqs. 18-19
 
     def hold(self, state: ToolState) -> str:
