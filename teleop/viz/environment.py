@@ -85,6 +85,28 @@ def tool_shape_for(constraints, has_slave: bool) -> str:
     return "box"
 
 
+#: a drawn scalpel's length (m: blade and handle), unless it must reach through a trocar
+TOOL_LENGTH_M = 0.12
+
+
+def shaft_length(constraints) -> float:
+    """How long to draw a scalpel (m) held by ``constraints``: TOOL_LENGTH_M, or long enough to
+    pass through a trocar (``RemoteCenter``) with a third of its length above it, the tip held on
+    a depth plane (``PointDepth``: the pivot's height above that plane) or else at the pivot's
+    distance from the plane's origin."""
+    length = TOOL_LENGTH_M
+    planes = [c for c in constraints if isinstance(c, C.PointDepth)]
+    for c in constraints:
+        if isinstance(c, C.RemoteCenter):
+            if planes:
+                p = planes[0]
+                reach = float(p.normal @ (c.center - p.origin)) + p.depth
+            else:
+                reach = float(np.linalg.norm(c.center))
+            length = max(length, 1.5 * reach)
+    return length
+
+
 def tissue_rotation(tissue: dict, frame: FrameMap | None = None) -> np.ndarray:
     """The tissue block's axes (z its surface's outward normal), carried by ``frame``'s rotation."""
     R = frame_from_normal(tissue["normal"])

@@ -12,7 +12,7 @@ from pinocchio.visualize import meshcat_visualizer as pmv
 
 from teleop.dynamics.registry import FrameMap
 from teleop.util.errors import ConfigError
-from teleop.viz.environment import LEGEND, environment_parts, mapped_tissue
+from teleop.viz.environment import LEGEND, environment_parts, mapped_tissue, shaft_length, side_constraints
 from teleop.viz.shapes import (
     COLORS,
     TINY,
@@ -124,13 +124,11 @@ class Drawing:
 
     def _layout(self) -> None:
         """Each side's size (m), zoom, aim, anchor and turn. With a map into the master workspace
-        (``fixture_frame``) and a tissue, the master side is the slave side under the map: its
-        tissue where the map puts the slave's, its tool the slave's scaled, its zoom the slave's
-        over the scale, so the two sides are drawn alike."""
+        (``fixture_frame``) and a tissue, the master side shows the slave's tissue where the map
+        puts it; each side is zoomed so its tissue fills it."""
         scene = self.scene
         p, ft, frame, tissue = scene.fixture_params, scene.fixture_type, scene.fixture_frame, scene.tissue
         self.radius = p.get("radius_m", 0.03)
-        self.tool_scale = 1.0 if frame is None else frame.scale  # the master's tool: the slave's, scaled
         self.master_tissue = None if tissue is None or frame is None else mapped_tissue(tissue, frame)
         self.size = {"rolling_disk": max(8.0 * self.radius, 0.1),
                      "sphere": min(3.0 * self.radius, 10.0 * (scene.tool_radius_m or self.radius)),
@@ -139,9 +137,9 @@ class Drawing:
         self.slave_zoom = float(np.clip(0.6 * SIDE_M / self.slave_size, 0.5, 3.0))
         self.zoom = scene.master_zoom or float(np.clip(0.6 * SIDE_M / self.size, 1.0, 10.0))
         centre = np.asarray(p.get("center_m" if ft == "sphere" else "plane_origin_m", (0.0, 0.0, 0.0)), dtype=float)
-        if self.master_tissue is not None:
+        if self.master_tissue is not None:  # zoomed to fill its side, as the slave's tissue fills its own
             self.size = max(self.master_tissue["size_m"])
-            self.zoom = scene.master_zoom or self.slave_zoom / self.tool_scale
+            self.zoom = scene.master_zoom or float(np.clip(0.6 * SIDE_M / self.size, 0.5, 10.0))
             centre = np.asarray(self.master_tissue["origin_m"], dtype=float)
         self.aim = {"master": centre.copy(),
                     "slave": np.asarray(tissue["origin_m"], dtype=float) if tissue is not None else np.zeros(3)}
@@ -157,9 +155,10 @@ class Drawing:
         if scene.fixture_object is not None and hasattr(scene.fixture_object, "tip_m"):
             tip = (scene.fixture_frame or FrameMap.identity()).body_point(scene.fixture_object.tip_m)
         tool_r = scene.tool_radius_m or self.radius
+        length = shaft_length(side_constraints(scene, "master")[0])
         parts = []
         for name, ghost in (("reference", False), ("virtual", True)):
-            drawn = tool_parts(scene.tool_shape, tool_r, tip, ghost, self.tool_scale)
+            drawn = tool_parts(scene.tool_shape, tool_r, tip, ghost, length)
             parts += [(f"master/{name}/{n}", o, M) for n, o, M in drawn]
         if self.generic:  # a fixture the view cannot draw: the tool's frame triad (and a trace)
             parts += [(f"master/reference/triad/{n}", o, M) for n, o, M in triad_parts(0.4 * self.size)]
@@ -170,7 +169,9 @@ class Drawing:
         for name, r, where in (("operator", r_m, "master"), ("constraint", r_m, "master"),
                                ("contact", 0.0075 / self.slave_zoom, "slave")):
             parts += [(f"{where}/arrows/{name}/{n}", o, M) for n, o, M in arrow_parts(r, COLORS[name])]
-        parts += [(f"slave/tool/{n}", o, M) for n, o, M in scalpel_parts((0, 0, 0), 1.0, COLORS["tool"])]
+        slave_length = shaft_length(side_constraints(scene, "slave")[0])
+        parts += [(f"slave/tool/{n}", o, M)
+                  for n, o, M in scalpel_parts((0, 0, 0), 1.0, COLORS["tool"], handle_len=slave_length - 0.03)]
         return parts
 
     def _device(self) -> list:
@@ -243,7 +244,7 @@ class Drawing:
         out = []
         for side in ("master", "slave") if self.has_slave else ("master",):
             name, obj, M = sign_part("sign", [[("text", side, COLORS["label"])]], h)
-            M = pose_matrix(self.anchor[side] + [-0.15 * SIDE_M, 0.0, top]) @ face @ M
+            M = pose_matrix(self.anchor[side] + [0.08 * SIDE_M, 0.0, top]) @ face @ M
             out.append((f"labels/{side}/{name}", obj, M))
         rows = self.legend_rows()
         row_m = LEGEND_ROW_M

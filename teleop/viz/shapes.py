@@ -265,24 +265,25 @@ def scalpel_parts(tip, opacity: float, handle_color: int, blade_len: float = 0.0
 HALO = 1.35
 
 
-def tool_parts(shape: str, radius: float, tip, ghost: bool, scale: float = 1.0) -> list:
+def tool_parts(shape: str, radius: float, tip, ghost: bool, length_m: float = 0.12) -> list:
     """The reference tool (solid blue) or the virtual tool (``ghost``: a translucent cyan halo,
-    HALO times the tool's size about its middle, so it shows around the reference tool when the
-    two coincide, and beside it when the device lags) of a shape. ``scale``: a scalpel or box
-    drawn that many times its size (the master's tool is the slave's under the motion scale; its
-    ``tip`` (m) is given already scaled); a disk is drawn at ``radius`` (m)."""
+    HALO times the tool's size about its middle, drawn from its back faces, so it shows as a rim
+    around the reference tool when the two coincide, and beside it when the device lags) of a
+    shape: a disk of ``radius`` (m), a scalpel ``length_m`` long (m, blade and handle) whose blade
+    tip is the body point ``tip`` (m), or a box.
+    """
     color, opacity = (COLORS["ghost"], 0.4) if ghost else (COLORS["tool"], 1.0)
     if shape == "disk":
         parts = disk_parts(radius, opacity, color)
+    elif shape == "scalpel":
+        blade = color if ghost else COLORS["blade"]  # the halo all in its one colour
+        parts = scalpel_parts(tip, opacity, color, handle_len=length_m - 0.03, blade_color=blade)
     else:
-        if shape == "scalpel":
-            blade = color if ghost else COLORS["blade"]  # the halo all in its one colour
-            parts = scalpel_parts(np.asarray(tip, dtype=float) / scale, opacity, color, blade_color=blade)
-        else:
-            parts = [("box", g.Mesh(g.Box((0.04, 0.03, 0.02)), material(color, opacity)), np.eye(4))]
-        parts = [(n, o, pose_matrix(scale=(scale,) * 3) @ M) for n, o, M in parts]
+        parts = [("box", g.Mesh(g.Box((0.04, 0.03, 0.02)), material(color, opacity)), np.eye(4))]
     if not ghost:
         return parts
+    for _, obj, _ in parts:  # its back faces only: a rim around the tool, which shows unveiled
+        obj.material.side = 1
     c = np.mean([M[:3, 3] for _, _, M in parts], axis=0)
     S = pose_matrix(c) @ pose_matrix(scale=(HALO,) * 3) @ pose_matrix(-c)
     return [(n, o, S @ M) for n, o, M in parts]

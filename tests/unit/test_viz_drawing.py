@@ -165,6 +165,7 @@ def test_the_virtual_tool_is_a_halo_around_the_reference_tool():
         ref, ghost = parts[f"master/reference/{piece}"], parts[f"master/virtual/{piece}"]
         assert np.linalg.norm(ghost[1][:3, 0]) == pytest.approx(S.HALO * np.linalg.norm(ref[1][:3, 0]))
         assert ghost[0].material.color == S.COLORS["ghost"] and ghost[0].material.opacity < 1.0
+        assert ghost[0].material.side == 1  # its back faces: a rim, the tool seen unveiled
     words = [item[1] for row in d.legend_rows() for item in row if item[0] == "text"]
     assert "reference tool" in words and "virtual tool (device)" in words
 

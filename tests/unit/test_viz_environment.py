@@ -135,20 +135,26 @@ def test_every_shipped_scene_draws_its_fixture_and_environment_on_both_sides(nam
         assert E.LEGEND[key][0] in words
 
 
-def test_the_master_side_is_the_slave_side_under_the_map(no_meshes):
+def test_the_master_side_shows_the_slaves_tissue_and_trocar_under_the_map(no_meshes):
     """laparoscopic_incision, 3:1: the master's trocar and tissue where the registration puts
-    the slave's, its tool three times the slave's, and both drawn alike on the page."""
+    the slave's, each side's tissue filling its side, each side's tool long enough to pass its
+    trocar."""
     from teleop.scenario.build import master_frame
 
     scene = load_scene("laparoscopic_incision")
     d = L.Drawing(no_meshes(scene))
     frame = master_frame(scene)
-    parts = {p: M for p, _, M in d.parts}
-    assert np.allclose(parts["master/fixture/trocar_port"][:3, 3], frame.point(scene.fixture.trocar_m))
-    assert np.allclose(parts["slave/fixture/trocar_port"][:3, 3], scene.fixture.trocar_m)
-    assert d.zoom * frame.scale == pytest.approx(d.slave_zoom)
-    grip = {side: np.linalg.norm(parts[f"{side}/grip"][:3, 1]) for side in ("master/reference", "slave/tool")}
-    assert grip["master/reference"] == pytest.approx(frame.scale * grip["slave/tool"])
+    parts = {p: (o, M) for p, o, M in d.parts}
+    assert np.allclose(parts["master/fixture/trocar_port"][1][:3, 3], frame.point(scene.fixture.trocar_m))
+    assert np.allclose(parts["slave/fixture/trocar_port"][1][:3, 3], scene.fixture.trocar_m)
+    assert np.allclose(parts["master/tissue/block"][0].geometry.lengths,
+                       frame.length(1.0) * np.array(parts["slave/tissue/block"][0].geometry.lengths))
+    assert d.zoom * frame.length(max(d.scene.tissue["size_m"])) == pytest.approx(0.6 * L.SIDE_M)
+    pivot = frame.length(scene.fixture.trocar_m[2] - scene.fixture.plane_origin_m[2] + scene.fixture.depth_m)
+    grip, M = parts["master/reference/grip"]
+    top = -(M[2, 3] - 0.5 * grip.geometry.height)  # the handle's far end along the shaft (body -z)
+    assert top > 1.2 * pivot and E.shaft_length(d.scene.master_fixture.constraints) == pytest.approx(1.5 * pivot)
+    assert E.shaft_length(d.scene.slave_fixture.constraints) == pytest.approx(E.TOOL_LENGTH_M)  # 75 mm: 0.12 passes
 
 
 def test_a_fixture_the_view_cannot_draw_is_said_once_and_gets_the_tools_axes(caplog):
