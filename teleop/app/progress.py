@@ -6,8 +6,10 @@ entry; a cold cache means the first tick compiles every kernel (about 30-60 s on
 
 :class:`CompileClock` times what numba spends compiling during the run's ticks (numba's own
 ``numba:compile`` events), so that the real-time factor a first run reports is the loop's, not the
-compiler's: :meth:`CompileClock.discount` takes that time out of the summary's
-``realtime_factor`` and reports it apart (``compile_s``).
+compiler's. :func:`realtime_figures` is the one place a run's wall-clock figures are made:
+``realtime_factor`` leaves the compile out and ``compile_s`` reports it apart; every run in one
+process (the command line, :func:`teleop.app.runtime.run_scene`, ``Session.run`` of the Python
+API) gets them from :meth:`teleop.app.session.Session.run_ticks`.
 """
 
 from __future__ import annotations
@@ -59,6 +61,19 @@ def numba_cache_dir() -> str:
         return "__pycache__ beside the kernels' sources"
 
 
+def realtime_figures(steps: int, dt_s: float, wall_s: float, compile_s: float = 0.0) -> dict:
+    """A run's wall-clock figures: ``wall_s`` (s) its ``steps`` ticks of ``dt_s`` (s) took,
+    ``realtime_factor`` the simulated time over that wall time less ``compile_s`` (s numba spent
+    compiling kernels in it, once per machine: the loop's own rate, 1 is real time), and
+    ``compile_s`` when there was any. Times to the millisecond, the factor to 3 decimals."""
+    out = {"wall_s": round(wall_s, 3)}
+    loop_s = wall_s - compile_s if 0.0 < compile_s < wall_s else wall_s
+    out["realtime_factor"] = round(steps * dt_s / loop_s, 3) if loop_s > 0 else 0.0
+    if compile_s > 0.0:
+        out["compile_s"] = round(compile_s, 3)
+    return out
+
+
 class CompileClock(Hook):
     """The wall time numba spends compiling during a run's ticks (see the module docstring). Use
     as a context manager around the run (it listens to numba's compile events while open) and as
@@ -107,9 +122,15 @@ class CompileClock(Hook):
             event.unregister("numba:compile", listener)
             self._installed = None
 
+    def start(self, at: float | None = None) -> float:
+        """Mark where the run's wall clock starts (perf_counter s; now by default) and return it:
+        the compile time counted is the one after it."""
+        self.first_tick = time.perf_counter() if at is None else at
+        return self.first_tick
+
     def before_tick(self, i, t_s, side) -> None:
         if self.first_tick is None:
-            self.first_tick = time.perf_counter()
+            self.start()
 
     def seconds_between(self, start: float, end: float = float("inf")) -> float:
         """Compile time (s) inside [start, end] (perf_counter)."""
@@ -129,10 +150,10 @@ class CompileClock(Hook):
         spent = self.seconds_between(self.first_tick, self.first_tick + wall)
         if spent <= 0.0:
             return summary
-        summary["compile_s"] = round(spent, 3)
-        left = wall - spent
-        if left > 0:
-            summary["realtime_factor"] = round(summary["steps"] * summary["dt_s"] / left, 3)
+        figures = realtime_figures(summary["steps"], summary["dt_s"], wall, spent)
+        summary["compile_s"] = figures["compile_s"]
+        if spent < wall:
+            summary["realtime_factor"] = figures["realtime_factor"]
         log.info("the kernels compiled for %.1f s during the run; the real-time factor leaves that out", spent)
         return summary
 

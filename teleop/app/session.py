@@ -30,6 +30,7 @@ from pathlib import Path
 
 import numpy as np
 
+from teleop.app.progress import CompileClock, realtime_figures
 from teleop.app.recorders import Columns, MasterRecorder
 from teleop.link import LockstepLink
 from teleop.tick.loop import BilateralLoop
@@ -206,9 +207,16 @@ class Session:
 
     def run_ticks(self) -> SideRun:
         """Run to the end (see the module docstring). Ctrl-C ends the run between ticks with status
-        "interrupted": what was recorded up to then is kept."""
+        "interrupted": what was recorded up to then is kept. The runner's ``realtime_factor``
+        leaves out what numba spent compiling kernels during the run, reported apart as
+        ``compile_s`` (:func:`teleop.app.progress.realtime_figures`, for every runner in one
+        process)."""
+        with CompileClock() as clock:
+            return self._run_ticks(clock, clock.start())
+
+    def _run_ticks(self, clock: CompileClock, wall0: float) -> SideRun:
         loop, status = self.loop, "ok"
-        wall0 = pace0 = time.perf_counter()
+        pace0 = wall0
         warned = -1.0
         with loop.master as master:
             status = master.status
@@ -247,8 +255,8 @@ class Session:
             stats = master.stats()
         wall = time.perf_counter() - wall0
         steps = min(self.steps, self.recorder.n)
-        runner = {"tick_us": tick_stats(self.ticks["tick_us"][:steps]), "wall_s": round(wall, 3),
-                  "realtime_factor": round(steps * loop.dt / wall, 3) if wall > 0 else 0.0}
+        runner = {"tick_us": tick_stats(self.ticks["tick_us"][:steps]),
+                  **realtime_figures(steps, loop.dt, wall, clock.seconds_between(wall0, wall0 + wall))}
         if self.realtime:
             runner["late_ticks"] = self.late_ticks
         link_stats = loop.link.stats() if loop.link is not None else {}
