@@ -415,3 +415,44 @@ class TremorProbe(Hook):
             "tremor_out_rms_m": t_out,
             "tremor_removed_pct": 100.0 * (1.0 - t_out / t_in) if t_in > 0 else 0.0,
         }
+
+
+def felt_versus_true(felt_N: np.ndarray, true_N: np.ndarray, dt_s: float, max_lag_s: float) -> dict:
+    """How the force felt at the master (``felt_N``, (n,) N, the magnitude of what the slave's
+    force rendered on the tool) compares with the contact force at the slave (``true_N``, (n,) N,
+    already times the feedback gain): the RMS and the peak of their difference, time-aligned at
+    the lag in [0, ``max_lag_s``] (the felt force later than the true one by up to the round trip
+    and a tick) that makes the RMS least, and that lag (s). Over ticks where either is in contact;
+    zeros when neither ever is."""
+    n = min(len(felt_N), len(true_N))
+    felt, true = np.asarray(felt_N[:n], dtype=float), np.asarray(true_N[:n], dtype=float)
+    if n == 0 or not (felt.any() or true.any()):
+        return {"felt_error_rms_N": 0.0, "felt_error_peak_N": 0.0, "felt_lag_s": 0.0}
+    best = (math.inf, 0.0, 0)
+    for lag in range(0, min(n - 1, round(max_lag_s / dt_s) + 1) + 1):
+        e = felt[lag:] - true[: n - lag]
+        used = (felt[lag:] > 0) | (true[: n - lag] > 0)
+        if not used.any():
+            continue
+        rms = float(np.sqrt(np.mean(e[used] ** 2)))
+        if rms < best[0]:
+            best = (rms, float(np.abs(e[used]).max()), lag)
+    rms, peak, lag = best
+    return {"felt_error_rms_N": rms if math.isfinite(rms) else 0.0, "felt_error_peak_N": peak,
+            "felt_lag_s": lag * dt_s}
+
+
+def link_metrics(master: dict | None, slave: dict | None, log: dict, registration, dt_s: float,
+                 round_trip_s: float) -> dict:
+    """What a run over a guarded or delayed link adds to its metrics, for one process and two
+    alike: the guard's drift at the slave's scale (``link_drift_max_m``, ``link_drift_final_m``,
+    m) and the transparency (:func:`felt_versus_true`, when both sides' logs are there)."""
+    out: dict = {}
+    if master is not None and slave is not None and "passivity_master" in master and "passivity_slave" in slave:
+        out["link_drift_max_m"] = slave["passivity_slave"]["drift_max_M_m"] / registration.scale
+        out["link_drift_final_m"] = slave["passivity_slave"]["drift_final_M_m"] / registration.scale
+    if "felt_W" in log and "slave_contact_N" in log:
+        felt = np.linalg.norm(np.asarray(log["felt_W"])[:, :3], axis=1)
+        out.update(felt_versus_true(felt, registration.force_scale * np.asarray(log["slave_contact_N"]), dt_s,
+                                    round_trip_s + dt_s))
+    return out

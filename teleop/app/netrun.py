@@ -35,6 +35,7 @@ from dataclasses import asdict, replace
 import numpy as np
 
 from teleop.app.assembly import build_master, build_slave, exempt_metrics
+from teleop.app.metrics import link_metrics
 from teleop.app.session import (
     _YIELD,
     PACE_SPIN_S,
@@ -48,6 +49,7 @@ from teleop.app.session import (
     tick_stats,
 )
 from teleop.link.schedule import ScheduleTap, hello_command, hello_reply
+from teleop.scenario.build import build_registration
 from teleop.scenario.schema import Scene
 from teleop.tick.messages import ContactFeedback, ToolCommand
 from teleop.util.errors import TeleopError
@@ -56,6 +58,7 @@ GRACE_S = 2.0          # the slave's run beyond the scene's duration when the ma
 CONNECT_TIMEOUT_S = 120.0  # the first message must come within this (s): a loaded machine is slow
 CONNECT_TRY_S = 5.0    # one connection attempt (s): a TLS port that answers but refuses ends it at once
 WARMUP_TICKS = 5       # ticks a side's twin runs before the clock starts
+NETWORK_LAG_S = 0.05   # the most a loopback or LAN round trip is looked for when aligning felt and true force
 _Z3 = np.zeros(3)
 
 
@@ -300,6 +303,67 @@ def _on_record(link, side, writer, role: str):
     return tap
 
 
+class PeerRate:
+    """Stands between a side and its link (``link``: the side's port, a
+    :class:`~teleop.link.zenoh_link.ZenohLink` or the record's tap in front of it), passing every
+    call through, and checks once that the peer ticks at this side's period ``dt_s`` (s): each side
+    numbers what it sends by its tick, message ``seq`` = i + 1 stamped ``t_s`` = i dt (a command
+    by the master's tick, a reply by the slave's), so the first message of the run numbered 2 or
+    more tells the peer's period, t_s / (seq - 1). Two sides given different periods (``teleop
+    master --dt 0.0005`` against a slave at the scene's 1 ms) would each run their own number of
+    ticks on their own clock: the slave followed the master's half-way command as its last and
+    said "ok" while the master lost it. ``refused`` is None until a different period is found, then
+    the one line that says so; the runner ends the side "link_refused" on it."""
+
+    REL_TOL = 1e-9  # the periods agree to round-off: the stamp is i * dt computed the same way
+
+    def __init__(self, link, role: str, dt_s: float) -> None:
+        self.link, self.role, self.dt = link, role, float(dt_s)
+        self.checked = False
+        self.refused: str | None = None
+
+    def _check(self, msg) -> None:
+        if msg is None or msg.t_s < 0 or msg.seq < 2:  # a hello, or the first tick's (stamped 0 at any rate)
+            return
+        self.checked = True
+        peer_dt = msg.t_s / (msg.seq - 1)
+        if not math.isclose(peer_dt, self.dt, rel_tol=self.REL_TOL):
+            other = "slave" if self.role == "master" else "master"
+            self.refused = (f"the {other} ticks every {1e3 * peer_dt:g} ms, this {self.role} every "
+                            f"{1e3 * self.dt:g} ms:"
+                            f" give both sides the same period (the scene's dt_s, or the same --dt)")
+
+    def receive_feedback(self, t_s: float):
+        msg = self.link.receive_feedback(t_s)
+        if not self.checked:
+            self._check(msg)
+        return msg
+
+    def receive_command(self, t_s: float):
+        msg = self.link.receive_command(t_s)
+        if not self.checked:
+            self._check(msg)
+        return msg
+
+    def send_command(self, msg) -> None:
+        self.link.send_command(msg)
+
+    def send_feedback(self, msg) -> None:
+        self.link.send_feedback(msg)
+
+    def clock(self, t_s: float) -> float:
+        return self.link.clock(t_s)
+
+    def last_heard_s(self, side: str) -> float | None:
+        return self.link.last_heard_s(side)
+
+
+def _refused(role: str, rate: PeerRate, runner: dict) -> None:
+    """Say a side's refusal of its peer's period (one line) and put it in its summary."""
+    print(f"{role}: {rate.refused}", flush=True)
+    runner["status_reason"] = rate.refused
+
+
 def _own_stop(stop):
     """The caller's stop flag (set by its own Ctrl-C handler), or one of this side's own."""
     return nullcontext(stop) if stop is not None else _stop_requests()
@@ -331,7 +395,7 @@ def _run_master(scene, connect, listen, session, timeout_s, config_json5, pin, s
     status, late, steps, behind = "ok", 0, 0, 0.0
     ticks = np.zeros(n)
     wall0 = time.perf_counter()
-    port = _on_record(link, side, writer, "master")
+    port = PeerRate(_on_record(link, side, writer, "master"), "master", dt)
     with link, side.master:
         status = side.master.status
         if status == "ok" and not _hello(side, link, timeout_s, stop):
@@ -350,6 +414,8 @@ def _run_master(scene, connect, listen, session, timeout_s, config_json5, pin, s
             status = side.tick(i, i * dt, port)
             say.tick(i)
             ticks[i], steps = side.tick_ns * 1e-3, i + 1
+            if port.refused is not None:
+                status = "link_refused"
             if status != "ok":
                 break
             late += _pace(wall0 + (i + 1) * dt, spin_s)
@@ -358,6 +424,8 @@ def _run_master(scene, connect, listen, session, timeout_s, config_json5, pin, s
                   "clock": {"master": ck}, "wall_s": round(ck["wall_s"], 3),
                   "realtime_factor": round(ck["realtime_factor"], 3)}
         runner.update({k: v for k, v in side.master.stats().items() if k != "master_status"})
+        if port.refused is not None:
+            _refused("master", port, runner)
     log = mb.log(steps)
     log["tick_us"] = ticks[:steps]
     return SideRun(status, steps, dt, side.summary(), None, mb.recorder.nan, runner, log), mb.result()
@@ -391,7 +459,7 @@ def _run_slave(scene, listen, connect, session, timeout_s, config_json5, pin, st
     status, late, steps, behind = "ok", 0, 0, 0.0
     ticks = np.zeros(cap)
     wall0 = time.perf_counter()
-    port = _on_record(link, side, writer, "slave")
+    port = PeerRate(_on_record(link, side, writer, "slave"), "slave", dt)
     with link:
         if not _answer_hellos(link, timeout_s, stop):
             status = "interrupted" if stop else "link_lost"
@@ -412,11 +480,16 @@ def _run_slave(scene, listen, connect, session, timeout_s, config_json5, pin, st
             side.tick(i, i * dt, port)
             say.tick(i)
             ticks[i], steps = side.tick_ns * 1e-3, i + 1
+            if port.refused is not None and i >= 1:  # two replies sent: the master can tell this period too
+                status = "link_refused"
+                break
             if side.last_seq >= n:
                 break
             _await_command(link, wall0 + (i + 2) * dt, poll_s)
         runner = {"tick_us": tick_stats(ticks[:steps]), "late_ticks": late, "link": {"zenoh_slave": link.stats()},
                   "clock": {"slave": _clock(wall0, steps, dt, behind, core)}}
+        if port.refused is not None:
+            _refused("slave", port, runner)
     part = side.summary()
     part["followed_last_command"] = side.last_seq >= n
     log = sb.log(steps)
@@ -468,7 +541,11 @@ def merge(scene: Scene, master: tuple[SideRun, dict] | None, slave: tuple[SideRu
         log["tick_us"] = log["tick_us"] + log["slave_tick_us"]  # the log: the ticks both sides ran
     run = SideRun(status, steps, scene.dt_s, m.master if m is not None else None, s.slave if s is not None else None,
                   m.nan if m is not None else False, runner, log)
-    result = side_result(scene, run, {**(master or (None, {}))[1], **(slave or (None, {}))[1]})
+    metrics = {**(master or (None, {}))[1], **(slave or (None, {}))[1]}
+    if log:  # as in one process; the felt force aligned within the scene's delay plus a network's 50 ms
+        metrics.update(link_metrics(run.master, run.slave, log, build_registration(scene), scene.dt_s,
+                                    scene.link.round_trip_ms * 1e-3 + NETWORK_LAG_S))
+    result = side_result(scene, run, metrics)
     if why:
         result.summary["processes"] = why
         if m is None:

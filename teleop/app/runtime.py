@@ -18,7 +18,7 @@ from teleop.app.assembly import (
     make_master,
     make_slave,
 )
-from teleop.app.metrics import TremorProbe
+from teleop.app.metrics import TremorProbe, link_metrics
 from teleop.app.session import RunResult, Session, tick_count
 from teleop.scenario.schema import FixtureSpec, Scene
 from teleop.tick.loop import BilateralLoop
@@ -76,10 +76,9 @@ def run_scene(scene: Scene, progress=None, realtime: bool = False, operator=None
         run.log.update(sb.log(steps))
     if tremor is not None:
         metrics.update(tremor.result(scene.dt_s))
-    passivity = (run.master or {}).get("passivity_master")
-    if passivity is not None and run.slave is not None:  # the drift at the slave's scale (m)
-        metrics["link_drift_max_m"] = run.slave["passivity_slave"]["drift_max_M_m"] / mb.registration.scale
-        metrics["link_drift_final_m"] = run.slave["passivity_slave"]["drift_final_M_m"] / mb.registration.scale
+    if sb is not None:  # the felt force against the true one (and the guard's drift)
+        metrics.update(link_metrics(run.master, run.slave, run.log, mb.registration, scene.dt_s,
+                                    scene.link.round_trip_ms * 1e-3))
     # Ctrl-C may land between two hooks: every series keeps the ticks all of them recorded
     steps = min([steps] + [len(v) for v in run.log.values()])
     run.steps, run.log = steps, {k: v[:steps] for k, v in run.log.items()}
