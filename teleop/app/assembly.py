@@ -73,7 +73,8 @@ def make_slave(scene: Scene, registration, constraints_P, guard: SlaveGuard | No
         key, _, reason = str(e).partition(": ")
         raise SceneError(scene.path, key, reason) from None
     return SlaveSide(arm, registration, tissue, scene.fixture.tip_m, guard=guard,
-                     heartbeat_s=scene.link.heartbeat_ms * 1e-3, limits=command_limits(arm, tool, scale))
+                     heartbeat_s=scene.link.heartbeat_ms * 1e-3, limits=command_limits(arm, tool, scale),
+                     contact_plane=scene.mapping.feedback_contact_plane and scene.mapping.feedback_local_damping)
 
 
 def command_limits(arm: SlaveArm, tool=None, scale: float = 1.0) -> CommandLimits:
@@ -198,7 +199,8 @@ def build_master(scene: Scene, n: int, rng: np.random.Generator, operator=None, 
     feedback = None
     if scene.slave is not None:
         feedback = FeedbackPath(reg, scene.mapping.feedback_cutoff_hz, scene.dt_s, scene.mapping.feedback_local_damping,
-                                tip_B=getattr(spec_M, "tip_m", (0.0, 0.0, 0.0)))
+                                tip_B=getattr(spec_M, "tip_m", (0.0, 0.0, 0.0)),
+                                contact_plane=scene.mapping.feedback_contact_plane)
     guard = make_guard(scene, reg, n, networked)
     master = make_master(scene, tool, rng)
     recorder = MasterRecorder(tool, n)

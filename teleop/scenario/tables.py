@@ -388,6 +388,10 @@ class MappingSpec(Checked):
     feedback_local_damping: bool = setting(True, doc="render the contact's damping at the master, implicitly and "
                                                      "without the link's delay (teleop.tick.feedback); false: the "
                                                      "wrench alone")
+    feedback_contact_plane: bool = setting(True, doc="the slave estimates the surface it touches (a plane's normal "
+                                                     "and stiffness, teleop.contact.estimate) and the master renders "
+                                                     "its stiffness where it is felt; false: not estimated, not "
+                                                     "rendered (needs feedback_local_damping)")
 
     def registration(self) -> Registration:
         return Registration(np.array(self.position_m), rpy_matrix(*self.rpy_rad), self.scale, self.force_scale,

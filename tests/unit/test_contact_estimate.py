@@ -88,3 +88,15 @@ def test_the_slave_recovers_the_scenes_tissue_stiffness(stiffness):
     r = run_scene(scene, hooks=[Last()])
     assert r.summary["status"] == "ok"
     assert Last.k == pytest.approx(stiffness, rel=0.05) and Last.conf > 0.5
+
+
+def test_without_the_plane_a_100_kN_per_m_wall_is_not_rendered_and_with_it_it_is():
+    """The scene key turns the mechanism off on both sides: the same wall, one process, no delay."""
+    from teleop.app.runtime import run_scene
+    from teleop.scenario.schema import load_scene
+
+    sets = ["tissue.stiffness=100000.0", "duration_s=2.0"]
+    off = run_scene(load_scene("stiff_contact", sets=[*sets, "mapping.feedback_contact_plane=false"])).summary
+    on = run_scene(load_scene("stiff_contact", sets=sets)).summary
+    assert off["status"] == "implausible_feedback"  # the wall's force, one tick late, throws the tool
+    assert on["status"] == "ok" and on["metrics"]["contact_force_max_N"] < 5.0
