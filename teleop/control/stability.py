@@ -187,3 +187,64 @@ def critical_mass(p: LoopParams, lo: float | None = None, hi: float | None = Non
         mid = math.sqrt(lo * hi)
         lo, hi = (lo, mid) if is_stable(replace(p, mass=mid)) else (mid, hi)
     return hi
+
+
+def sampled_data_stiffness(mass: float, damping: float, dt_s: float) -> float:
+    """The stiffest spring the reference tool's own step renders stably, N/m (N*m/rad on a
+    rotation): ``mass`` kg (kg*m^2), ``damping`` N*s/m (N*m*s/rad) >= 0, period ``dt_s`` s.
+
+    The tool's step is semi-implicit Euler on m a = -B v - K x with the spring and the damper
+    read at the period's start (held over it): v+ = v + T a, x+ = x + T v+. Its one-period map
+    has determinant 1 - BT/m and trace 2 - KT^2/m - BT/m, so by Jury's test it is stable when
+    0 < BT/m < 2 and
+
+        K T / 2 + B < 2 m / T,   i.e.   K < 4 m / T^2 - 2 B / T,
+
+    Colgate and Schenkel's sampled-data bound b > K T / 2 + |B| for a virtual wall on an impedance
+    display (b the device's own damping), with b played here by 2 m / T: the rendered mass seen
+    through one period. An admittance display renders the spring on the tool it simulates, so the
+    tool's mass and the period, not the device's friction, bound the wall: halving T makes the
+    stiffest wall 4x as stiff without damping (2 m / T doubles and so does 2 / T). Undamped (B = 0)
+    a spring below the bound is marginal (poles on the unit circle), above it unstable. Returns 0
+    when B >= 2 m / T (the damper alone is past its explicit limit: no spring renders).
+
+    With the servo model's inertia compensation the linearized loop of the cobot has this bound
+    and no other (:func:`critical_stiffness` finds it to its tolerance): the device follows the
+    tool and the load cell feels no residual of the handle's inertia to feed back."""
+    if not (mass > 0 and dt_s > 0):
+        raise ConfigError(f"sampled_data_stiffness: expected mass > 0 and dt_s > 0, got {mass}, {dt_s}")
+    if not damping >= 0:
+        raise ConfigError(f"sampled_data_stiffness: expected damping >= 0 N*s/m, got {damping} "
+                          "(a negative damper is unstable at any stiffness)")
+    return max(0.0, 4.0 * mass / dt_s ** 2 - 2.0 * damping / dt_s)
+
+
+def critical_stiffness(p: LoopParams, lo: float | None = None, hi: float | None = None,
+                       rel_tol: float = 1e-3) -> float:
+    """The stiffest stable rendered spring (N/m, or N*m/rad) with p's other settings, p.stiffness
+    ignored: every stiffness of a log grid (x2 steps) from ``lo`` up to it is stable too (the
+    stable band that starts at the soft end; with the commanded compensation the loop has stable
+    bands higher up that this does not count). The grid's last stable point and first unstable
+    one are then bisected in log stiffness to ``rel_tol``. Defaults: ``lo`` 1e-6 and ``hi`` 1e3
+    times the tool's own bound (:func:`sampled_data_stiffness`; 4 m / T^2 when that is 0).
+    Returns 0.0 when ``lo`` is unstable, inf when the whole grid to ``hi`` is stable."""
+    ref = sampled_data_stiffness(p.mass, max(0.0, p.damping), p.dt_s) or 4.0 * p.mass / p.dt_s ** 2
+    lo = 1e-6 * ref if lo is None else lo
+    hi = 1e3 * ref if hi is None else hi
+    if not 0 < lo < hi:
+        raise ConfigError(f"critical_stiffness: expected 0 < lo < hi N/m, got {lo}, {hi}")
+    if not is_stable(replace(p, stiffness=lo)):
+        return 0.0
+    k = lo
+    while True:
+        nxt = min(2.0 * k, hi)
+        if not is_stable(replace(p, stiffness=nxt)):
+            break
+        if nxt >= hi:
+            return math.inf
+        k = nxt
+    lo, hi = k, nxt
+    while hi / lo > 1.0 + rel_tol:
+        mid = math.sqrt(lo * hi)
+        lo, hi = (mid, hi) if is_stable(replace(p, stiffness=mid)) else (lo, mid)
+    return lo
