@@ -31,6 +31,7 @@ import socket
 import time
 from contextlib import contextmanager, nullcontext
 from dataclasses import asdict, replace
+from typing import Any
 
 import numpy as np
 
@@ -317,12 +318,12 @@ class PeerRate:
 
     REL_TOL = 1e-9  # the periods agree to round-off: the stamp is i * dt computed the same way
 
-    def __init__(self, link, role: str, dt_s: float) -> None:
+    def __init__(self, link: Any, role: str, dt_s: float) -> None:
         self.link, self.role, self.dt = link, role, float(dt_s)
         self.checked = False
         self.refused: str | None = None
 
-    def _check(self, msg) -> None:
+    def _check(self, msg: ToolCommand | ContactFeedback | None) -> None:
         if msg is None or msg.t_s < 0 or msg.seq < 2:  # a hello, or the first tick's (stamped 0 at any rate)
             return
         self.checked = True
@@ -333,22 +334,22 @@ class PeerRate:
                             f"{1e3 * self.dt:g} ms:"
                             f" give both sides the same period (the scene's dt_s, or the same --dt)")
 
-    def receive_feedback(self, t_s: float):
+    def receive_feedback(self, t_s: float) -> ContactFeedback | None:
         msg = self.link.receive_feedback(t_s)
         if not self.checked:
             self._check(msg)
         return msg
 
-    def receive_command(self, t_s: float):
+    def receive_command(self, t_s: float) -> ToolCommand | None:
         msg = self.link.receive_command(t_s)
         if not self.checked:
             self._check(msg)
         return msg
 
-    def send_command(self, msg) -> None:
+    def send_command(self, msg: ToolCommand) -> None:
         self.link.send_command(msg)
 
-    def send_feedback(self, msg) -> None:
+    def send_feedback(self, msg: ContactFeedback) -> None:
         self.link.send_feedback(msg)
 
     def clock(self, t_s: float) -> float:
