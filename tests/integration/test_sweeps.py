@@ -109,7 +109,8 @@ def test_fuzzer_tally_is_the_same_with_1_and_2_workers():
 @pytest.mark.long
 def test_delay_study_rows_are_the_same_with_1_and_2_workers(tmp_path):
     study = _tool("delay_study")
-    args = ["--scenes", "stiff_contact", "--delays", "0", "50", "--losses", "0", "--seconds", "0.3"]
+    args = ["--scenes", "stiff_contact", "--walls", "1e4", "--delays", "0", "50", "--losses", "0", "--guards", "off",
+            "tdpa", "--seconds", "0.3"]
     assert study.main([*args, "--out", str(tmp_path / "w1"), "--workers", "1"]) == 0
     assert study.main([*args, "--out", str(tmp_path / "w2"), "--workers", "2"]) == 0
 
