@@ -8,10 +8,11 @@
 
 or, on the in-process loop, one loop hook for both: ``run_scene(scene, hooks=[LoopRecorderMcap(writer)])``.
 
-A hook's ``after_tick`` copies the side's scalars (``struct``) and its arrays' bytes into the next
-row of a preallocated ring in memory shared with the writer (about 3 us a side, median, here;
-``tools/record_bench.py`` measures what it costs the tick); it reads, it never changes the
-physics. The channels (frames: ``patient``
+A side's row is its scalars (``struct``) and its arrays' bytes joined and copied into the next row
+of a preallocated ring in memory shared with the writer, once the tick is over; in one process the
+slave's hook writes both sides' rows after the slave's tick, the master's hook only notes that its
+tick ended (``tools/record_bench.py`` measures what it costs the tick). A hook reads, it never
+changes the physics. The channels (frames: ``patient``
 is the slave's world, ``master`` the master's workspace, placed in ``patient`` on ``/tf_static`` by
 the registration's rotation and offset; its scale, master:slave, is not a transform and is left out):
 
@@ -57,9 +58,8 @@ from teleop.app.record.emit import Columns
 from teleop.app.record.writer import RecordWriter, Source
 from teleop.tick.ports import Hook
 
-#: a row's first nine numbers (the side's scalars), and one number
+#: a row's first nine numbers (the side's scalars)
 _HEAD = struct.Struct("<9d")
-_ONE = struct.Struct("<d")
 #: what a non-contiguous array raises when joined (then the row is filled the slow way, with numpy's
 #: casting, as it is when the joined bytes are not the row's size)
 _COPY_ERRORS = (BufferError, ValueError, TypeError, IndexError, struct.error)
@@ -119,19 +119,26 @@ def _master_source(writer: RecordWriter, side: Any, prefix: str, can: bool) -> S
 class MasterRecorderMcap(Hook):
     """A master-side hook recording the :class:`~teleop.tick.master_side.MasterSide` into
     ``writer`` under ``prefix`` (see the module docstring for the channels). The side sets its
-    status after its hooks, so tick i's row is handed to the writer at the start of tick i + 1
-    (or at ``writer.close()``), with the status tick i ended in. ``can``: on a simulated cobot,
-    record the bus's frames (the simulated device's capture point is teed while recording).
-    ``side``: the side, to make the ring now rather than at the first tick (its memory is then
-    laid out before the clock starts)."""
+    status after its hooks, so tick i's row is written once the tick is over: by the slave-side
+    hook of the same writer right after the slave's tick i (the in-process loop: one hook, one
+    pass for both rows), else as tick i + 1 begins (before the tick changes anything), or at
+    ``writer.close()``; the wall clock is read as tick i ends either way. ``can``: on a simulated
+    cobot, record the bus's frames (the simulated device's capture point is teed while
+    recording). ``side``: the side, to make the ring now rather than at the first tick (its
+    memory is then laid out before the clock starts)."""
 
     def __init__(self, writer: RecordWriter, prefix: str = "/master", can: bool = True, side: Any = None) -> None:
         self.writer, self.prefix, self.can = writer, prefix, can
         self.source: Source | None = None
         self._side: Any = None
-        self._held = self._begun = self._tap = self._extra = False
+        self._begun = self._tap = self._extra = False
         self._tee: tuple[Any, _CanTee] | None = None
-        self._at = 0
+        #: the tick whose row is not written yet (-1: none): its time (s), the wall clock as it ended
+        #: (Unix time, s) and its side
+        self._pend = -1
+        self._pend_t = self._wall = 0.0
+        self._pend_side: Any = None
+        writer._master_hooks.append(self)
         if side is not None:
             self._make(side)
 
@@ -164,41 +171,55 @@ class MasterRecorderMcap(Hook):
         return src
 
     def before_tick(self, i: int, t_s: float, side: Any) -> None:
-        if not self._begun:
+        if self._pend >= 0:  # tick i - 1's row, not written by a slave's hook: now, before this tick changes it
+            self._write()
+        elif not self._begun:
             self._begin(i, t_s, side, before=True)
 
     def after_tick(self, i: int, t_s: float, side: Any) -> None:
-        src = self.source
-        if self._held and src is not None:  # tick i - 1's row: the side holds its status until after these hooks
-            self._held = False
-            code = src._codes.get(side.status)
-            _ONE.pack_into(src.region, self._at + 24, src.code(side.status) if code is None else code)
-            src.publish()
-        if self._fill(i, t_s, side, 0.0):
-            self._held = True
+        if not self._begun:
+            self._begin(i, t_s, side, before=False)
+        elif self._pend >= 0:  # a tick with no before_tick: its predecessor's values are gone, not recorded
+            self._pend = -1
+            if self.source is not None:
+                self.source.ring.dropped += self.source.live
+        self._pend = i
+        self._pend_t = t_s
+        self._wall = time.time()
+        self._pend_side = side
 
-    def _fill(self, i: int, t_s: float, side: Any, code: float) -> bool:
-        """Tick i's row (status ``code``), not yet published; False when it was not recorded."""
-        src = self.source if self._begun and self.source is not None else self._begin(i, t_s, side, before=False)
+    def _write(self, status: str | None = None) -> None:
+        """The pending tick's row, from its side as the tick left it, with the status it ended in
+        (the side's now, or ``status``), copied into the ring and handed to the writer."""
+        side, src, i = self._pend_side, self.source, self._pend
+        self._pend = -1
+        if src is None:
+            return
+        s = side.status if status is None else status
+        try:
+            code = src._codes[s]
+        except KeyError:
+            code = src.code(s)
         ring = src.ring
         w = ring.w
         if not src.live or (w - ring.r >= ring.cap and not ring.room()):
             ring.dropped += src.live
-            return False
+            return
         st = side.state
-        parts = (_HEAD.pack(i, t_s, time.time(), code, side.gain, side.heart.lost, side.peer_lost, side.tick_ns,
-                            side.command_errors), st.p, st.R, st.V, side.hand_W, side.felt_W, side.feedback_W)
+        parts = (_HEAD.pack(i, self._pend_t, self._wall, code, side.gain, side.heart.lost, side.peer_lost,
+                            side.tick_ns, side.command_errors), st.p, st.R, st.V, side.hand_W, side.felt_W,
+                 side.feedback_W)
         o = ring.data + (w % ring.cap) * ring.row_bytes
         try:  # the arrays' bytes, joined, into the shared row in one copy (_MASTER_FIXED's order)
-            data = _JOIN(parts + self._extras(side) if self._extra else parts)
-        except _COPY_ERRORS:
-            data = b""
-        if len(data) == ring.row_bytes:
-            src.region[o:o + len(data)] = data
-        else:  # an array not contiguous float64: numpy's casting
-            self._fill_slow(src.row(w), i, t_s, side, code)
-        self._at = o
-        return True
+            src.region[o:o + ring.row_bytes] = _JOIN(parts + self._extras(side) if self._extra else parts)
+        except _COPY_ERRORS:  # an array not contiguous float64: numpy's casting
+            self._fill_slow(src.row(w), i, side, code)
+        ring.w = w = w + 1  # published (Source.publish, inline: this is the tick's time)
+        ring.hdr[0] = w
+        if src.can_frames:
+            src._publish_can()
+        if w - ring.r >= src.high and not src.realtime:
+            src.high_water()
 
     def _extras(self, side: Any) -> tuple:
         out: tuple = ()
@@ -211,33 +232,27 @@ class MasterRecorderMcap(Hook):
             out += (port.W, port.E_diss, port.action)
         return out
 
-    def _fill_slow(self, row: np.ndarray, i: int, t_s: float, side: Any, code: float) -> None:
+    def _fill_slow(self, row: np.ndarray, i: int, side: Any, code: int) -> None:
         st = side.state
-        np.concatenate([(i, t_s, time.time(), code, side.gain, side.heart.lost, side.peer_lost, side.tick_ns,
+        np.concatenate([(i, self._pend_t, self._wall, code, side.gain, side.heart.lost, side.peer_lost, side.tick_ns,
                          side.command_errors), np.ravel(st.p), np.ravel(st.R), np.ravel(st.V), np.ravel(side.hand_W),
                         np.ravel(side.felt_W), np.ravel(side.feedback_W), *map(np.ravel, self._extras(side))], out=row)
 
     def commit(self, status: str) -> None:
-        """Hand the held row to the writer with the status its tick ended in."""
-        src = self.source
-        if not self._held or src is None:
-            return
-        self._held = False
-        code = src._codes.get(status)
-        _ONE.pack_into(src.region, self._at + 24, src.code(status) if code is None else code)
-        src.publish()
+        """Hand the pending row to the writer with the status its tick ended in."""
+        if self._pend >= 0:
+            self._write(status)
 
     def record(self, i: int, t_s: float, side: Any) -> None:
         """Tick i's row handed over at once with the side's status as it is now (a loop hook, which
         runs after the side has set its status)."""
-        src = self.source if self._begun and self.source is not None else self._begin(i, t_s, side, before=False)
-        if self._fill(i, t_s, side, src.code(side.status)):
-            src.publish()
+        self.after_tick(i, t_s, side)
+        self._write()
 
     def finalize(self) -> None:
         """The last row (its status as the side holds it now); the bus's capture given back."""
-        if self._held and self._side is not None:
-            self.commit(self._side.status)
+        if self._pend >= 0:
+            self._write()
         if self._tee is not None:
             sim, tee = self._tee
             if sim.capture is tee:
@@ -266,17 +281,24 @@ def _slave_source(writer: RecordWriter, side: Any, prefix: str) -> Source:
 class SlaveRecorderMcap(Hook):
     """A slave-side hook recording the :class:`~teleop.tick.slave_side.SlaveSide` into
     ``writer`` under ``prefix`` (see the module docstring for the channels); ``side`` as for
-    :class:`MasterRecorderMcap`."""
+    :class:`MasterRecorderMcap`. When the writer has one master-side hook and its tick i is over
+    but not written (the in-process loop: the master's tick i, then the slave's), this hook
+    writes the master's row of tick i too, in the same pass: the master's side is not touched
+    between its tick and the slave's. A writer's hooks are called from one thread, as the runs
+    do."""
 
     def __init__(self, writer: RecordWriter, prefix: str = "/slave", side: Any = None) -> None:
         self.writer, self.prefix = writer, prefix
         self.source: Source | None = None
+        self._master: MasterRecorderMcap | None = None
         if side is not None:
             self._make(side)
 
     def _make(self, side: Any) -> Source:
         src = self.source = _slave_source(self.writer, side, self.prefix)
         assert list(src.cols.at)[:len(_SLAVE_FIXED)] == list(_SLAVE_FIXED) and src.cols.col("q") == 48
+        masters = self.writer._master_hooks
+        self._master = masters[0] if len(masters) == 1 else None
         return src
 
     @property
@@ -285,31 +307,36 @@ class SlaveRecorderMcap(Hook):
 
     def after_tick(self, i: int, t_s: float, side: Any) -> None:
         src = self.source or self._make(side)
+        m = self._master
+        if m is not None and m._pend == i:  # the master's tick i, over and not written yet
+            m._write()
         ring = src.ring
         w = ring.w
         if not src.live or (w - ring.r >= ring.cap and not ring.room()):
             ring.dropped += src.live
             return
         s, arm, guard = side.state, side.arm, side.guard
-        code = src._codes.get(s.status)
-        parts = (_HEAD.pack(i, t_s, time.time(), src.code(s.status) if code is None else code, side.heart.lost,
-                            side.tick_ns, side.last_seq, side.without_command, side.skipped),
+        try:
+            code = src._codes[s.status]
+        except KeyError:
+            code = src.code(s.status)
+        parts = (_HEAD.pack(i, t_s, time.time(), code, side.heart.lost, side.tick_ns, side.last_seq,
+                            side.without_command, side.skipped),
                  s.p_t, s.R_t, s.p, s.R, s.v, s.w, s.tip, s.contact_P, arm.q, arm.qd)
         o = ring.data + (w % ring.cap) * ring.row_bytes
         try:  # the arrays' bytes, joined, into the shared row in one copy (_SLAVE_FIXED's order)
-            data = _JOIN(parts if guard is None else (*parts, guard.port.W, guard.port.E_diss, guard.port.offset))
-        except _COPY_ERRORS:
-            data = b""
-        if len(data) == ring.row_bytes:
-            src.region[o:o + len(data)] = data
-        else:  # an array not contiguous float64: numpy's casting
-            slow = [(i, t_s, time.time(), src.code(s.status), side.heart.lost, side.tick_ns, side.last_seq,
-                     side.without_command, side.skipped), s.p_t, s.R_t, s.p, s.R, s.v, s.w, s.tip, s.contact_P,
-                    arm.q, arm.qd]
+            src.region[o:o + ring.row_bytes] = _JOIN(
+                parts if guard is None else (*parts, guard.port.W, guard.port.E_diss, guard.port.offset))
+        except _COPY_ERRORS:  # an array not contiguous float64: numpy's casting
+            slow = [(i, t_s, time.time(), code, side.heart.lost, side.tick_ns, side.last_seq, side.without_command,
+                     side.skipped), s.p_t, s.R_t, s.p, s.R, s.v, s.w, s.tip, s.contact_P, arm.q, arm.qd]
             if guard is not None:
                 slow += (guard.port.W, guard.port.E_diss, guard.port.offset)
             np.concatenate([np.ravel(a) for a in slow], out=src.row(w))
-        src.publish()
+        ring.w = w = w + 1  # published (Source.publish, inline: this is the tick's time)
+        ring.hdr[0] = w
+        if w - ring.r >= src.high and not src.realtime:
+            src.high_water()
 
 
 class LoopRecorderMcap(Hook):
@@ -324,13 +351,14 @@ class LoopRecorderMcap(Hook):
                                        else loop.slave_side)
 
     def before_tick(self, i: int, t_s: float, loop: Any) -> None:
-        if not self.master._begun:
-            self.master._begin(i, t_s, loop.master_side, before=True)
+        self.master.before_tick(i, t_s, loop.master_side)
 
     def after_tick(self, i: int, t_s: float, loop: Any) -> None:
-        self.master.record(i, t_s, loop.master_side)
         if loop.slave_side is not None:
-            self.slave.after_tick(i, t_s, loop.slave_side)
+            self.master.after_tick(i, t_s, loop.master_side)
+            self.slave.after_tick(i, t_s, loop.slave_side)  # the master's row too
+        else:
+            self.master.record(i, t_s, loop.master_side)
 
 
 _LINK_ROW = struct.Struct("<13d")

@@ -204,9 +204,15 @@ class Source:
         if self.can_frames:
             self._publish_can()
         if ring.w - ring.r >= self.high and not self.realtime:
-            ring.r = ring.hdr[8]
-            if ring.w - ring.r >= self.high:
-                self._wait()
+            self.high_water()
+
+    def high_water(self) -> None:
+        """The ring seems to hold ``high`` unwritten rows (by the writer's count as last read): read
+        it again, and wait for the writer if they are there."""
+        ring = self.ring
+        ring.r = ring.hdr[8]
+        if ring.w - ring.r >= self.high:
+            self._wait()
 
     def _publish_can(self) -> None:
         ring, region, pack, size = self.can, self.region, CAN_ROW.pack, CAN_ROW.size
@@ -292,6 +298,9 @@ class RecordWriter:
         self.closed = False
         self.result: dict = {}
         self._sources: list[Source] = []
+        #: the master-side hooks recording into this writer (a slave-side hook writes the master's
+        #: row of its tick when there is exactly one: :class:`~teleop.app.record.hooks.SlaveRecorderMcap`)
+        self._master_hooks: list = []
         self._size, self._used = int(region_bytes), 0
         self._lock = threading.Lock()
         self._proc: subprocess.Popen | None = None
