@@ -72,6 +72,7 @@ def interleaved(scene_name: str, seconds: float, block: int, folder: Path, **opt
     from teleop.scenario.schema import load_scene
 
     scene = load_scene(scene_name, sets=[f"duration_s={seconds}"])
+    load0 = os.getloadavg()
     writer = RecordWriter(folder / "record.mcap", metadata={"scene": scene.name, "bench": "record_bench"}, **opts)
     loops = {"with": _loop(scene, writer), "without": _loop(scene)}  # the rings laid out before the clock starts
     n = loops["with"][1]
@@ -93,7 +94,8 @@ def interleaved(scene_name: str, seconds: float, block: int, folder: Path, **opt
     cpu = _cpu_s(pid) - cpu0
     writer.close()
     skip = min(n - 1, 10)  # the first ticks load the kernels
-    out = {"scene": scene.name, "ticks": n, "block": block, "writer": opts}
+    out = {"scene": scene.name, "ticks": n, "block": block, "writer": opts,
+           "load": [round((a + b) / 2, 2) for a, b in zip(load0, os.getloadavg())]}
     for k in loops:
         out[k] = {"tick_us": _stats(tick[k][skip:]), "wall_us": _stats(wall[k][skip:])}
     out["added_median_us"] = {m: round(out["with"][m]["median"] - out["without"][m]["median"], 2)
@@ -142,7 +144,8 @@ def main(argv=None) -> int:
         if args.realtime > 0:
             res["realtime"] = realtime(args.scene, args.realtime, Path(tmp), **kw)
     r = res["interleaved"]
-    print(f"{r['scene']}: {r['ticks']} ticks, interleaved blocks of {r['block']}, writer {r['writer']}")
+    print(f"{r['scene']}: {r['ticks']} ticks, interleaved blocks of {r['block']}, writer {r['writer']}, "
+          f"load average {r['load'][0]:.1f}")
     print(f"{'':10s} {'tick_us median':>15s} {'p99':>8s} {'wall_us median':>15s} {'p99':>8s}")
     for k in ("without", "with"):
         print(f"{k:10s} {r[k]['tick_us']['median']:15.2f} {r[k]['tick_us']['p99']:8.2f} "
