@@ -194,9 +194,10 @@ def scene_ticks(seconds: float, statuses: dict | None = None) -> dict:
 
 def bench_record(seconds: float, repeats: int = 3) -> dict:
     """The straight cut's tick with the MCAP recorder's side hooks and without, ``repeats`` times
-    (each in one run, interleaved blocks: :func:`record_bench.interleaved`); prints each run's
-    medians and their difference, then the median of the differences over the runs (issue 24's
-    target: at most 5 us) with the machine's load average."""
+    (each in one run, interleaved blocks: :func:`record_bench.interleaved`; the loop with the
+    recorder built first and second in turn, as the order biases one run's figure by 1-2 us);
+    prints each run's medians and their difference, then the median of the differences over the
+    runs (issue 24's target: at most 5 us) with the machine's load average."""
     import os
     import tempfile
 
@@ -205,12 +206,13 @@ def bench_record(seconds: float, repeats: int = 3) -> dict:
     runs = []
     for k in range(max(1, repeats)):
         with tempfile.TemporaryDirectory() as tmp:
-            r = record_bench.interleaved("straight_incision", seconds, 250, Path(tmp))
+            r = record_bench.interleaved("straight_incision", seconds, 250, Path(tmp), with_first=k % 2 == 0)
         runs.append(r)
         w, wo = r["with"]["wall_us"], r["without"]["wall_us"]
+        order = "first" if r["with_first"] else "second"
         print(f"{'tick wall_us, straight cut':34s} median {wo['median']:8.2f} without the recorder, {w['median']:8.2f} "
-              f"with it: {r['added_median_us']['wall_us']:+.2f} us (run {k + 1}; p99 {wo['p99']:.1f} / "
-              f"{w['p99']:.1f}; load {r['load'][0]:.1f})")
+              f"with it: {r['added_median_us']['wall_us']:+.2f} us (run {k + 1}, its loop built {order}; "
+              f"p99 {wo['p99']:.1f} / {w['p99']:.1f}; load {r['load'][0]:.1f})")
     added = [r["added_median_us"]["wall_us"] for r in runs]
     out = {"runs": runs, "added_median_us": round(float(np.median(added)), 2), "added_us_each": added,
            "load_avg_1min": round(float(np.median([r["load"][0] for r in runs])), 2)}
@@ -261,9 +263,9 @@ def main(argv=None) -> int:
     ap.add_argument("--record-seconds", type=float, default=4.0,
                     help="simulated seconds of the straight cut with and without the MCAP recorder, interleaved "
                          "(tools/record_bench.py), s (default 4; 0: skip)")
-    ap.add_argument("--record-repeats", type=int, default=3,
-                    help="runs of the recorder's comparison; the median of their differences is the figure "
-                         "(default 3)")
+    ap.add_argument("--record-repeats", type=int, default=4,
+                    help="runs of the recorder's comparison, its loop built first and second in turn; the median "
+                         "of their differences is the figure (default 4)")
     ap.add_argument("--record-only", action="store_true", help="only the recorder's comparison")
     args = ap.parse_args(argv)
     check_sweep_args(ap, args)

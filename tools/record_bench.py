@@ -1,6 +1,6 @@
 """What the MCAP recorder (teleop.app.record) costs the tick, measured in one run with and without it.
 
-    python tools/record_bench.py [--scene straight_incision] [--seconds 5] [--block 250]
+    python tools/record_bench.py [--scene straight_incision] [--seconds 5] [--block 250] [--repeats 2]
                                  [--mode process|thread] [--spool] [--realtime SECONDS] [--json OUT.json]
 
 Two loops of the same scene and seed are built side by side, one with the recorder's side hooks
@@ -15,9 +15,12 @@ the same caches and the same physics. Per tick, for each:
   into its ring is in here, and anything its writer process takes from the tick's core.
 
 Printed: median and p99 of each, with and without, and the difference of the medians (the
-recorder's cost to the median tick). Also the writer process's CPU time per simulated second,
-and the record's size. ``--realtime S``: then S seconds paced to the wall clock with and without
-(``run_scene(realtime=True)``, alternating, twice each) and their late ticks.
+recorder's cost to the median tick), for each of ``--repeats`` runs, the loop with the recorder
+built first and second in turn (of two loops built alike, the first built ticks 1-2 us slower on
+this machine: one order alone biases the figure), and the median of the runs' differences. Also
+the writer process's CPU time per simulated second, and the record's size. ``--realtime S``: then
+S seconds paced to the wall clock with and without (``run_scene(realtime=True)``, alternating,
+twice each) and their late ticks.
 """
 
 from __future__ import annotations
@@ -65,16 +68,23 @@ def _loop(scene, record=None):
     return BilateralLoop(mb.side, sb.side if sb is not None else None, link), n
 
 
-def interleaved(scene_name: str, seconds: float, block: int, folder: Path, **opts) -> dict:
+def interleaved(scene_name: str, seconds: float, block: int, folder: Path, with_first: bool = True,
+                **opts) -> dict:
     """The scene's loop with the record's side hooks and without, ticked in interleaved blocks
-    of ``block`` ticks; the figures of each (see the module docstring)."""
+    of ``block`` ticks; the figures of each (see the module docstring). ``with_first``: the loop
+    with the recorder is built first (else second): of two loops built alike, the one built
+    first ticks some 1-2 us slower here, so a figure from one order alone is biased; run both."""
     from teleop.app.record import RecordWriter
     from teleop.scenario.schema import load_scene
 
     scene = load_scene(scene_name, sets=[f"duration_s={seconds}"])
     load0 = os.getloadavg()
     writer = RecordWriter(folder / "record.mcap", metadata={"scene": scene.name, "bench": "record_bench"}, **opts)
-    loops = {"with": _loop(scene, writer), "without": _loop(scene)}  # the rings laid out before the clock starts
+    # the rings laid out before the clock starts
+    if with_first:
+        loops = {"with": _loop(scene, writer), "without": _loop(scene)}
+    else:
+        loops = {"without": _loop(scene), "with": _loop(scene, writer)}
     n = loops["with"][1]
     tick = {k: np.zeros(n) for k in loops}
     wall = {k: np.zeros(n) for k in loops}
@@ -94,7 +104,7 @@ def interleaved(scene_name: str, seconds: float, block: int, folder: Path, **opt
     cpu = _cpu_s(pid) - cpu0
     writer.close()
     skip = min(n - 1, 10)  # the first ticks load the kernels
-    out = {"scene": scene.name, "ticks": n, "block": block, "writer": opts,
+    out = {"scene": scene.name, "ticks": n, "block": block, "writer": opts, "with_first": with_first,
            "load": [round((a + b) / 2, 2) for a, b in zip(load0, os.getloadavg())]}
     for k in loops:
         out[k] = {"tick_us": _stats(tick[k][skip:]), "wall_us": _stats(wall[k][skip:])}
@@ -136,25 +146,33 @@ def main(argv=None) -> int:
                     help="also S seconds paced to the wall clock, with and without, twice each")
     ap.add_argument("--mode", choices=["process", "thread"], default="process", help="the writer's (default process)")
     ap.add_argument("--spool", action="store_true", help="the writer spools, and writes the MCAP file after the run")
+    ap.add_argument("--repeats", type=int, default=2,
+                    help="interleaved runs, the loop with the recorder built first and second in turn (default 2)")
     ap.add_argument("--json", help="write the figures here")
     args = ap.parse_args(argv)
     with tempfile.TemporaryDirectory() as tmp:
         kw = {"mode": args.mode, "spool": args.spool}
-        res = {"interleaved": interleaved(args.scene, args.seconds, args.block, Path(tmp), **kw)}
+        runs = [interleaved(args.scene, args.seconds, args.block, Path(tmp) / str(k), with_first=k % 2 == 0, **kw)
+                for k in range(max(1, args.repeats))]
+        res: dict = {"interleaved": runs}
         if args.realtime > 0:
             res["realtime"] = realtime(args.scene, args.realtime, Path(tmp), **kw)
-    r = res["interleaved"]
-    print(f"{r['scene']}: {r['ticks']} ticks, interleaved blocks of {r['block']}, writer {r['writer']}, "
-          f"load average {r['load'][0]:.1f}")
-    print(f"{'':10s} {'tick_us median':>15s} {'p99':>8s} {'wall_us median':>15s} {'p99':>8s}")
-    for k in ("without", "with"):
-        print(f"{k:10s} {r[k]['tick_us']['median']:15.2f} {r[k]['tick_us']['p99']:8.2f} "
-              f"{r[k]['wall_us']['median']:15.2f} {r[k]['wall_us']['p99']:8.2f}")
-    print(f"{'added':10s} {r['added_median_us']['tick_us']:15.2f} {r['added_p99_us']['tick_us']:8.2f} "
-          f"{r['added_median_us']['wall_us']:15.2f} {r['added_p99_us']['wall_us']:8.2f}")
-    print(f"writer process: {100 * r['writer_cpu_s_per_sim_s']:.1f} % of a core per simulated second; "
-          f"record {r['record_bytes'] / 1e6:.2f} MB, {r['record'].get('messages')} messages, "
-          f"{r['record'].get('ticks_dropped')} ticks dropped")
+    for r in runs:
+        print(f"{r['scene']}: {r['ticks']} ticks, interleaved blocks of {r['block']}, writer {r['writer']}, the loop "
+              f"with it built {'first' if r['with_first'] else 'second'}, load average {r['load'][0]:.1f}")
+        print(f"{'':10s} {'tick_us median':>15s} {'p99':>8s} {'wall_us median':>15s} {'p99':>8s}")
+        for k in ("without", "with"):
+            print(f"{k:10s} {r[k]['tick_us']['median']:15.2f} {r[k]['tick_us']['p99']:8.2f} "
+                  f"{r[k]['wall_us']['median']:15.2f} {r[k]['wall_us']['p99']:8.2f}")
+        print(f"{'added':10s} {r['added_median_us']['tick_us']:15.2f} {r['added_p99_us']['tick_us']:8.2f} "
+              f"{r['added_median_us']['wall_us']:15.2f} {r['added_p99_us']['wall_us']:8.2f}")
+        print(f"writer process: {100 * r['writer_cpu_s_per_sim_s']:.1f} % of a core per simulated second; "
+              f"record {r['record_bytes'] / 1e6:.2f} MB, {r['record'].get('messages')} messages, "
+              f"{r['record'].get('ticks_dropped')} ticks dropped")
+    if len(runs) > 1:
+        added = [r["added_median_us"]["wall_us"] for r in runs]
+        res["added_median_us"] = round(float(np.median(added)), 2)
+        print(f"added to the median tick's wall time, median of {len(runs)} runs: {res['added_median_us']:+.2f} us")
     if "realtime" in res:
         rt = res["realtime"]
         for k in ("without", "with"):
