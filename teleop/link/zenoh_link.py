@@ -262,7 +262,9 @@ class ZenohLink(Link):
                 valid += 1
                 self._heard_s = before
                 self._box.put(msg)
-                self.ledger.received(msg, wire.stamps(frame), self._polled_s)
+                # stamped now, not at the poll's start: a frame put while this poll drains the ring
+                # would otherwise read as received before it was sent
+                self.ledger.received(msg, wire.stamps(frame), self.clock())
         else:
             self.flood += 1
         self.received += valid
@@ -303,7 +305,7 @@ class ZenohLink(Link):
             raise LinkError(f"ZenohLink: the {self.role} side receives no such message")
         self.poll()
         msg = self._box.take()
-        self.ledger.applied(msg, self._polled_s)
+        self.ledger.applied(msg, self.clock())  # after the poll that may just have received it
         return msg
 
     def peek(self):
