@@ -30,6 +30,25 @@ def _top_face(obj, M) -> tuple:
     return M[:3, 3] + 0.5 * thin * M[:3, 2], M[:3, 2]
 
 
+
+def _unknown_rule(name: str, kind: str):
+    """A one-row holonomic constraint ``name`` of a class ``kind`` the viewer does not know (a
+    user's own)."""
+
+    class Unknown(C.Constraint):
+        rows, holonomic = 1, True
+
+        def residual(self, p, R):
+            return np.zeros(1)
+
+        def jacobian(self, p, R):
+            return np.zeros((1, 6))
+
+        def bias(self, p, R, v, w):
+            return np.zeros(1)
+
+    return type(kind, (Unknown,), {"name": name})()
+
 def test_planes_spheres_and_trocars_are_drawn_where_their_constraints_hold_the_tool():
     o = np.array([0.5, 0.1, 0.2])
     cons = (C.PlaneHeight(o, N, 0.03), C.SphereContact(o, 0.05), C.PointDepth(o, N, 0.005),
@@ -59,19 +78,7 @@ def test_the_tissue_block_stands_for_the_surface_plane_and_bounds_the_depth_plan
 
 
 def test_a_constraint_of_another_kind_is_not_guessed_at():
-    class OnCylinder(C.Constraint):
-        name, rows, holonomic = "on_cylinder", 1, True
-
-        def residual(self, p, R):
-            return np.zeros(1)
-
-        def jacobian(self, p, R):
-            return np.zeros((1, 6))
-
-        def bias(self, p, R, v, w):
-            return np.zeros(1)
-
-    cyl = OnCylinder()
+    cyl = _unknown_rule("on_cylinder", "OnCylinder")
     parts, legend, undrawn = E.fixture_parts((cyl, C.PlaneHeight()), 0.3, 0.2)
     assert undrawn == [cyl] and legend == ["plane"] and len(parts) == 1
 
@@ -158,19 +165,7 @@ def test_the_master_side_shows_the_slaves_tissue_and_trocar_under_the_map(no_mes
 
 
 def test_a_fixture_the_view_cannot_draw_is_said_once_and_gets_the_tools_axes(caplog):
-    class Odd(C.Constraint):
-        name, rows, holonomic = "odd_rule", 1, True
-
-        def residual(self, p, R):
-            return np.zeros(1)
-
-        def jacobian(self, p, R):
-            return np.zeros((1, 6))
-
-        def bias(self, p, R, v, w):
-            return np.zeros(1)
-
-    fx = Fixture("odd", (Odd(), C.PlaneHeight()), None)
+    fx = Fixture("odd", (_unknown_rule("odd_rule", "Odd"), C.PlaneHeight()), None)
     tissue = {"origin_m": (0.0, 0.0, 0.0), "size_m": (0.1, 0.1)}
     scene = VizScene("free", {}, "box", tissue=tissue, master_fixture=fx, slave_fixture=fx,
                      fixture_frame=FrameMap.identity())
