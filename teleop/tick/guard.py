@@ -62,6 +62,11 @@ class MasterGuard:
         """(6,) J: the master port's input energy counted so far."""
         return self.port.energy_J
 
+    @property
+    def slows_motion(self) -> bool:
+        """Whether this port scales the rendered motion (``[link] guard_slows_motion``)."""
+        return self.port.params.enabled and self.port.params.slows_motion
+
     def motion_scale(self, twist_M: np.ndarray) -> float:
         """sigma in [0, 1]: the tool's twist after its step scaled by it keeps this port's
         observer >= 0 (:meth:`teleop.control.passivity.MasterPassivity.motion_scale`); counted in

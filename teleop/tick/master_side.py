@@ -150,7 +150,7 @@ class MasterSide:
         if self.feedback is not None:
             self.felt_W = self.feedback.render(self.feedback_W, tool, f_in, self.dt, state, g)
         st = tool.step(self.dt, f_in + self.felt_W)                   # §II: eqs. 8-11
-        if self.guard is not None:  # the port passive by construction: the rendered motion slowed if need be
+        if self.guard is not None and self.guard.slows_motion:  # passive by construction: the motion slowed if need be
             v, w = tool.twist()
             sigma = self.guard.motion_scale(np.concatenate((v, w)))
             if sigma < 1.0:
