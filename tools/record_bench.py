@@ -21,6 +21,14 @@ this machine: one order alone biases the figure), and the median of the runs' di
 the writer process's CPU time per simulated second, and the record's size. ``--realtime S``: then
 S seconds paced to the wall clock with and without (``run_scene(realtime=True)``, alternating,
 twice each) and their late ticks.
+
+``--floor``: where the cost comes from, the same comparison with the recorder's hooks cut down
+step by step (:data:`FLOOR`, each against the loop without hooks, both build orders, the steps
+alternating): ``call`` the hooks called and doing nothing, ``read`` every field of both rows read
+(no copy), ``join`` the rows' bytes joined as the recorder joins them (no ring, nothing
+published), ``full`` the recorder: the floor of copying a tick from Python, and what the ring and
+the writer add to it. ``--probe``: the recorder's own hooks timed inside the tick (median ns,
+``perf_counter_ns`` around each hook: the timers' own cost included).
 """
 
 from __future__ import annotations
@@ -53,27 +61,107 @@ def _cpu_s(pid: int) -> float:
         return float("nan")
 
 
-def _loop(scene, record=None):
+def _loop(scene, record=None, hooks=None):
     """The scene's loop as runs build it (:mod:`teleop.app.assembly`), with the record's side
     hooks (``build_master(record=)``, ``build_slave(record=)``: what ``teleop run --out`` uses)
-    when ``record`` is a writer."""
+    when ``record`` is a writer; ``hooks``: (master class, slave class) to add in their place, last
+    on each side as ``build_*`` adds them (``--floor``)."""
     from teleop.app.assembly import build_master, build_slave, make_link
     from teleop.app.session import tick_count
     from teleop.tick.loop import BilateralLoop
 
     n = tick_count(scene.duration_s, scene.dt_s)
     rng = np.random.default_rng(scene.seed)
-    mb, sb = build_master(scene, n, rng, record=record), build_slave(scene, n, record=record)
+    rec = record if hooks is None else None
+    mb, sb = build_master(scene, n, rng, record=rec), build_slave(scene, n, record=rec)
+    if hooks is not None and record is not None:
+        mb.side.add_hooks(hooks[0](record, side=mb.side))
+        if sb is not None:
+            sb.side.add_hooks(hooks[1](record, side=sb.side))
     link = make_link(scene, rng) if sb is not None else None
     return BilateralLoop(mb.side, sb.side if sb is not None else None, link), n
 
 
+def _floor_hooks(step: str) -> tuple:
+    """The recorder's hooks cut down to ``step`` (see the module docstring); "full": the recorder's."""
+    import struct
+
+    from teleop.app.record import MasterRecorderMcap, SlaveRecorderMcap
+
+    if step == "full":
+        return MasterRecorderMcap, SlaveRecorderMcap
+    head, join, now = struct.Struct("<9d"), b"".join, time.time
+
+    class Master(MasterRecorderMcap):
+        def before_tick(self, i, t_s, side):
+            pass
+
+        def after_tick(self, i, t_s, side):  # what the recorder's does: the tick noted, the wall clock read
+            self._pend, self._pend_t, self._wall, self._pend_side = i, t_s, now(), side
+
+    class Slave(SlaveRecorderMcap):
+        def after_tick(self, i, t_s, side):
+            if step == "call":
+                return
+            m = self._master
+            ms = m._pend_side
+            st, s, arm = ms.state, side.state, side.arm
+            if step == "read":
+                (ms.status, ms.gain, ms.heart.lost, ms.peer_lost, ms.tick_ns, ms.command_errors, st.p, st.R, st.V,
+                 ms.hand_W, ms.felt_W, ms.feedback_W, s.status, side.heart.lost, side.tick_ns, side.last_seq,
+                 side.without_command, side.skipped, now(), s.p_t, s.R_t, s.p, s.R, s.v, s.w, s.tip, s.contact_P,
+                 arm.q, arm.qd)
+                return
+            join((head.pack(i, m._pend_t, m._wall, 0, ms.gain, ms.heart.lost, ms.peer_lost, ms.tick_ns,
+                            ms.command_errors), st.p, st.R, st.V, ms.hand_W, ms.felt_W, ms.feedback_W))
+            join((head.pack(i, t_s, now(), 0, side.heart.lost, side.tick_ns, side.last_seq, side.without_command,
+                            side.skipped), s.p_t, s.R_t, s.p, s.R, s.v, s.w, s.tip, s.contact_P, arm.q, arm.qd))
+
+    return Master, Slave
+
+
+def _probe_hooks() -> tuple:
+    """The recorder's hooks, each call timed (:data:`PROBE_NS`, ns per tick, the master's and the
+    slave's after_tick and the master's before_tick summed)."""
+    from teleop.app.record import MasterRecorderMcap, SlaveRecorderMcap
+
+    pc = time.perf_counter_ns
+    before, after, slave_after = (MasterRecorderMcap.before_tick, MasterRecorderMcap.after_tick,
+                                  SlaveRecorderMcap.after_tick)
+
+    class Master(MasterRecorderMcap):
+        def before_tick(self, i, t_s, side):
+            t0 = pc()
+            before(self, i, t_s, side)
+            PROBE_NS[i] += pc() - t0
+
+        def after_tick(self, i, t_s, side):
+            t0 = pc()
+            after(self, i, t_s, side)
+            PROBE_NS[i] += pc() - t0
+
+    class Slave(SlaveRecorderMcap):
+        def after_tick(self, i, t_s, side):
+            t0 = pc()
+            slave_after(self, i, t_s, side)
+            PROBE_NS[i] += pc() - t0
+
+    return Master, Slave
+
+
+#: the steps of ``--floor``
+FLOOR = ("call", "read", "join", "full")
+#: ``--probe``: the hooks' time per tick (ns)
+PROBE_NS = np.zeros(0)
+
+
 def interleaved(scene_name: str, seconds: float, block: int, folder: Path, with_first: bool = True,
-                **opts) -> dict:
+                hooks: tuple | None = None, **opts) -> dict:
     """The scene's loop with the record's side hooks and without, ticked in interleaved blocks
     of ``block`` ticks; the figures of each (see the module docstring). ``with_first``: the loop
     with the recorder is built first (else second): of two loops built alike, the one built
-    first ticks some 1-2 us slower here, so a figure from one order alone is biased; run both."""
+    first ticks some 1-2 us slower here, so a figure from one order alone is biased; run both.
+    ``hooks``: (master class, slave class) in place of the recorder's (``--floor``, ``--probe``)."""
     from teleop.app.record import RecordWriter
     from teleop.scenario.schema import load_scene
 
@@ -82,9 +170,9 @@ def interleaved(scene_name: str, seconds: float, block: int, folder: Path, with_
     writer = RecordWriter(folder / "record.mcap", metadata={"scene": scene.name, "bench": "record_bench"}, **opts)
     # the rings laid out before the clock starts
     if with_first:
-        loops = {"with": _loop(scene, writer), "without": _loop(scene)}
+        loops = {"with": _loop(scene, writer, hooks), "without": _loop(scene)}
     else:
-        loops = {"without": _loop(scene), "with": _loop(scene, writer)}
+        loops = {"without": _loop(scene), "with": _loop(scene, writer, hooks)}
     n = loops["with"][1]
     tick = {k: np.zeros(n) for k in loops}
     wall = {k: np.zeros(n) for k in loops}
@@ -148,8 +236,13 @@ def main(argv=None) -> int:
     ap.add_argument("--spool", action="store_true", help="the writer spools, and writes the MCAP file after the run")
     ap.add_argument("--repeats", type=int, default=2,
                     help="interleaved runs, the loop with the recorder built first and second in turn (default 2)")
+    ap.add_argument("--floor", action="store_true",
+                    help="the recorder's hooks cut down step by step (call, read, join, full; see above)")
+    ap.add_argument("--probe", action="store_true", help="the recorder's hooks timed inside the tick")
     ap.add_argument("--json", help="write the figures here")
     args = ap.parse_args(argv)
+    if args.floor or args.probe:
+        return _diagnose(args)
     with tempfile.TemporaryDirectory() as tmp:
         kw = {"mode": args.mode, "spool": args.spool}
         runs = [interleaved(args.scene, args.seconds, args.block, Path(tmp) / str(k), with_first=k % 2 == 0, **kw)
@@ -180,6 +273,48 @@ def main(argv=None) -> int:
                   f"tick p99 {[x['tick_us']['p99'] for x in rt[k]]} us")
     if args.json:
         Path(args.json).write_text(json.dumps(res, indent=2))
+    return 0
+
+
+def _diagnose(args) -> int:
+    """``--floor`` and ``--probe`` (see the module docstring)."""
+    global PROBE_NS
+    kw = {"mode": args.mode, "spool": args.spool}
+    out: dict = {}
+    with tempfile.TemporaryDirectory() as tmp:
+        if args.floor:
+            steps = {st: _floor_hooks(st) for st in FLOOR}
+            runs: dict = {st: [] for st in FLOOR}
+            for rd in range(max(1, args.repeats)):
+                for k in (0, 1):  # the loop with the hooks built first, then second
+                    for st in (FLOOR if (rd + k) % 2 == 0 else FLOOR[::-1]):
+                        r = interleaved(args.scene, args.seconds, args.block, Path(tmp) / f"{st}{rd}{k}",
+                                        with_first=k == 0, hooks=steps[st], **kw)
+                        runs[st].append({"wall_us": r["added_median_us"]["wall_us"],
+                                         "tick_us": r["added_median_us"]["tick_us"], "load": r["load"][0]})
+            out["floor"] = runs
+            print(f"{args.scene}: added to the median tick (us), each step against the loop without hooks, "
+                  f"{2 * max(1, args.repeats)} runs each, both build orders")
+            for st in FLOOR:
+                w = [x["wall_us"] for x in runs[st]]
+                t = [x["tick_us"] for x in runs[st]]
+                print(f"{st:5s} wall {float(np.median(w)):+6.2f} (runs {', '.join(f'{x:.1f}' for x in w)}); tick's own "
+                      f"{float(np.median(t)):+6.2f}; load {min(x['load'] for x in runs[st]):.1f}-"
+                      f"{max(x['load'] for x in runs[st]):.1f}")
+        if args.probe:
+            out["probe"] = []
+            for k in range(max(1, args.repeats)):
+                PROBE_NS = np.zeros(100_000)
+                r = interleaved(args.scene, args.seconds, args.block, Path(tmp) / f"probe{k}", with_first=k % 2 == 0,
+                                hooks=_probe_hooks(), **kw)
+                ns = PROBE_NS[10:r["ticks"]]
+                out["probe"].append({"hooks_ns_median": float(np.median(ns)), "load": r["load"][0],
+                                     "wall_us": r["added_median_us"]["wall_us"]})
+                print(f"probe: the recorder's hooks {np.median(ns):.0f} ns a tick (median; p10 "
+                      f"{np.percentile(ns, 10):.0f}), added to the median tick with the timers "
+                      f"{r['added_median_us']['wall_us']:+.2f} us, load {r['load'][0]:.1f}")
+    if args.json:
+        Path(args.json).write_text(json.dumps(out, indent=2))
     return 0
 
 
