@@ -74,7 +74,15 @@ def make_slave(scene: Scene, registration, constraints_P, guard: SlaveGuard | No
         raise SceneError(scene.path, key, reason) from None
     return SlaveSide(arm, registration, tissue, scene.fixture.tip_m, guard=guard,
                      heartbeat_s=scene.link.heartbeat_ms * 1e-3, limits=command_limits(arm, tool, scale),
-                     contact_plane=scene.mapping.feedback_contact_plane and scene.mapping.feedback_local_damping)
+                     contact_plane=scene.mapping.feedback_contact_plane and scene.mapping.feedback_local_damping,
+                     wall=model_mediated(scene), probe_N=scene.link.probe_force_N)
+
+
+def model_mediated(scene: Scene) -> bool:
+    """Whether the contact is rendered model-mediated (``[link] model_mediated``): a plane wall
+    stands for a surface pressed on, so not where the tissue cuts (a cut's drag is no surface:
+    its local model is the contact's damping, :mod:`teleop.tick.feedback`)."""
+    return bool(scene.link.model_mediated) and "cutting" not in scene.effects
 
 
 def command_limits(arm: SlaveArm, tool=None, scale: float = 1.0) -> CommandLimits:
@@ -200,7 +208,7 @@ def build_master(scene: Scene, n: int, rng: np.random.Generator, operator=None, 
     if scene.slave is not None:
         feedback = FeedbackPath(reg, scene.mapping.feedback_cutoff_hz, scene.dt_s, scene.mapping.feedback_local_damping,
                                 tip_B=getattr(spec_M, "tip_m", (0.0, 0.0, 0.0)),
-                                contact_plane=scene.mapping.feedback_contact_plane)
+                                contact_plane=scene.mapping.feedback_contact_plane, wall=model_mediated(scene))
     guard = make_guard(scene, reg, n, networked)
     master = make_master(scene, tool, rng)
     recorder = MasterRecorder(tool, n)

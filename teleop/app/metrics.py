@@ -429,7 +429,7 @@ def felt_versus_true(felt_N: np.ndarray, true_N: np.ndarray, dt_s: float, max_la
     if n == 0 or not (felt.any() or true.any()):
         return {"felt_error_rms_N": 0.0, "felt_error_peak_N": 0.0, "felt_lag_s": 0.0}
     best = (math.inf, 0.0, 0)
-    for lag in range(0, min(n - 1, round(max_lag_s / dt_s) + 1) + 1):
+    for lag in range(0, min(n - 1, round(max_lag_s / dt_s)) + 1):  # lags 0 ... max_lag_s, both included
         e = felt[lag:] - true[: n - lag]
         used = (felt[lag:] > 0) | (true[: n - lag] > 0)
         if not used.any():
@@ -446,11 +446,16 @@ def link_metrics(master: dict | None, slave: dict | None, log: dict, registratio
                  round_trip_s: float) -> dict:
     """What a run over a guarded or delayed link adds to its metrics, for one process and two
     alike: the guard's drift at the slave's scale (``link_drift_max_m``, ``link_drift_final_m``,
-    m) and the transparency (:func:`felt_versus_true`, when both sides' logs are there)."""
+    m), model-mediated the wall's offset from the slave's surface (``link_wall_offset_max_m``,
+    ``link_wall_offset_final_m``, m at the slave's scale), and the transparency
+    (:func:`felt_versus_true`, when both sides' logs are there)."""
     out: dict = {}
     if master is not None and slave is not None and "passivity_master" in master and "passivity_slave" in slave:
         out["link_drift_max_m"] = slave["passivity_slave"]["drift_max_M_m"] / registration.scale
         out["link_drift_final_m"] = slave["passivity_slave"]["drift_final_M_m"] / registration.scale
+    if master is not None and "wall_model" in master:  # model-mediated: the master's surface from the slave's
+        out["link_wall_offset_max_m"] = master["wall_model"]["offset_max_M_m"] / registration.scale
+        out["link_wall_offset_final_m"] = master["wall_model"]["offset_final_M_m"] / registration.scale
     if "felt_W" in log and "slave_contact_N" in log:
         felt = np.linalg.norm(np.asarray(log["felt_W"])[:, :3], axis=1)
         out.update(felt_versus_true(felt, registration.force_scale * np.asarray(log["slave_contact_N"]), dt_s,

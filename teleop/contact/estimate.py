@@ -156,6 +156,11 @@ class PlaneEstimator:
     def in_contact(self) -> bool:
         return bool(self.state[_IN])
 
+    @property
+    def first_touch_m(self) -> float:
+        """Where along the normal the tip first touched this surface (m)."""
+        return float(self.state[_S0])
+
     def plane(self, anchor_tip: np.ndarray) -> np.ndarray:
         """(8,): the normal (3), ``anchor_tip`` (3, m: where the tip is held to be, the model's
         force there being the measured one), the stiffness (N/m) and the confidence; NO_PLANE when

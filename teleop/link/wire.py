@@ -14,8 +14,8 @@ One frame, all little-endian::
     40     n     payload    (below)
     40+n   32    tag        HMAC-SHA256 over bytes [0, 40+n), keyed per session and direction
 
-ToolCommand payload (201 bytes): t_s f64 (s), p_m 3 f64 (m), R 9 f64 row-major, v_m_s 3 f64 (m/s),
-w_rad_s 3 f64 (rad/s), clutch u8, energy_J 6 f64 (J).
+ToolCommand payload (209 bytes): t_s f64 (s), p_m 3 f64 (m), R 9 f64 row-major, v_m_s 3 f64 (m/s),
+w_rad_s 3 f64 (rad/s), clutch u8, energy_J 6 f64 (J), wall_N f64 (N: the master's contact wall).
 ContactFeedback payload (417 bytes): t_s f64 (s), wrench_P 6 f64 (N, N*m), status u8 (index in
 SLAVE_STATUSES), command_seq i64, energy_J 6 f64 (J), damping_P 21 f64 (the upper triangle, row by
 row: N*s/m, N*s, N*m*s/rad), twist_P 6 f64 (m/s, rad/s), plane_P 8 f64 (the estimated contact
@@ -23,7 +23,8 @@ plane: unit normal, anchor m, stiffness N/m, confidence), then the stamps of the
 answered (s, :class:`~teleop.link.latency.Stamps`): its send time as the master stamped it, and
 when the slave received it and when its tick applied it (the slave's clock; all 0: none).
 
-Version 6 added the contact plane (model-mediated rendering, :mod:`teleop.contact.estimate`);
+Version 7 added the command's ``wall_N`` (model-mediated rendering, :mod:`teleop.contact.wall_model`);
+version 6 the contact plane (model-mediated rendering, :mod:`teleop.contact.estimate`);
 version 5 the send time and the reply's echo of its command's stamps (the latency accounting
 of :mod:`teleop.link.latency`); version 4 the session and counter fields and the tag in place of
 a CRC-32: a frame whose tag does not verify under the receiver's key is refused before anything
@@ -52,7 +53,7 @@ from teleop.link.latency import NO_STAMPS, Stamps
 from teleop.tick.messages import SLAVE_STATUSES, ContactFeedback, MessageError, ToolCommand
 
 MAGIC = b"TLNK"
-WIRE_VERSION = 6
+WIRE_VERSION = 7
 TYPE_COMMAND = 1
 TYPE_FEEDBACK = 2
 TYPE_HELLO, TYPE_WELCOME, TYPE_REFUSE, TYPE_CONFIRM, TYPE_ACCEPT = 16, 17, 18, 19, 20
@@ -62,7 +63,7 @@ MAX_SEQ = 2**63
 _HEADER = struct.Struct("<4sBBHQQQd")
 HEADER_SIZE = _HEADER.size
 _SENT_AT = 32  # the header's sent_s
-_COMMAND = struct.Struct("<19dB6d")
+_COMMAND = struct.Struct("<19dB7d")
 _FEEDBACK = struct.Struct("<7dBq44d")
 _ECHO = struct.Struct("<3d")  # the last 24 bytes of a feedback payload
 _UPPER = np.triu_indices(6)
@@ -159,7 +160,7 @@ def pack_message(msg: ToolCommand | ContactFeedback, stamps: Stamps = NO_STAMPS)
     """The type and payload of one message (a reply's with ``stamps``' echo of its command)."""
     if isinstance(msg, ToolCommand):
         return TYPE_COMMAND, _COMMAND.pack(msg.t_s, *msg.p_m, *msg.R.reshape(-1), *msg.v_m_s,
-                                           *msg.w_rad_s, 1 if msg.clutch else 0, *msg.energy_J)
+                                           *msg.w_rad_s, 1 if msg.clutch else 0, *msg.energy_J, msg.wall_N)
     if isinstance(msg, ContactFeedback):
         return TYPE_FEEDBACK, _FEEDBACK.pack(msg.t_s, *msg.wrench_P, SLAVE_STATUSES.index(msg.status),
                                              msg.command_seq, *msg.energy_J, *msg.damping_P[_UPPER], *msg.twist_P,
@@ -216,7 +217,7 @@ def unpack_message(head: Header, data: bytes) -> ToolCommand | ContactFeedback:
             raise MessageError(f"wire: bad clutch byte {v[19]}")
         return ToolCommand(seq=seq, t_s=v[0], p_m=np.array(v[1:4]), R=np.array(v[4:13]).reshape(3, 3),
                            v_m_s=np.array(v[13:16]), w_rad_s=np.array(v[16:19]), clutch=bool(v[19]),
-                           energy_J=np.array(v[20:26]))
+                           energy_J=np.array(v[20:26]), wall_N=v[26])
     if v[7] >= len(SLAVE_STATUSES):
         raise MessageError(f"wire: unknown status index {v[7]}")
     D = np.empty((6, 6))

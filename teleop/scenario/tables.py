@@ -432,9 +432,17 @@ class LinkSpec(Checked):
     dv_max_m_s: float = setting(0.5, gt=0.0, le=MAX_QD0,
                                 doc=f"slave velocity correction cap, m/s (rad/s on rotation axes), in (0, {MAX_QD0:g}]")
     drift_gain: float = setting(2.0, ge=0.0, le=1e3, doc="position drift compensation rate, 1/s (0: off), at most 1e3")
-    guard_slows_motion: bool = setting(False, doc="the guard's master port also slows the rendered motion so that "
-                                                  "its observed energy never goes below zero (passive by "
-                                                  "construction; off by default: see docs/design/link.md)")
+    guard_slows_motion: bool = setting(True, doc="the guard's master port also slows the rendered motion so that "
+                                                 "its observed energy never goes below zero (passive by "
+                                                 "construction; see docs/design/link.md)")
+    model_mediated: bool = setting(True, doc="the master renders the slave's estimated contact plane as a wall of "
+                                              "its own, updated passively, and the slave presses no harder than "
+                                              "that wall (needs mapping.feedback_contact_plane; not where the "
+                                              "tissue cuts, whose drag is rendered by its damping; see "
+                                              "docs/design/link.md)")
+    probe_force_N: float = setting(0.5, ge=0.0, le=1e3,
+                                   doc="model-mediated: the force the slave may press on a surface the master has "
+                                       "not felt yet, N at the slave, in [0, 1000]")
     heartbeat_ms: float = setting(20.0, gt=0.0, le=10_000.0,
                                   doc="over Zenoh: a side that hears nothing for this long goes to its safe state, ms")
 

@@ -47,6 +47,16 @@ later. The spring's part at the present pose is part of the channel's force the 
 (:meth:`update`); its change over the step is rendered implicitly with the damping
 ((D + dt K) in place of D, K = k' n n^T at the tip, moved to the origin), so a stiff estimate
 cannot make the light tool's step unstable (backward Euler on a spring dissipates).
+
+Model-mediated (``wall``, ``[link] model_mediated``): the slave anchors its plane on the surface
+it locates from its measured force (where the force is zero) rather than where its tip is held,
+and the master
+renders the plane as a wall of its own (:class:`~teleop.contact.wall_model.PassiveWall`): a fixed
+spring in the master's frame, its updates applied passively through an energy tank fed by the
+contact damping rendered here. While a wall is held, the channel's force along its normal is not
+rendered (the wall stands for it) and the guard observes the rest only; the wall, like the damper,
+is a local passive element, rendered whole and stepped implicitly ((D + dt K) as above). Each
+command carries the wall's normal force (:meth:`wall_force`): the slave presses no harder.
 """
 
 from __future__ import annotations
@@ -57,6 +67,7 @@ from typing import Any
 import numpy as np
 
 from teleop.contact.damping import moved_to_origin
+from teleop.contact.wall_model import PassiveWall
 from teleop.control.kernels import render_local_damping
 from teleop.control.mapping import Registration
 from teleop.dynamics.effects import total_wrench
@@ -75,7 +86,7 @@ class FeedbackPath:
     ``local_damping`` False renders the reported wrench alone."""
 
     def __init__(self, registration: Registration, cutoff_hz: float, dt_s: float, local_damping: bool = True,
-                 tip_B: Any = (0.0, 0.0, 0.0), contact_plane: bool = True):
+                 tip_B: Any = (0.0, 0.0, 0.0), contact_plane: bool = True, wall: bool = False):
         if not (math.isfinite(cutoff_hz) and cutoff_hz >= 0):
             raise ValueError(f"feedback cutoff: expected a number >= 0 Hz, got {cutoff_hz!r}")
         self.reg = registration
@@ -84,6 +95,8 @@ class FeedbackPath:
         self.local_damping = bool(local_damping)
         self.contact_plane = bool(contact_plane) and self.local_damping
         self.tip_B = np.asarray(tip_B, dtype=float)  # the tool's tip in its body frame (m, M units)
+        self.wall = PassiveWall() if wall and self.contact_plane else None  # model-mediated: the plane as a wall
+        self.wall_offset_max_m = 0.0        # the wall's largest offset from the slave's surface (m, M)
         self.refused = 0                    # replies whose damping was not positive semidefinite
         self.reset()
 
@@ -98,6 +111,9 @@ class FeedbackPath:
         self._D = _ZERO66
         self._plane: tuple[np.ndarray, np.ndarray, float] | None = None  # n (3,), a (3,) m, k' N/m, in M
         self.spring_K: np.ndarray | None = None  # the spring's stiffness at the origin while it acts (6, 6)
+        self.wall_W = np.zeros(6)           # the wall's wrench at the origin (N, N*m, M; model-mediated)
+        if self.wall is not None:
+            self.wall.reset()
 
     def update(self, msg: ContactFeedback | None, state: ToolState | None = None) -> np.ndarray:
         """The newest reply (None: hold the last) filtered in; returns the force the channel
@@ -123,19 +139,74 @@ class FeedbackPath:
         else:
             self.damping_M = lowpass(self.damping_M, self._D, a)
         self.spring_K = None
+        if self.wall is not None:
+            return self._wall_step(state)
         if self._plane is None or state is None:
             return self.offset_M
         return self.offset_M + self._spring(state)
+
+    def _tip(self, state: ToolState) -> tuple[np.ndarray, np.ndarray]:
+        """The tool's tip (3,) m and its offset from the origin d = R tip_B (3,) m, in M."""
+        d = state[1] @ self.tip_B
+        return state[0] + d, d
+
+    def _wall_step(self, state: ToolState | None) -> np.ndarray:
+        """Model-mediated: the wall moved passively toward the newest plane at the tool's state,
+        its wrench and stiffness kept for :meth:`render`; returns the channel's force less its
+        part along the wall's normal (what the guard observes)."""
+        wall, out = self.wall, self.offset_M
+        assert wall is not None
+        self.wall_W = np.zeros(6)
+        if state is None:
+            return out
+        D = self.damping_M
+        if D is not _ZERO66:  # the contact damping rendered last tick: energy dissipated, the tank's
+            V = state[2]
+            wall.credit(self.dt * float(V @ D @ V))
+        x, d = self._tip(state)
+        wall.update(x)
+        self.wall_offset_max_m = max(self.wall_offset_max_m, wall.offset_m)
+        n = wall.n
+        if n is None:
+            return out
+        out = out.copy()
+        out[:3] -= float(n @ out[:3]) * n  # the wall stands for the normal force
+        out[3:] -= np.cross(d, float(n @ self.offset_M[:3]) * n)
+        depth = wall.depth(x)
+        if depth > 0.0:
+            self.wall_W[:3] = wall.k * depth * n
+            self.wall_W[3:] = np.cross(d, self.wall_W[:3])
+            K_tip = np.zeros((6, 6))
+            K_tip[:3, :3] = wall.k * np.outer(n, n)
+            self.spring_K = moved_to_origin(K_tip, d)
+        return out
+
+    def wall_summary(self) -> dict:
+        """Model-mediated: the wall's offset from the slave's surface, largest and at the end
+        (m, M: the master's surface less the slave's), and the tank (J)."""
+        w = self.wall
+        return {} if w is None else {"offset_max_M_m": self.wall_offset_max_m, "offset_final_M_m": w.offset_m,
+                                     "tank_J": w.tank_J}
+
+    def wall_force(self, state: ToolState) -> float:
+        """The wall's normal force (N, >= 0, M) with the tool at ``state``: what the next command
+        carries (0 without a wall)."""
+        return 0.0 if self.wall is None else self.wall.force(self._tip(state)[0])
 
     def _take_plane(self, plane_P: np.ndarray) -> None:
         """The slave's contact plane (normal, anchor, stiffness, confidence in P) in M, or None."""
         k = float(plane_P[6] * plane_P[7])
         if not k > 0.0:
             self._plane = None
+            if self.wall is not None:
+                self.wall.aim(None)
             return
         reg = self.reg
         n = reg.X_PM_R.T @ plane_P[:3]
         self._plane = (n, reg.point_to_master(plane_P[3:6]), k * float(reg.force_scale) / float(reg.scale))
+        if self.wall is not None:
+            n, a, k_M = self._plane
+            self.wall.aim(n, float(n @ a), k_M)
 
     def _spring(self, state: ToolState) -> np.ndarray:
         """The plane's unilateral spring (6,: N, N*m at the origin, M) at the tool's ``state``;
@@ -180,6 +251,9 @@ class FeedbackPath:
         D = self.damping_M
         if self.spring_K is not None:  # the spring's change over the step, implicitly (see the module docstring)
             D = D + self.dt * self.spring_K
+        if self.wall is not None and self.wall.n is not None:  # a local passive element: rendered whole
+            channel_M = (channel_M if gain == 1.0 else gain * channel_M) + self.wall_W
+            gain = 1.0
         if not self.local_damping or D is _ZERO66 or not D.any():
             return channel_M if gain == 1.0 else gain * channel_M
         if state is None:

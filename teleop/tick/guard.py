@@ -137,13 +137,21 @@ class SlaveGuard:
         cmd = live
         off = self.port.offset
         return ToolCommand(cmd.seq, cmd.t_s, cmd.p_m + off[:3], exp3(off[3:]) @ cmd.R, v[:3], v[3:],
-                           cmd.clutch, cmd.energy_J)
+                           cmd.clutch, cmd.energy_J, cmd.wall_N)
 
-    def reply(self, fb: ContactFeedback) -> ContactFeedback:
+    def reply(self, fb: ContactFeedback, wall_normal_P: np.ndarray | None = None) -> ContactFeedback:
         """``fb`` with the slave port's input energy and the drift spring added to its wrench
-        (nothing added while the offset is zero); remembers the contact wrench for the next tick."""
+        (nothing added while the offset is zero); remembers the contact wrench for the next tick.
+        ``wall_normal_P`` (3,): the normal of a surface the master renders as its own wall
+        (model-mediated): the force along it is not the channel's and is left out of the port's
+        books, as the master leaves it out of its own."""
         wrench_P = fb.wrench_P
-        self.f_M = self.reg.wrench_to_master(fb.model_offset_P if self.model_offset else wrench_P)
+        f_M = self.reg.wrench_to_master(fb.model_offset_P if self.model_offset else wrench_P)
+        if wall_normal_P is not None:
+            n = self.reg.X_PM_R.T @ wall_normal_P
+            f_M = f_M.copy()
+            f_M[:3] -= float(n @ f_M[:3]) * n
+        self.f_M = f_M
         off = self.port.offset
         if np.any(off):  # the drift reflected to the master: a spring pulling it toward the slave's target
             p = self.port.params

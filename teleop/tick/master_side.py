@@ -192,11 +192,12 @@ class MasterSide:
     def _send(self, i: int, t_s: float, link: MasterEnd, lost: bool) -> None:
         """The tool's new state to the slave (clutch out while lost); a state that is not finite
         is not sent (the slave holds) and is counted."""
-        g, s = self.guard, self.state
+        g, s, fb = self.guard, self.state, self.feedback
         energy = None if g is None else g.energy_J if lost else g.energy_after(s.V)
+        wall = fb.wall_force(s) if getattr(fb, "wall", None) is not None and not lost else 0.0  # type: ignore[union-attr]  # fb is a FeedbackPath when it has a wall
         try:
             link.send_command(ToolCommand(i + 1, t_s, s.p, s.R, s.v, s.w, self.operator.clutch_engaged and not lost,
-                                          energy))
+                                          energy, wall))
         except MessageError:
             self.command_errors += 1
         if g is not None:
@@ -214,6 +215,8 @@ class MasterSide:
                "engine": {"rank_min": int(self.tool.rank), "recharts": self.tool.recharts}}
         if self.feedback is not None:
             out["feedback_damping_refused"] = self.feedback.refused
+            if self.feedback.wall is not None:
+                out["wall_model"] = self.feedback.wall_summary()
         if self.guard is not None:
             out["passivity_master"] = self.guard.summary()
         return out

@@ -164,7 +164,9 @@ class ToolCommand:
 
     ``p_m`` (3,) m and ``R`` (3, 3) the pose in M; ``v_m_s`` (3,) m/s and ``w_rad_s`` (3,) rad/s the
     twist in M; ``clutch`` True while the operator drives the slave; ``energy_J`` (6,) J the energy
-    that has entered the channel at the master port so far, per axis (None: zeros).
+    that has entered the channel at the master port so far, per axis (None: zeros); ``wall_N`` the
+    normal force (N in M, >= 0) of the contact wall the master renders at this pose (model-mediated
+    rendering, :mod:`teleop.contact.wall_model`; 0: none): the slave presses no harder.
     """
 
     seq: int
@@ -175,9 +177,10 @@ class ToolCommand:
     w_rad_s: np.ndarray
     clutch: bool
     energy_J: np.ndarray
+    wall_N: float
 
     def __init__(self, seq: int, t_s: float, p_m: ArrayLike, R: ArrayLike, v_m_s: ArrayLike, w_rad_s: ArrayLike,
-                 clutch: bool = True, energy_J: ArrayLike | None = None) -> None:
+                 clutch: bool = True, energy_J: ArrayLike | None = None, wall_N: float = 0.0) -> None:
         """Checked as made (each field written once, with its checked value)."""
         object.__setattr__(self, "seq", _seq(seq, "ToolCommand.seq"))
         object.__setattr__(self, "t_s", _time(t_s, "ToolCommand.t_s"))
@@ -198,6 +201,10 @@ class ToolCommand:
         object.__setattr__(self, "w_rad_s", w)
         object.__setattr__(self, "clutch", bool(clutch))
         object.__setattr__(self, "energy_J", energy)
+        fw = float(wall_N)
+        if not (math.isfinite(fw) and fw >= 0.0):
+            raise MessageError(f"ToolCommand.wall_N: expected a finite force >= 0 N, got {wall_N!r}")
+        object.__setattr__(self, "wall_N", fw)
 
 
 @dataclass(frozen=True, slots=True, init=False)
@@ -214,8 +221,9 @@ class ContactFeedback:
 
     ``plane_P`` (8,) the contact as the slave estimates it (:mod:`teleop.contact.estimate`): the
     surface's unit normal (3), the anchor (3, m: the tip's position the model is measured at, less
-    the guard's drift), the stiffness along the normal (N/m, >= 0) and the estimate's confidence
-    in [0, 1]; all zeros (None): no model, nothing rendered beyond the wrench and the damping."""
+    the guard's drift; model-mediated, a point on the surface), the stiffness along the normal
+    (N/m, >= 0) and the estimate's confidence in [0, 1]; all zeros (None): no model, nothing
+    rendered beyond the wrench and the damping."""
 
     seq: int
     t_s: float

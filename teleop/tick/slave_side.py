@@ -34,7 +34,7 @@ from typing import Any
 import numpy as np
 
 from teleop.contact.damping import contact_damping, moved_to_origin
-from teleop.contact.estimate import PlaneEstimator
+from teleop.contact.estimate import NO_PLANE, PlaneEstimator
 from teleop.control.mapping import Registration
 from teleop.dynamics.rotations import cross
 from teleop.slave.projection import project_onto_fixture
@@ -45,6 +45,12 @@ from teleop.tick.messages import ContactFeedback, ToolCommand
 from teleop.tick.plausible import CommandCheck, CommandLimits
 from teleop.tick.ports import Hook, SlaveEnd
 
+#: model-mediated: how long a surface the tip left still bounds its target (s)
+WALL_MEMORY_S = 0.2
+#: model-mediated: the largest tracking offset (m) the bound on the target makes up for
+TRACK_LAG_MAX_M = 1e-3
+#: model-mediated: the secant stiffness since the first touch is taken over at least this depth (m)
+SECANT_DEPTH_MIN_M = 1e-6
 _Z3 = np.zeros(3)
 _Z3.flags.writeable = False
 #: the heartbeat's timeout when none is given (s): ``[link] heartbeat_ms``'s default
@@ -84,10 +90,23 @@ class SlaveSide:
                  tip_B: Sequence[float] = (0.0, 0.0, 0.0),
                  guard: SlaveGuard | None = None, heartbeat_s: float = HEARTBEAT_S,
                  hooks: Sequence[Hook] = (), limits: CommandLimits | None = None,
-                 contact_plane: bool = True) -> None:
+                 contact_plane: bool = True, wall: bool = False, probe_N: float = 0.5) -> None:
         self.arm, self.reg, self.tissue = arm, registration, tissue
         #: the contact plane estimated from the measured force and the tip's motion (None: not sent)
-        self.estimator = PlaneEstimator(arm.dt) if contact_plane and tissue is not None else None
+        #: model-mediated (the master renders the plane as its own wall): the plane anchored on the
+        #: surface, and the tip pressed no harder than the master's wall, or ``probe_N`` (N, P) on a
+        #: surface the master has not felt yet; the estimate sure after 2 um along the normal (a
+        #: stiff surface is pressed no further than the probe force takes it)
+        self.wall = bool(wall) and contact_plane and tissue is not None
+        self.estimator = (PlaneEstimator(arm.dt, excursion_m=2e-6 if self.wall else 2e-5)
+                          if contact_plane and tissue is not None else None)
+        self._touched_s = -math.inf    # when the tip last touched the surface (s)
+        self._surface: tuple[np.ndarray, float, float] | None = None  # located: normal, offset (m), k (N/m)
+        self._plane_c: float | None = None  # the surface's offset located with the estimate's stiffness (m)
+        if not (math.isfinite(probe_N) and probe_N >= 0.0):
+            raise ValueError(f"slave side: probe_N must be a finite force >= 0 N, got {probe_N!r}")
+        self.probe_N = float(probe_N)
+        self.pressed_less = 0          # ticks whose target was moved out of the surface (model-mediated)
         self.tip_B = np.asarray(tip_B, dtype=float)
         self._tip_at_origin = not self.tip_B.any()
         self._written_damping = hasattr(tissue, "damping")  # the model writes its damping out
@@ -153,7 +172,76 @@ class SlaveSide:
     def _follow_guarded(self, cmd: ToolCommand | None, t_s: float) -> ContactFeedback:
         if self.guard is None:
             return self.follow(cmd, t_s)
-        return self.guard.reply(self.follow(self.guard.command(cmd, t_s), t_s))
+        reply = self.follow(self.guard.command(cmd, t_s), t_s)
+        return self.guard.reply(reply, self._wall_normal())
+
+    def _wall_normal(self) -> np.ndarray | None:
+        """The normal (3,) of the surface the tip is on, when the master renders it as a wall."""
+        est = self.estimator
+        return est.n if self.wall and est is not None and est.in_contact else None
+
+    def _locate_surface(self, tip: np.ndarray, F: np.ndarray, t_s: float) -> None:
+        """Model-mediated: the surface the tip is on, from this tick's measured force, while in
+        contact: its normal n, the offset c = n . tip + f_n / k where the force is zero (exact at
+        rest for a linear surface, whatever the estimate's own offset), and k the larger of the
+        estimate's stiffness (once confident) and the secant since the first touch. Bounding the
+        target with the larger stiffness corrects by at most the whole force error each tick (a
+        smaller one overshoots: at half the true stiffness the bound's loop rings). Off the
+        surface the remembered one, never above the tip (the tip is outside it). The plane sent
+        to the master (:meth:`_surface_plane`) is located with the estimate's own stiffness."""
+        est = self.estimator
+        assert est is not None
+        n = est.n
+        s = float(n @ tip)
+        if est.in_contact:
+            fn = float(n @ F)
+            k_sec = max(fn, 0.0) / max(est.first_touch_m - s, SECANT_DEPTH_MIN_M)
+            k_est = est.k if est.confidence > 0.0 else 0.0
+            k = max(k_est, k_sec)
+            if not k > 0.0:
+                self._surface = None
+                return
+            self._surface = (n, s + fn / k, k)
+            self._plane_c = s + fn / k_est if k_est > 0.0 else None
+            self._touched_s = t_s
+        elif self._surface is not None:
+            n, c, k = self._surface
+            self._surface = (n, min(c, s), k)
+
+    def _surface_plane(self) -> np.ndarray:
+        """The reply's plane, model-mediated: the estimate anchored on the located surface while
+        in contact (NO_PLANE otherwise)."""
+        est = self.estimator
+        if est is None or self._plane_c is None or not est.in_contact or not est.confidence > 0.0:
+            return NO_PLANE
+        return est.plane(self._plane_c * est.n)
+
+    def _pressed_no_harder(self, target: tuple, wall_N: float, t_s: float) -> tuple:
+        """Model-mediated: the target (p, R, v, w) moved out along the surface's normal so that
+        the estimated force at its tip is at most the master's wall's (``wall_N``, N in M), or
+        the probe force on a surface the master has not felt; its velocity into the surface
+        dropped. Unchanged while the estimate is not confident, and once the tip has been off the
+        surface for WALL_MEMORY_S (a bounce keeps the surface: the target would plunge)."""
+        est = self.estimator
+        if est is None or self._surface is None or t_s - self._touched_s > WALL_MEMORY_S:
+            return target
+        n, c, k = self._surface
+        p, R, v, w = target
+        tip = p if self._tip_at_origin else p + R @ self.tip_B
+        allowed = max(wall_N / float(self.reg.force_scale), self.probe_N) / k
+        # where the tip ends up for a target: the arm's last offset from its target along n (its
+        # steady tracking error is of the order of a stiff surface's whole allowed depth)
+        lag = 0.0
+        if self._target is not None and self.state.ticks:
+            p0, R0 = self._target[0], self._target[1]
+            lag = float(n @ (self.state.tip - (p0 if self._tip_at_origin else p0 + R0 @ self.tip_B)))
+            lag = min(max(lag, -TRACK_LAG_MAX_M), TRACK_LAG_MAX_M)
+        excess = c - float(n @ tip) - lag - allowed
+        if not excess > 0.0:
+            return target
+        self.pressed_less += 1
+        vn = float(n @ v)
+        return p + excess * n, R, (v - vn * n if vn < 0.0 else v), w
 
     def hold(self, t_s: float) -> ContactFeedback:
         """The safe state for one tick (the master is lost): no command followed, the joints
@@ -174,6 +262,7 @@ class SlaveSide:
     def summary(self) -> dict:
         """This side's part of a run's summary (:func:`teleop.tick.verdict.run_summary`)."""
         out = {"slave_statuses": dict(self.statuses), "heartbeat": self.heart.summary(),
+               **({"pressed_less_ticks": self.pressed_less} if self.wall else {}),
                "last_command_seq": self.last_seq, "ticks_without_command": self.without_command,
                "commands_skipped": self.skipped, "commands_refused": dict(self.check.refused), **self.stats()}
         if self.guard is not None:
@@ -197,6 +286,8 @@ class SlaveSide:
             target = self.reg.target(cmd.p_m, cmd.R, cmd.v_m_s, cmd.w_rad_s)
             self._refusing = self.check.pose_reason(cmd, target[0], target[1])
             if self._refusing is None:
+                if self.wall:
+                    target = self._pressed_no_harder(target, cmd.wall_N, t_s)
                 self._target = self.project(*target)
             else:  # no real master asks this: hold where the arm is
                 p, R = self.arm.tool_pose()
@@ -250,8 +341,11 @@ class SlaveSide:
         plane = None
         if self.estimator is not None:
             self.estimator.update(tip, v_tip, contact[:3])
+            if self.wall:
+                self._locate_surface(tip, contact[:3], t_s)
             # anchored where the master asked the tip to be: at rest there, the master feels what is measured
-            plane = self.estimator.plane(p_t + (R_t @ self.tip_B if not self._tip_at_origin else _Z3))
+            plane = (self._surface_plane() if self.wall else
+                     self.estimator.plane(p_t + (R_t @ self.tip_B if not self._tip_at_origin else _Z3)))
         self._seq += 1
         return ContactFeedback(self._seq, t_s, at_origin, s.status, -1 if cmd is None else cmd.seq,
                                damping_P=damping, twist_P=twist, plane_P=plane)

@@ -13,8 +13,10 @@ NOMINAL_N = 1.53  # the stiff contact's undelayed force: 400 N/m hand spring x 4
 
 
 def _stiff(delay_ms, guard, seconds=3.0, loss=0.0):
+    # the bare channel and TDPA as such: the stiff contact's force through the link, not model-mediated
     scene = load_scene("stiff_contact", sets=[f"duration_s={seconds}", f"link.round_trip_ms={delay_ms}",
-                                              f'link.passivity="{guard}"', f"link.loss={loss}"])
+                                              f'link.passivity="{guard}"', f"link.loss={loss}",
+                                              "link.model_mediated=false", "link.guard_slows_motion=false"])
     r = run_scene(scene)
     last = slice(-1000, None)
     return r, band_rms(r.log["p_r"][last], scene.dt_s, 2.0, 50.0), r.log["slave_contact_N"]
