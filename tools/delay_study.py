@@ -30,8 +30,12 @@ The axes (every combination runs):
 * ``--guards``: ``off`` (``link.passivity = "off"``, ``mapping.feedback_contact_plane = false``:
   the bare delayed channel), ``tdpa`` (the passivity guard alone: passivity "tdpa", no contact
   plane), ``model`` (the guard and the local contact model: passivity "tdpa" and the slave's
-  estimated plane rendered at the master: what a scene does by default on a delayed link);
-  ``model_unguarded`` (the plane without the guard) on request. The contact's damping is rendered
+  estimated plane rendered at the master about the measured force),
+  ``mediated`` (the guard passive by construction and model-mediated contact,
+  ``link.guard_slows_motion`` and ``link.model_mediated``: the plane rendered as the master's own
+  wall, updated passively, the slave pressing no harder; its drift columns add the wall's offset
+  from the slave's surface; what a scene does by default on a delayed link); ``model_unguarded``
+  (the plane without the guard) on request. The contact's damping is rendered
   locally in all four (the scene's ``feedback_local_damping``).
 
 Each run gives a row:
@@ -112,9 +116,10 @@ DELAYS_MS = (0, 10, 100, 250, 500, 1000, 2000)
 LOSSES = (0.0, 0.05, 0.1)
 BURSTS = (0.0, 0.01)
 BURST_EXIT = 0.5  #: Gilbert-Elliott bad->good per message (the [link] default): bursts of 2 messages on average
-#: the guard axis: name -> (link.passivity, mapping.feedback_contact_plane)
-GUARDS = {"off": ("off", False), "tdpa": ("tdpa", False), "model": ("tdpa", True), "model_unguarded": ("off", True)}
-DEFAULT_GUARDS = ("off", "tdpa", "model")
+#: the guard axis: name -> (link.passivity, mapping.feedback_contact_plane, link.model_mediated)
+GUARDS = {"off": ("off", False, False), "tdpa": ("tdpa", False, False), "model": ("tdpa", True, False),
+          "model_unguarded": ("off", True, False), "mediated": ("tdpa", True, True)}
+DEFAULT_GUARDS = ("off", "tdpa", "model", "mediated")
 REFERENCE_GUARDS = ("model", "model_unguarded", "tdpa", "off")  #: the reference run's guard, first present
 OSC_LIMIT_M = 1e-3  # 2-50 Hz motion of the master's tool beyond this in the last second: oscillating
 OSC_BAND_HZ = (2.0, 50.0)  #: the oscillation band, Hz
@@ -186,9 +191,11 @@ def takes_wall(scene) -> bool:
 def point_sets(name: str, delay_ms: float, loss: float, guard: str, seconds: float | None, wall: float,
                bursts: float) -> list[str]:
     """The ``--set`` assignments of a point (without the duration a full study adds)."""
-    passivity, plane = GUARDS[guard]
+    passivity, plane, mediated = GUARDS[guard]
     sets = [f"link.round_trip_ms={delay_ms}", f"link.loss={loss}", f'link.passivity="{passivity}"',
             f"mapping.feedback_contact_plane={'true' if plane else 'false'}"]
+    flag = "true" if mediated else "false"  # said either way: the defaults are the mediated guard's
+    sets += [f"link.model_mediated={flag}", f"link.guard_slows_motion={flag}"]
     if bursts > 0:
         sets += [f"link.burst_enter={bursts}", f"link.burst_exit={BURST_EXIT}"]
     if wall > 0:
@@ -248,7 +255,9 @@ def run_point(name: str, delay_ms: float, loss: float, guard: str, seconds: floa
         "felt_lag_ms": m.get("felt_lag_s", math.nan) * 1e3,
         "F_ss_N": F_ss, "v_settled_mm_s": v_settled * 1e3,
         "diss_mJ": (p.get("dissipated_master_J", 0.0) + p.get("dissipated_slave_J", 0.0)) * 1e3,
-        "drift_mm": m.get("link_drift_max_m", 0.0) * 1e3, "drift_end_mm": m.get("link_drift_final_m", 0.0) * 1e3,
+        # master-slave offset: the guard's drift, plus (model-mediated) the master's wall from the slave's surface
+        "drift_mm": (m.get("link_drift_max_m", 0.0) + m.get("link_wall_offset_max_m", 0.0)) * 1e3,
+        "drift_end_mm": (m.get("link_drift_final_m", 0.0) + m.get("link_wall_offset_final_m", 0.0)) * 1e3,
         "tick_us": s["tick_us"]["median"], "duration_s": scene.duration_s, "wall_s": elapsed,
     }
     return row, (log if GUARDS[guard][0] == "tdpa" else {})
@@ -356,7 +365,7 @@ def _colours(rows: list[dict]) -> dict:
     return out
 
 
-GUARD_STYLE = {"off": ":", "tdpa": "--", "model": "-", "model_unguarded": "-."}
+GUARD_STYLE = {"off": ":", "tdpa": "--", "model": "-", "model_unguarded": "-.", "mediated": (0, (5, 1, 1, 1))}
 
 
 def _channels(rows: list[dict]) -> list[tuple]:
@@ -404,7 +413,7 @@ def plot(rows: list[dict], out: Path) -> None:
                         bad.append((x[-1], mid[-1]))
                 if not x:
                     continue
-                ax.plot(x, mid, ls, color=colour, lw=1.2, marker="o", ms=3,
+                ax.plot(x, mid, linestyle=ls, color=colour, lw=1.2, marker="o", ms=3,
                         label=f"{_line_label(scene, wall)}, {guard}")
                 ax.fill_between(x, lo, hi, color=colour, alpha=0.12, lw=0)
                 if bad:
@@ -418,7 +427,8 @@ def plot(rows: list[dict], out: Path) -> None:
                            ([], []))
     if handles:
         fig.legend(handles, labels, loc="center right", fontsize=7)
-    fig.suptitle("delay study: a line per scene, wall and guard (dotted off, dashed tdpa, solid model) on the "
+    fig.suptitle("delay study: a line per scene, wall and guard (dotted off, dashed tdpa, solid model, dash-dot-dot "
+                 "mediated) on the "
                  "lossless link;\nshaded: the span over the lossy and bursty links; red circles: unstable on one of "
                  "them; below 1e-4 drawn at 1e-4", fontsize=9)
     fig.tight_layout(rect=(0, 0, 0.8 if handles else 1, 0.96))
@@ -460,7 +470,7 @@ def plot_transparency(rows: list[dict], out: Path) -> None:
                     x = [max(r["delay_ms"], 1.0) for r in pts]
                     y = [max(abs(r[key]), floor) for r in pts]
                     drawn[rix] += y
-                    ax.plot(x, y, ls, color=colour, lw=1.2, marker="o", ms=3,
+                    ax.plot(x, y, linestyle=ls, color=colour, lw=1.2, marker="o", ms=3,
                             label=f"{_line_label(scene, wall)}, {guard}")
                     bad = [(xx, yy) for xx, yy, r in zip(x, y, pts) if r["stable"] is False]
                     if bad:
@@ -486,7 +496,8 @@ def plot_transparency(rows: list[dict], out: Path) -> None:
         ncol = max(len({lab.rsplit(", ", 1)[0] for lab in seen}), 1)
         fig.legend(list(seen.values()), list(seen.keys()), loc="lower center", ncol=ncol, fontsize=7)
     fig.suptitle("transparency: a line per scene, wall and guard (dotted off, dashed tdpa, solid model: tdpa and the "
-                 "contact plane), a column per channel (loss, bursts);\nred circles: unstable; grey dashed: issue "
+                 "contact plane, dash-dot-dot mediated: the plane as the master's own wall), a column per "
+                 "channel (loss, bursts);\nred circles: unstable; grey dashed: issue "
                  f"23's limits (final drift {DRIFT_END_MAX_M * 1e3:g} mm, steady force {100 * F_SS_TOL:g} %); "
                  "values below a row's floor drawn on it; the steady force only where the run settles long enough "
                  "to judge", fontsize=9)
@@ -639,8 +650,9 @@ def main(argv=None) -> int:
     ap.add_argument("--guards", nargs="+", choices=tuple(GUARDS), default=DEFAULT_GUARDS,
                     help="off: no guard, no contact plane; tdpa: the passivity guard (time-domain passivity) "
                          "alone; model: the guard and the contact plane estimated at the slave, rendered at the "
-                         "master (what a scene does by default on a delayed link); model_unguarded: the plane "
-                         "without the guard "
+                         "master; mediated (what a scene does by default on a delayed link): the guard "
+                         "slowing the motion and model-mediated contact (link.guard_slows_motion, "
+                         "link.model_mediated); model_unguarded: the plane without the guard "
                          f"(default: {' '.join(DEFAULT_GUARDS)})")
     ap.add_argument("--seconds", type=float, metavar="S",
                     help=f"simulated seconds of every run, s (default: each scene's duration_s, lengthened to a "
