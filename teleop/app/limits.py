@@ -205,6 +205,11 @@ class LimitedOperator(Operator):
             # does not cross the face (a hand's integral push of newtons would outrun it)
             F = _fade(F, n, 0.0 if excess > 0.0 else max(0.0, dk / lim.zone_m))
             if excess > 0.0:
+                # and no push along the motion either: a fixture turns a push across the face into
+                # a slide toward it (a knife edge), which the push along n alone does not show
+                vv = float(np.linalg.norm(v))
+                if vv > 0.0:
+                    F = _fade(F, v / vv, 0.0)
                 brake_F -= c * excess * n
                 active.append("wall")
         speed = float(np.linalg.norm(v))

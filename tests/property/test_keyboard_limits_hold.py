@@ -98,6 +98,14 @@ plans = st.lists(st.tuples(st.sampled_from(KEYS), st.floats(0.0, 2.5), st.floats
                ("d", 0.3333333333333333, 2.00001)],
          half=[0.014986291203943434, 0.01719673446155041, 0.029632793666664], speed=0.08425805172855921,
          spin=1.8847863152066535, which="scalpel")
+# found by this test: on the scalpel, a push across the blade, its part toward the face faded, slid
+# the tool along the knife edge into the face at 45 mm/s (0.82 mm past); while the tool comes on too
+# fast the push along its motion goes too
+@example(plan=[("s", 0.5501979341387437, 0.6692829216348708), ("A", 3.187088260023377e-228, 0.4819421958951812),
+               ("e", 1.050195033885202, 0.99999), ("r", 0.7899861730862957, 1.2),
+               ("Q", 1e-06, 0.9008706419166232)],
+         half=[0.005, 0.010876022940438004, 0.01679635709674913], speed=0.05004544244268297,
+         spin=1.3646032809172468, which="scalpel")
 def test_held_keys_never_take_the_tool_out_or_too_fast(scenes, plan, half, speed, spin, which):
     scene = scenes[which]
     plan = [(k, t0, t0 + d) for k, t0, d in plan]
