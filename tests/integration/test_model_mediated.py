@@ -52,3 +52,14 @@ def test_the_cut_keeps_its_damping_model():
     scene = load_scene("straight_incision", sets=["link.model_mediated=true"])
     assert not model_mediated(scene)
     assert model_mediated(load_scene("stiff_contact", sets=["link.model_mediated=true"]))
+
+
+@pytest.mark.long
+def test_a_stiff_wall_behind_a_delay_is_held_through_the_cobot():
+    """The same through the simulated CAN cobot (its renderable stiffness is ~3.9e5 N/m on the
+    probe, robots/cobot and the scene's note): 100 kN/m at 1 s round trip with 5 % loss."""
+    scene = load_scene("stiff_contact", sets=["tissue.stiffness=100000.0", "link.round_trip_ms=1000.0",
+                                              "link.loss=0.05", 'master="cobot"'])
+    r = run_scene(scene)
+    assert r.summary["status"] == "ok", r.summary["status_reason"]
+    assert np.asarray(r.log["slave_contact_N"]).max() < 5.0 and _settled_speed(scene, r) <= 0.01
