@@ -25,14 +25,16 @@ from teleop.tick.messages import ContactFeedback, ToolCommand
 class CommandLimits:
     """What a real master can ask of this slave (slave units, patient frame): targets within
     ``reach_m`` of ``center_m`` (the arm's first joint), moving at most ``speed_m_s`` and turning at
-    most ``rate_rad_s`` between commands (by the master's clock), and a port energy growing at
-    most ``power_W`` per axis."""
+    most ``rate_rad_s`` between commands (by the master's clock), a port energy growing at
+    most ``power_W`` per axis, and a contact wall rendered at most ``wall_force_N`` (at the
+    slave's scale: what a real slave could ever have reported, :class:`ReplyLimits`)."""
 
     center_m: tuple[float, float, float] = (0.0, 0.0, 0.0)
     reach_m: float = math.inf
     speed_m_s: float = 2.0
     rate_rad_s: float = 30.0
     power_W: float = 1e3
+    wall_force_N: float = 200.0
 
 
 @dataclass(frozen=True)
@@ -88,6 +90,11 @@ class CommandCheck:
         if why is None:
             self._energy = (cmd.t_s, cmd.energy_J)
         return self._refuse(why)
+
+    def wall_reason(self, cmd: ToolCommand, force_scale: float) -> str | None:
+        """Why the command's wall force (``wall_N``, master units; ``force_scale`` master:slave)
+        is implausible, or None: beyond what a real slave could have reported."""
+        return self._refuse("wall_force_too_large" if cmd.wall_N / force_scale > self.limits.wall_force_N else None)
 
     def pose_reason(self, cmd: ToolCommand, p_P: np.ndarray, R_P: np.ndarray) -> str | None:
         """Why the command's target (``p_P`` m, ``R_P`` in the patient frame) is implausible, or

@@ -149,7 +149,8 @@ class SlaveSide:
         cmd = link.receive_command(t_s)
         if cmd is not None and cmd.t_s < 0:
             cmd = None  # a hello (the two-process handshake): nothing to follow
-        why = self.check.energy_reason(cmd) if cmd is not None else None
+        why = (self.check.energy_reason(cmd) or self.check.wall_reason(cmd, float(self.reg.force_scale))
+               if cmd is not None else None)
         if why is not None:  # not a real master's: neither the guard nor the follower sees it
             self._refusing, cmd = why, None
         lost = self.heart.update(link.clock(t_s), link.last_heard_s("slave"))

@@ -44,7 +44,7 @@ def _run(way, forge, seconds=0.6):
 
 def _cmd(m: ToolCommand, **kw) -> ToolCommand:
     f = dict(seq=m.seq, t_s=m.t_s, p_m=m.p_m, R=m.R, v_m_s=m.v_m_s, w_rad_s=m.w_rad_s, clutch=m.clutch,
-             energy_J=m.energy_J)
+             energy_J=m.energy_J, wall_N=m.wall_N)
     f.update(kw)
     return ToolCommand(**f)
 
@@ -55,7 +55,8 @@ def _cmd(m: ToolCommand, **kw) -> ToolCommand:
     (lambda m: _cmd(m, R=m.R @ np.array([[1.0, 0.5, 0], [0, 1, 0], [0, 0, 1]])), "not_a_rotation"),  # det 1
     (lambda m: _cmd(m, energy_J=np.full(6, 1e300)), "energy_too_fast"),
     (lambda m: _cmd(m, t_s=m.t_s - 0.1), "time_ran_backwards"),
-], ids=["1 km target", "jump", "sheared rotation", "energy 1e300", "time backwards"])
+    (lambda m: _cmd(m, wall_N=1e6), "wall_force_too_large"),  # a wall no slave could have reported
+], ids=["1 km target", "jump", "sheared rotation", "energy 1e300", "time backwards", "wall 1 MN"])
 def test_a_command_no_real_master_sends_is_refused_and_the_arm_holds(forge, reason):
     s, _, _slave = _run("command", forge)
     assert s["commands_refused"] == {reason: 1}
