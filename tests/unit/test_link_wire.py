@@ -25,7 +25,7 @@ def commands(draw):
     return ToolCommand(seq=draw(seqs), t_s=draw(finite), p_m=draw(st.lists(finite, min_size=3, max_size=3)),
                        R=Rotation.from_quat(q).as_matrix(), v_m_s=draw(st.lists(finite, min_size=3, max_size=3)),
                        w_rad_s=draw(st.lists(finite, min_size=3, max_size=3)), clutch=draw(st.booleans()),
-                       energy_J=draw(st.lists(energy, min_size=6, max_size=6)))
+                       energy_J=draw(st.lists(energy, min_size=6, max_size=6)), wall_N=draw(energy))
 
 
 @st.composite
@@ -110,6 +110,15 @@ def test_any_flipped_bit_is_refused(data):
 def test_corrupted_frames_name_the_reason(mangle, reason):
     with pytest.raises(MessageError, match=reason):
         wire.decode(mangle(wire.encode(_cmd())))
+
+
+def test_a_negative_wall_force_is_refused_by_name():
+    """wire v7's last command field (the master's contact wall, N): a frame carrying a negative
+    one, correctly tagged, is still not a command a master makes."""
+    frame = wire.encode(_cmd())
+    n = len(frame) - wire.TAG_SIZE
+    with pytest.raises(MessageError, match="wall_N"):
+        wire.decode(_refit(frame[:n - 8] + struct.pack("<d", -1.0) + frame[n:]))
 
 
 def test_encode_refuses_other_objects():
