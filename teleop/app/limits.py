@@ -150,12 +150,16 @@ def _fade(F: np.ndarray, n: np.ndarray, keep: float, M: np.ndarray | None = None
 
 def _within_one_period(x: np.ndarray, a: np.ndarray, limit: float) -> float:
     """The largest share s in [0, 1] of a velocity change ``a`` (3,) that keeps |x + s a| at most
-    ``limit`` from a velocity ``x`` (3,) within it (1 when x is already past the limit: the fades
-    and the brake see to that)."""
+    ``limit`` from a velocity ``x`` (3,), or at most |x| when x is already past the limit (the
+    brake slows it; a push may not make it faster, not even one across the motion: in one explicit
+    step it adds |a|^2 to |x|^2, and the property test found a tool held against a face turned at
+    a right angle from 30.0 to 31.1 mm/s in one tick)."""
     aa = float(a @ a)
     x2 = float(x @ x)
-    if aa == 0.0 or x2 > limit * limit or float((x + a) @ (x + a)) <= limit * limit:
+    limit2 = max(limit * limit, x2)
+    if aa == 0.0 or float((x + a) @ (x + a)) <= limit2:
         return 1.0
+    limit = math.sqrt(limit2)
     xa = float(x @ a)
     return max(0.0, (-xa + math.sqrt(max(0.0, xa * xa - aa * (x2 - limit * limit)))) / aa)
 

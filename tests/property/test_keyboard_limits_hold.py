@@ -106,6 +106,14 @@ plans = st.lists(st.tuples(st.sampled_from(KEYS), st.floats(0.0, 2.5), st.floats
                ("Q", 1e-06, 0.9008706419166232)],
          half=[0.005, 0.010876022940438004, 0.01679635709674913], speed=0.05004544244268297,
          spin=1.3646032809172468, which="scalpel")
+# found by this test: a free tool pressed along a face in a corner, a hair over its speed limit, took
+# a push across its motion whole (the one-period cap let any push through past the limit), and one
+# explicit step made it faster: 30.0 to 31.5 mm/s against 30; past the limit no push may speed it up
+@example(plan=[("J", 2.412326003722452, 2.1661695773964307), ("R", 1.9731502512883488, 1.765581089800212),
+               ("j", 1.3135677055716601, 2.3714728012550568), ("w", 1.9, 2.5),
+               ("K", 3.044794250130863e-53, 0.37281092535328336)],
+         half=[0.039396961742482785, 0.03580926123783999, 0.015465787627818799], speed=0.03, spin=0.5,
+         which="free")
 def test_held_keys_never_take_the_tool_out_or_too_fast(scenes, plan, half, speed, spin, which):
     scene = scenes[which]
     plan = [(k, t0, t0 + d) for k, t0, d in plan]
