@@ -37,6 +37,22 @@ def _wait_line(proc, text, timeout_s=180.0):
 
 
 @pytest.mark.long
+def test_a_stiff_wall_over_zenoh_is_rendered_model_mediated(tmp_path):
+    """A 100 kN/m wall pressed through two processes: the plane and the wall's force cross the
+    authenticated link (wire v7), the slave presses no harder than the master's wall, and what the
+    hand feels is what the slave presses."""
+    out = tmp_path / "run.json"
+    sets = ["tissue.stiffness=100000.0", "link.heartbeat_ms=2000"]
+    subprocess.run([*PY, "run", "stiff_contact", "--link", "zenoh", *[a for x in sets for a in ("--set", x)],
+                    "--json", str(out)], env=ENV, timeout=400, capture_output=True, text=True)
+    s = json.loads(out.read_text())
+    assert s["status"] == "ok", s["status_reason"]
+    assert s["pressed_less_ticks"] > 0 and "wall_model" in s
+    assert s["metrics"]["contact_force_max_N"] < 2 * 1.63  # the undelayed one-process peak, doubled
+    assert s["metrics"]["felt_error_rms_N"] < 0.2
+
+
+@pytest.mark.long
 def test_two_process_cut_over_zenoh_writes_one_summary(tmp_path):
     """A 2 s cut (1.5 s of it in the tissue) over Zenoh: one summary, the guard on (passivity
     "auto" on a network), and the tip tracked within 2x the same cut in one process."""
