@@ -78,6 +78,23 @@ from teleop.tick.ports import ToolState
 _ZERO66 = np.zeros((6, 6))
 _ZERO66.flags.writeable = False
 _D_FLOOR = 1e-9  # N*s/m: a filtered damping below this after the contact ended is zero
+_ZERO6 = np.zeros(6)
+_ZERO6.flags.writeable = False
+
+
+def _at_origin(f: np.ndarray, d: np.ndarray) -> np.ndarray:
+    """A force ``f`` (3,) N at the tip, ``d`` (3,) m from the tool's origin: its wrench (6,) there."""
+    out = np.empty(6)
+    out[:3] = f
+    out[3:] = np.cross(d, f)
+    return out
+
+
+def _normal_stiffness(n: np.ndarray, k: float, d: np.ndarray) -> np.ndarray:
+    """(6, 6) at the tool's origin: a spring of ``k`` N/m along unit ``n`` at the tip ``d`` m away."""
+    K_tip = np.zeros((6, 6))
+    K_tip[:3, :3] = k * np.outer(n, n)
+    return moved_to_origin(K_tip, d)
 
 
 class FeedbackPath:
@@ -111,7 +128,7 @@ class FeedbackPath:
         self._D = _ZERO66
         self._plane: tuple[np.ndarray, np.ndarray, float] | None = None  # n (3,), a (3,) m, k' N/m, in M
         self.spring_K: np.ndarray | None = None  # the spring's stiffness at the origin while it acts (6, 6)
-        self.wall_W = np.zeros(6)           # the wall's wrench at the origin (N, N*m, M; model-mediated)
+        self.wall_W = _ZERO6                # the wall's wrench at the origin (N, N*m, M; model-mediated)
         if self.wall is not None:
             self.wall.reset()
 
@@ -156,7 +173,7 @@ class FeedbackPath:
         part along the wall's normal (what the guard observes)."""
         wall, out = self.wall, self.offset_M
         assert wall is not None
-        self.wall_W = np.zeros(6)
+        self.wall_W = _ZERO6
         if state is None:
             return out
         D = self.damping_M
@@ -169,16 +186,11 @@ class FeedbackPath:
         n = wall.n
         if n is None:
             return out
-        out = out.copy()
-        out[:3] -= float(n @ out[:3]) * n  # the wall stands for the normal force
-        out[3:] -= np.cross(d, float(n @ self.offset_M[:3]) * n)
+        out = out - _at_origin(float(n @ out[:3]) * n, d)  # the wall stands for the normal force
         depth = wall.depth(x)
         if depth > 0.0:
-            self.wall_W[:3] = wall.k * depth * n
-            self.wall_W[3:] = np.cross(d, self.wall_W[:3])
-            K_tip = np.zeros((6, 6))
-            K_tip[:3, :3] = wall.k * np.outer(n, n)
-            self.spring_K = moved_to_origin(K_tip, d)
+            self.wall_W = _at_origin(wall.k * depth * n, d)
+            self.spring_K = _normal_stiffness(n, wall.k, d)
         return out
 
     def wall_summary(self) -> dict:
@@ -217,16 +229,10 @@ class FeedbackPath:
         into = float(n @ (a - p - d))          # m: how far the tip is past the anchor, into the surface
         f0n = float(n @ self.offset_M[:3])     # N: the reported force along the normal
         fn = k * into
-        out = np.zeros(6)
         if fn <= -f0n:                         # the model's normal force would pull: none at all
-            out[:3] = -f0n * n
-        else:
-            out[:3] = fn * n
-            K_tip = np.zeros((6, 6))
-            K_tip[:3, :3] = k * np.outer(n, n)
-            self.spring_K = moved_to_origin(K_tip, d)
-        out[3:] = np.cross(d, out[:3])
-        return out
+            return _at_origin(-f0n * n, d)
+        self.spring_K = _normal_stiffness(n, k, d)
+        return _at_origin(fn * n, d)
 
     def _take_model(self, msg: ContactFeedback) -> None:
         with np.errstate(over="ignore", invalid="ignore"):  # a hostile size is refused just below

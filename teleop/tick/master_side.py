@@ -194,7 +194,7 @@ class MasterSide:
         is not sent (the slave holds) and is counted."""
         g, s, fb = self.guard, self.state, self.feedback
         energy = None if g is None else g.energy_J if lost else g.energy_after(s.V)
-        wall = fb.wall_force(s) if getattr(fb, "wall", None) is not None and not lost else 0.0  # type: ignore[union-attr]  # fb is a FeedbackPath when it has a wall
+        wall = fb.wall_force(s) if fb is not None and fb.wall is not None and not lost else 0.0
         try:
             link.send_command(ToolCommand(i + 1, t_s, s.p, s.R, s.v, s.w, self.operator.clutch_engaged and not lost,
                                           energy, wall))

@@ -136,6 +136,7 @@ class _Slave:
 
 class _Feedback:
     refused = 0
+    wall = None  # no model-mediated wall
 
     def update(self, msg, state=None):
         return np.zeros(6) if msg is None else np.asarray(msg.wrench_P)
