@@ -1,7 +1,8 @@
 """What the MCAP recorder (teleop.app.record) costs the tick, measured in one run with and without it.
 
     python tools/record_bench.py [--scene straight_incision] [--seconds 5] [--block 250] [--repeats 2]
-                                 [--mode process|thread] [--spool] [--realtime SECONDS] [--json OUT.json]
+                                 [--mode process|thread] [--spool] [--realtime SECONDS] [--paced]
+                                 [--json OUT.json]
 
 Two loops of the same scene and seed are built side by side, one with the recorder's side hooks
 (``build_master(record=)``, ``build_slave(record=)`` on a ``RecordWriter``: what ``teleop run
@@ -22,6 +23,7 @@ the writer process's CPU time per simulated second, and the record's size. ``--r
 S seconds paced to the wall clock with and without (``run_scene(realtime=True)``, alternating,
 twice each) and their late ticks.
 
+``--paced``: the same, each tick waiting for its period of the wall clock as a paced run does.
 ``--floor``: where the cost comes from, the same comparison with the recorder's hooks cut down
 step by step (:data:`FLOOR`, each against the loop without hooks, both build orders, the steps
 alternating): ``call`` the hooks called and doing nothing, ``read`` every field of both rows read
@@ -156,17 +158,24 @@ PROBE_NS = np.zeros(0)
 
 
 def interleaved(scene_name: str, seconds: float, block: int, folder: Path, with_first: bool = True,
-                hooks: tuple | None = None, **opts) -> dict:
+                hooks: tuple | None = None, paced: bool = False, **opts) -> dict:
     """The scene's loop with the record's side hooks and without, ticked in interleaved blocks
     of ``block`` ticks; the figures of each (see the module docstring). ``with_first``: the loop
     with the recorder is built first (else second): of two loops built alike, the one built
     first ticks some 1-2 us slower here, so a figure from one order alone is biased; run both.
-    ``hooks``: (master class, slave class) in place of the recorder's (``--floor``, ``--probe``)."""
+    ``hooks``: (master class, slave class) in place of the recorder's (``--floor``, ``--probe``).
+    ``paced``: each tick then waits for the next period of the wall clock as a paced run does
+    (:func:`teleop.app.session._pace`), the writer made for a paced run (``realtime=True``): the
+    tick starts with cold caches after each wait, and what the recorder's copy takes from them
+    shows there."""
     from teleop.app.record import RecordWriter
+    from teleop.app.session import _pace
     from teleop.scenario.schema import load_scene
 
     scene = load_scene(scene_name, sets=[f"duration_s={seconds}"])
     load0 = os.getloadavg()
+    if paced:
+        opts = {**opts, "realtime": True, "spool": opts.get("spool") or None}
     writer = RecordWriter(folder / "record.mcap", metadata={"scene": scene.name, "bench": "record_bench"}, **opts)
     # the rings laid out before the clock starts
     if with_first:
@@ -178,6 +187,7 @@ def interleaved(scene_name: str, seconds: float, block: int, folder: Path, with_
     wall = {k: np.zeros(n) for k in loops}
     pid = writer.pid
     cpu0 = _cpu_s(pid) if pid != os.getpid() else float("nan")
+    late, deadline = 0, time.perf_counter()
     with loops["with"][0].master, loops["without"][0].master:
         for a in range(0, n, block):
             order = ("with", "without") if (a // block) % 2 == 0 else ("without", "with")
@@ -188,11 +198,15 @@ def interleaved(scene_name: str, seconds: float, block: int, folder: Path, with_
                     loop.tick(i)
                     wall[k][i] = (time.perf_counter_ns() - t0) * 1e-3
                     tick[k][i] = loop.tick_ns * 1e-3
+                    if paced:
+                        deadline = max(deadline + scene.dt_s, time.perf_counter())
+                        late += _pace(deadline)
     time.sleep(0.1)  # the writer's last poll
     cpu = _cpu_s(pid) - cpu0
     writer.close()
     skip = min(n - 1, 10)  # the first ticks load the kernels
     out = {"scene": scene.name, "ticks": n, "block": block, "writer": opts, "with_first": with_first,
+           "paced": paced, "late_ticks": late,
            "load": [round((a + b) / 2, 2) for a, b in zip(load0, os.getloadavg())]}
     for k in loops:
         out[k] = {"tick_us": _stats(tick[k][skip:]), "wall_us": _stats(wall[k][skip:])}
@@ -239,20 +253,24 @@ def main(argv=None) -> int:
     ap.add_argument("--floor", action="store_true",
                     help="the recorder's hooks cut down step by step (call, read, join, full; see above)")
     ap.add_argument("--probe", action="store_true", help="the recorder's hooks timed inside the tick")
+    ap.add_argument("--paced", action="store_true",
+                    help="each tick waits for its period of the wall clock, as a paced run (--realtime) does "
+                         "(the writer a paced run's)")
     ap.add_argument("--json", help="write the figures here")
     args = ap.parse_args(argv)
     if args.floor or args.probe:
         return _diagnose(args)
     with tempfile.TemporaryDirectory() as tmp:
         kw = {"mode": args.mode, "spool": args.spool}
-        runs = [interleaved(args.scene, args.seconds, args.block, Path(tmp) / str(k), with_first=k % 2 == 0, **kw)
-                for k in range(max(1, args.repeats))]
+        runs = [interleaved(args.scene, args.seconds, args.block, Path(tmp) / str(k), with_first=k % 2 == 0,
+                            paced=args.paced, **kw) for k in range(max(1, args.repeats))]
         res: dict = {"interleaved": runs}
         if args.realtime > 0:
             res["realtime"] = realtime(args.scene, args.realtime, Path(tmp), **kw)
     for r in runs:
         print(f"{r['scene']}: {r['ticks']} ticks, interleaved blocks of {r['block']}, writer {r['writer']}, the loop "
-              f"with it built {'first' if r['with_first'] else 'second'}, load average {r['load'][0]:.1f}")
+              f"with it built {'first' if r['with_first'] else 'second'}, load average {r['load'][0]:.1f}"
+              + (f", paced ({r['late_ticks']} late ticks)" if r["paced"] else ""))
         print(f"{'':10s} {'tick_us median':>15s} {'p99':>8s} {'wall_us median':>15s} {'p99':>8s}")
         for k in ("without", "with"):
             print(f"{k:10s} {r[k]['tick_us']['median']:15.2f} {r[k]['tick_us']['p99']:8.2f} "
