@@ -66,6 +66,9 @@ _SENT_AT = 32  # the header's sent_s
 _COMMAND = struct.Struct("<19dB7d")
 _FEEDBACK = struct.Struct("<7dBq44d")
 _ECHO = struct.Struct("<3d")  # the last 24 bytes of a feedback payload
+_D = struct.Struct("<d")
+_STATUS_SEQ = struct.Struct("<Bq")  # a feedback payload's status and command_seq, after t_s and wrench_P
+_cat = np.concatenate
 _UPPER = np.triu_indices(6)
 _PAYLOAD = {TYPE_COMMAND: _COMMAND, TYPE_FEEDBACK: _FEEDBACK}
 #: payload sizes of the pairing frames (teleop.link.pairing packs them)
@@ -157,15 +160,17 @@ def payload(data: bytes) -> bytes:
 
 
 def pack_message(msg: ToolCommand | ContactFeedback, stamps: Stamps = NO_STAMPS) -> tuple[int, bytes]:
-    """The type and payload of one message (a reply's with ``stamps``' echo of its command)."""
+    """The type and payload of one message (a reply's with ``stamps``' echo of its command): the
+    layouts :data:`_COMMAND` and :data:`_FEEDBACK`, the float runs written as arrays' bytes."""
     if isinstance(msg, ToolCommand):
-        return TYPE_COMMAND, _COMMAND.pack(msg.t_s, *msg.p_m, *msg.R.reshape(-1), *msg.v_m_s,
-                                           *msg.w_rad_s, 1 if msg.clutch else 0, *msg.energy_J, msg.wall_N)
+        head = _D.pack(msg.t_s) + _cat((msg.p_m, msg.R.reshape(-1), msg.v_m_s, msg.w_rad_s)).tobytes()
+        return TYPE_COMMAND, (head + (b"\x01" if msg.clutch else b"\x00") + msg.energy_J.tobytes()
+                              + _D.pack(msg.wall_N))
     if isinstance(msg, ContactFeedback):
-        return TYPE_FEEDBACK, _FEEDBACK.pack(msg.t_s, *msg.wrench_P, SLAVE_STATUSES.index(msg.status),
-                                             msg.command_seq, *msg.energy_J, *msg.damping_P[_UPPER], *msg.twist_P,
-                                             *msg.plane_P, stamps.echo_sent_s, stamps.echo_received_s,
-                                             stamps.echo_applied_s)
+        tail = _cat((msg.energy_J, msg.damping_P[_UPPER], msg.twist_P, msg.plane_P,
+                     (stamps.echo_sent_s, stamps.echo_received_s, stamps.echo_applied_s)))
+        return TYPE_FEEDBACK, (_D.pack(msg.t_s) + msg.wrench_P.tobytes()
+                               + _STATUS_SEQ.pack(SLAVE_STATUSES.index(msg.status), msg.command_seq) + tail.tobytes())
     raise MessageError(f"wire.encode: not a link message: {type(msg).__name__}")
 
 
@@ -210,7 +215,7 @@ def unpack_message(head: Header, data: bytes) -> ToolCommand | ContactFeedback:
         raise MessageError(f"wire: sequence number out of range ({seq})")
     v = layout.unpack_from(data, HEADER_SIZE)
     floats = v[:19] + v[20:] if kind == TYPE_COMMAND else v[:7] + v[9:]
-    if not (all(math.isfinite(x) for x in floats) and math.isfinite(struct.unpack_from("<d", data, _SENT_AT)[0])):
+    if not (all(math.isfinite(x) for x in floats) and math.isfinite(_D.unpack_from(data, _SENT_AT)[0])):
         raise MessageError("wire: non-finite value in payload")
     if kind == TYPE_COMMAND:
         if v[19] > 1:
