@@ -54,22 +54,32 @@ observers still count port energy only (the slave port counts the contact force,
 is not), so passivity holds as before: the spring is paid for by whoever pushes against it.
 
 A port with ``enabled=False`` observes and logs but never acts ("off").
+
+The arithmetic above is compiled (:mod:`teleop.control.passivity_kernels`, one call a port's
+tick, the same floats as numpy); a port's state is one array, a new one every tick.
 """
 
 from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from typing import overload
 
 import numpy as np
+from numpy.typing import ArrayLike
 
+from teleop.control import passivity_kernels as kern
+from teleop.control.passivity_kernels import port_energy
 from teleop.util.errors import ConfigError
 
 
 def compute_port_energy(E_in: np.ndarray, E_out: np.ndarray, power_W: np.ndarray, dt_s: float):
     """Pure: the cumulative (E_in, E_out) (6,) J after one tick of port power ``power_W`` (6,) W
     (positive into the channel) held for ``dt_s`` s."""
-    return E_in + np.maximum(power_W, 0.0) * dt_s, E_out + np.maximum(-power_W, 0.0) * dt_s
+    E_in, E_out, power = np.broadcast_arrays(*(np.asarray(x, dtype=float) for x in (E_in, E_out, power_W)))
+    E_in_out, E_out_out = np.empty(power.shape), np.empty(power.shape)
+    port_energy(E_in.ravel(), E_out.ravel(), power.ravel(), float(dt_s), E_in_out.reshape(-1), E_out_out.reshape(-1))
+    return E_in_out, E_out_out
 
 
 @dataclass(frozen=True)
@@ -169,32 +179,94 @@ class PortLog:
         return {"t_s": self.t_s[: self.n], **{f: getattr(self, f)[: self.n] for f in self.FIELDS}}
 
 
+class _Row:
+    """One row of a port's state block (:attr:`_Port.block`) as an attribute: read, a (6,) view;
+    set, a new block with the row replaced (a block is never written once made)."""
+
+    def __init__(self, row: int):
+        self.row = row
+
+    @overload
+    def __get__(self, port: None, owner: type) -> _Row: ...
+    @overload
+    def __get__(self, port: _Port, owner: type) -> np.ndarray: ...
+
+    def __get__(self, port: _Port | None, owner: type) -> np.ndarray | _Row:
+        return self if port is None else port.block[self.row]
+
+    def __set__(self, port: _Port, value: ArrayLike) -> None:
+        block = port.block.copy()
+        block[self.row] = value
+        port.block = block
+
+
+def _vec6(x: ArrayLike) -> np.ndarray:
+    """x as a float (6,) array for the kernels (a copy only when it is not one; broadcast as numpy
+    would, or its error)."""
+    a = np.asarray(x, dtype=float)
+    return a if a.shape == (6,) else np.broadcast_to(a, (6,))
+
+
+_NOTHING = np.zeros(6)  # the kernels' E_remote when nothing was received (not read)
+_NOTHING.flags.writeable = False
+
+
 class _Port:
-    """State shared by both ports: cumulative energies (6,) J and the observer."""
+    """State shared by both ports: cumulative energies (6,) J and the observer, rows of one block
+    (:attr:`block`), and the settings as the kernels take them."""
+
+    ROWS = 6
+    E_in = _Row(kern.E_IN)
+    E_out = _Row(kern.E_OUT)
+    E_diss = _Row(kern.E_DISS)
+    E_remote = _Row(kern.E_REMOTE)
+    W = _Row(kern.W)
+    action = _Row(kern.ACTION)
 
     def __init__(self, params: TdpaParams, log_capacity: int = 0):
         self.params = params
-        self.E_in = np.zeros(6)
-        self.E_out = np.zeros(6)
-        self.E_diss = np.zeros(6)
-        self.E_remote = np.zeros(6)
-        self.W = np.zeros(6)
-        self.action = np.zeros(6)
+        #: (ROWS, 6) the port's state (rows as in :mod:`teleop.control.passivity_kernels`): a new
+        #: array every tick, never written once made (a recorder may hold a tick's rows)
+        self.block = np.zeros((self.ROWS, 6))
         self.log = PortLog(log_capacity) if log_capacity else None
 
-    def _receive(self, E_remote) -> None:
-        if E_remote is not None:
-            self.E_remote = np.maximum(self.E_remote, np.asarray(E_remote, dtype=float))
+    @property
+    def params(self) -> TdpaParams:
+        """The port's settings (:class:`TdpaParams`)."""
+        return self._params
+
+    @params.setter
+    def params(self, p: TdpaParams) -> None:
+        self._params, self._dt = p, float(p.dt_s)
+        #: the settings as the kernels take them (:func:`teleop.control.passivity_kernels.port_settings`)
+        self.settings = kern.port_settings(p.dt_s, p.enabled, p.v_floor, p.f_floor, p.dv_max, p.drift_gain,
+                                           p.drift_share, p.alpha_max)
+
+    def commit(self, block: np.ndarray, t_s: float) -> None:
+        """``block`` (a new array, filled by a kernel) is the port's state from now; the tick at
+        ``t_s`` (s) logged."""
+        self.block = block
+        if self.log is not None:
+            self.log.record(t_s, self)
+
+    @staticmethod
+    def incoming(E_remote: ArrayLike | None) -> tuple[bool, np.ndarray]:
+        """(whether the other side's ``E_in`` came, it as (6,) J): the kernels keep the largest."""
+        return (False, _NOTHING) if E_remote is None else (True, _vec6(E_remote))
 
     @property
     def energy_J(self) -> np.ndarray:
         """(6,) J: what to put in the outgoing message's ``energy_J``."""
-        return self.E_in.copy()
+        return self.block[kern.E_IN].copy()
 
     @property
     def dissipated_J(self) -> float:
         """Total energy dissipated by this port's controller so far (J, all axes)."""
-        return float(self.E_diss.sum())
+        return float(self.block[kern.E_DISS].sum())
+
+    def observer_sum(self) -> float:
+        """The observer summed over the axes (J)."""
+        return kern.sum6(self.block, kern.W)
 
 
 class MasterPassivity(_Port):
@@ -213,12 +285,14 @@ class MasterPassivity(_Port):
     ``alpha_max`` (a damper the tool's explicit step can take) except that a force pushing along
     the motion may always be removed down to zero (``alpha <= f / v`` there): the cap alone let a
     stiff wall's force, arriving late, throw the tool (1.8 mm shake at 1 s round trip with loss,
-    a blow-up at 10 ms)."""
+    a blow-up at 10 ms). Each method is one compiled call (:mod:`teleop.control.passivity_kernels`)."""
+
+    ROWS = kern.MASTER_ROWS
+    f_channel = _Row(kern.F_CHANNEL)  # the channel's force last tick, before the controller
+    f_rendered = _Row(kern.F_RENDERED)  # the force rendered last tick, after it
 
     def __init__(self, params: TdpaParams, log_capacity: int = 0):
         super().__init__(params, log_capacity)
-        self.f_channel = np.zeros(6)  # the channel's force last tick, before the controller
-        self.f_rendered = np.zeros(6)  # the force rendered last tick, after it
         self._counted = False  # the rendered force's work already counted (by energy_after)
 
     def account(self, v_m) -> None:
@@ -226,12 +300,9 @@ class MasterPassivity(_Port):
         ``v_m`` (6,) m/s, rad/s; once per tick (:meth:`step` calls it if nobody did)."""
         if self._counted:
             return
-        v_m = np.asarray(v_m, dtype=float)
-        p_done = self.f_rendered * v_m
-        dt = self.params.dt_s
-        self.E_out = self.E_out + np.maximum(p_done, 0.0) * dt
-        self.E_in = self.E_in + np.minimum(np.maximum(-self.f_channel * v_m, 0.0), np.maximum(-p_done, 0.0)) * dt
-        self._counted = True
+        out = np.empty((kern.MASTER_ROWS, 6))
+        kern.master_account(self.block, out, _vec6(v_m), self._dt)
+        self.block, self._counted = out, True
 
     def motion_scale(self, v_m) -> float:
         """The largest sigma in [0, 1] such that the force rendered last, working against the
@@ -239,87 +310,44 @@ class MasterPassivity(_Port):
         E_out`` at or above zero on every axis: scale the step's velocity by it before
         :meth:`account` and the port is passive by construction, whatever the force and however
         still the hand is (the damping alone acts only on a tool already moving, a tick late)."""
-        if not (self.params.enabled and self.params.slows_motion) or self._counted:
+        if not (self._params.enabled and self._params.slows_motion) or self._counted:
             return 1.0
-        dt = self.params.dt_s
-        p_done = self.f_rendered * np.asarray(v_m, dtype=float) * dt  # J this step would put out, per axis
-        room = self.E_remote - self.E_out
-        sigma = 1.0
-        for i in range(6):
-            if p_done[i] > 0.0 and p_done[i] > room[i]:
-                sigma = min(sigma, max(room[i], 0.0) / p_done[i])
-        return sigma
+        return kern.master_motion_scale(self.block, _vec6(v_m), self._dt)
 
     def energy_after(self, v_m) -> np.ndarray:
         """(6,) J: ``E_in`` with the work of the force rendered last counted at the master's
         velocity ``v_m`` after its step: what to stamp in the command sent that tick, so the
         slave hears of the energy in the same tick it enters (no tick of lag at zero delay)."""
         self.account(v_m)
-        return self.E_in.copy()
+        return self.block[kern.E_IN].copy()
 
     def step(self, f_m: np.ndarray, v_m: np.ndarray, E_remote=None, t_s: float = 0.0) -> np.ndarray:
         """The force (6,) N, N*m to render on the master, from the channel's force ``f_m`` (6,) on
         the master, the master's velocity ``v_m`` (6,) m/s, rad/s (after the step under the force
         rendered last tick), and the slave's ``E_in`` ``E_remote`` (6,) J from the newest feedback
         (None: hold the last)."""
-        p, dt = self.params, self.params.dt_s
-        f_m, v_m = np.asarray(f_m, dtype=float), np.asarray(v_m, dtype=float)
-        self._receive(E_remote)
-        self.account(v_m)
-        W = self.E_remote - self.E_out
-        alpha = np.zeros(6)
-        if p.enabled:
-            act = (W < 0.0) & (np.abs(v_m) > p.v_floor)
-            cap = np.maximum(np.broadcast_to(p.alpha_max, 6)[act], f_m[act] / v_m[act])
-            alpha[act] = np.minimum(-W[act] / (dt * v_m[act] ** 2), cap)
-        f_out = f_m - alpha * v_m
-        self.E_diss, self.action = self.E_diss + alpha * v_m * v_m * dt, alpha
-        self.W = W
-        self.f_channel, self.f_rendered, self._counted = f_m, f_out, False
-        if self.log is not None:
-            self.log.record(t_s, self)
-        return f_out
+        received, E_r = self.incoming(E_remote)
+        out = np.empty((kern.MASTER_ROWS, 6))
+        kern.master_step(self.block, out, _vec6(f_m), _vec6(v_m), E_r, received, self._counted, self.settings)
+        self._counted = False
+        self.commit(out, t_s)
+        return out[kern.F_RENDERED]
 
 
 class SlavePassivity(_Port):
-    """The slave port: observer W_s, velocity correction (admittance-type port), drift offset."""
+    """The slave port: observer W_s, velocity correction (admittance-type port), drift offset.
+    Its step is one compiled call (:func:`teleop.control.passivity_kernels.slave_step`)."""
 
-    def __init__(self, params: TdpaParams, log_capacity: int = 0):
-        super().__init__(params, log_capacity)
-        self.offset = np.zeros(6)
+    ROWS = kern.SLAVE_ROWS
+    offset = _Row(kern.OFFSET)
 
     def step(self, v_des: np.ndarray, f_s: np.ndarray, E_remote=None, t_s: float = 0.0) -> np.ndarray:
         """The velocity (6,) m/s, rad/s the slave should follow, from the channel's velocity
         ``v_des`` (the master's, delayed), the force ``f_s`` (6,) N, N*m the environment puts on the
         slave (the force sent back), and the master's ``E_in`` ``E_remote`` (None: hold the last).
         ``offset`` (6,) m, rad accumulates the correction: add it to the delayed master position."""
-        p, dt = self.params, self.params.dt_s
-        v_des, f_s = np.asarray(v_des, dtype=float), np.asarray(f_s, dtype=float)
-        self._receive(E_remote)
-        p_out = -f_s * v_des
-        E_out = self.E_out + np.maximum(p_out, 0.0) * dt
-        W = self.E_remote - E_out + self.E_diss
-        dv = np.zeros(6)
-        if p.enabled:
-            act = (W < 0.0) & (np.abs(f_s) > p.f_floor)
-            dv[act] = np.clip(-W[act] / (dt * f_s[act]), -p.dv_max, p.dv_max)
-            diss = f_s * dv * dt
-            if p.drift_gain > 0.0:
-                W_after = W + diss
-                dc = -p.drift_gain * self.offset
-                cost = np.maximum(-f_s * dc * dt, 0.0)  # energy the correction would put out
-                budget = np.maximum(p.drift_share * W_after, 0.0)
-                scale = np.where(cost > budget, budget / np.maximum(cost, 1e-300), 1.0)
-                dc = np.where(W_after >= 0.0, dc * scale, 0.0)  # free (cost 0) when no force acts
-                dv = dv + dc
-                diss = diss + f_s * dc * dt
-        else:
-            diss = np.zeros(6)
-        v = v_des + dv
-        self.E_in = self.E_in + np.maximum(f_s * v_des, 0.0) * dt
-        self.E_out, self.E_diss, self.action = E_out, self.E_diss + diss, dv
-        self.W = W + diss
-        self.offset = self.offset + dv * dt
-        if self.log is not None:
-            self.log.record(t_s, self)
+        received, E_r = self.incoming(E_remote)
+        out, v = np.empty((kern.SLAVE_ROWS, 6)), np.empty(6)
+        kern.slave_step(self.block, out, _vec6(v_des), _vec6(f_s), E_r, received, self.settings, v)
+        self.commit(out, t_s)
         return v
