@@ -30,13 +30,21 @@ from __future__ import annotations
 from typing import Any
 
 import numpy as np
+from numpy.typing import ArrayLike
 
+from teleop.control import passivity_kernels as kern
 from teleop.control.mapping import Registration
 from teleop.control.passivity import MasterPassivity, SlavePassivity, TdpaParams
-from teleop.dynamics.kernels.so3 import exp3
 from teleop.tick.messages import ContactFeedback, ToolCommand
 
-_ZERO6 = np.zeros(6)
+_ZERO3, _EYE3 = np.zeros(3), np.eye(3)
+_UNUSED3, _UNUSED33 = np.zeros(3), np.zeros((3, 3))  # the pose outputs of a command with nothing to follow
+
+
+def _vec3(x: ArrayLike) -> np.ndarray:
+    """x as a float (3,) array for the kernels (broadcast as numpy would, or its error)."""
+    a = np.asarray(x, dtype=float)
+    return a if a.shape == (3,) else np.broadcast_to(a, (3,))
 
 
 class MasterGuard:
@@ -49,7 +57,7 @@ class MasterGuard:
 
     def observe(self) -> None:
         """At the end of the master side's tick: the observer's sum into the running minimum."""
-        self.W_min_J = min(self.W_min_J, float(self.port.W.sum()))
+        self.W_min_J = min(self.W_min_J, self.port.observer_sum())
 
     def summary(self) -> dict:
         """``dissipated_master_J`` (J, all axes) and ``W_master_min_J`` (J) so far."""
@@ -105,12 +113,15 @@ class SlaveGuard:
         self.speed = np.zeros(6)  # |commanded twist| low-passed (drift_speed_tau_s), m/s and rad/s in M
         self.W_min_J = float("inf")  # the observer's lowest sum over the axes, at the ends of ticks (J)
         self.drift_max_m = self.drift_final_m = 0.0  # |position offset| (m in M)
+        self._speed_for: TdpaParams | None = None  # the settings _speed_k was made from
+        self._speed_k = 0.0
+        self._reply_for: tuple[TdpaParams | None, Registration | None] = (None, None)  # _reply_prm's
+        self._reply_prm = np.zeros(0)
 
     def observe(self) -> None:
         """At the end of the slave side's tick: the observer's minimum and the drift."""
-        self.W_min_J = min(self.W_min_J, float(self.port.W.sum()))
-        self.drift_final_m = float(np.linalg.norm(self.port.offset[:3]))
-        self.drift_max_m = max(self.drift_max_m, self.drift_final_m)
+        self.W_min_J, self.drift_final_m, self.drift_max_m = kern.slave_observe(self.port.block, self.W_min_J,
+                                                                              self.drift_max_m)
 
     def summary(self) -> dict:
         """``dissipated_slave_J``, ``W_slave_min_J`` (J) and the drift ``drift_max_M_m``,
@@ -128,16 +139,38 @@ class SlaveGuard:
         """The command the slave follows: ``cmd`` with its twist corrected and its pose offset by
         the drift (None stays None: the slave holds, the observer still counts the tick)."""
         live = cmd if cmd is not None and cmd.clutch else None
-        v_des = np.concatenate((live.v_m_s, live.w_rad_s)) if live is not None else _ZERO6
-        v = self.port.step(v_des, self.f_M, None if cmd is None else cmd.energy_J, t_s)
-        p = self.port.params
-        self.speed = self.speed + p.dt_s / (p.drift_speed_tau_s + p.dt_s) * (np.abs(v_des) - self.speed)
+        port = self.port
+        received, E_remote = port.incoming(None if cmd is None else cmd.energy_J)
+        out, v, speed = np.empty((kern.SLAVE_ROWS, 6)), np.empty(6), np.empty(6)
         if live is None:
+            kern.guard_command(port.block, out, False, _ZERO3, _ZERO3, self.f_M, E_remote, received, port.settings,
+                               self.speed, self._speed_gain(), _ZERO3, _EYE3, v, speed, _UNUSED3, _UNUSED33)
+            port.commit(out, t_s)
+            self.speed = speed
             return cmd
-        cmd = live
-        off = self.port.offset
-        return ToolCommand(cmd.seq, cmd.t_s, cmd.p_m + off[:3], exp3(off[3:]) @ cmd.R, v[:3], v[3:],
-                           cmd.clutch, cmd.energy_J, cmd.wall_N)
+        p, R = np.empty(3), np.empty((3, 3))
+        kern.guard_command(port.block, out, True, live.v_m_s, live.w_rad_s, self.f_M, E_remote, received,
+                           port.settings, self.speed, self._speed_gain(), live.p_m, live.R, v, speed, p, R)
+        port.commit(out, t_s)
+        self.speed = speed
+        return ToolCommand(live.seq, live.t_s, p, R, v[:3], v[3:], live.clutch, live.energy_J, live.wall_N)
+
+    def _speed_gain(self) -> float:
+        """dt / (drift_speed_tau_s + dt): the commanded speed's low-pass, per tick."""
+        p = self.port.params
+        if p is not self._speed_for:
+            self._speed_for, self._speed_k = p, p.dt_s / (p.drift_speed_tau_s + p.dt_s)
+        return self._speed_k
+
+    def _reply_settings(self) -> np.ndarray:
+        """The reply's settings (:func:`teleop.control.passivity_kernels.reply_settings`), made
+        again when the port's settings or the registration are others."""
+        p, reg = self.port.params, self.reg
+        if self._reply_for[0] is not p or self._reply_for[1] is not reg:
+            self._reply_for = (p, reg)
+            self._reply_prm = kern.reply_settings(p.drift_stiffness, p.drift_speed, reg.force_scale,
+                                                  reg.torque_scale or 1.0, reg.scale)
+        return self._reply_prm
 
     def reply(self, fb: ContactFeedback, wall_normal_P: np.ndarray | None = None) -> ContactFeedback:
         """``fb`` with the slave port's input energy and the drift spring added to its wrench
@@ -145,25 +178,14 @@ class SlaveGuard:
         ``wall_normal_P`` (3,): the normal of a surface the master renders as its own wall
         (model-mediated): the force along it is not the channel's and is left out of the port's
         books, as the master leaves it out of its own."""
-        wrench_P = fb.wrench_P
-        f_M = self.reg.wrench_to_master(fb.model_offset_P if self.model_offset else wrench_P)
-        if wall_normal_P is not None:
-            n = self.reg.X_PM_R.T @ wall_normal_P
-            f_M = f_M.copy()
-            f_M[:3] -= float(n @ f_M[:3]) * n
+        f_M = self.reg.wrench_to_master(fb.model_offset_P if self.model_offset else fb.wrench_P)
+        wall = wall_normal_P is not None
+        out = np.empty(14)  # the wrench (6) and the plane (8) to send
+        kern.guard_reply(self.port.block, self.speed, self._reply_settings(), self.reg.X_PM_R, fb.wrench_P, fb.plane_P,
+                         f_M, _vec3(wall_normal_P) if wall_normal_P is not None else _ZERO3, wall, out)
         self.f_M = f_M
-        off = self.port.offset
-        if np.any(off):  # the drift reflected to the master: a spring pulling it toward the slave's target
-            p = self.port.params
-            pull_M = np.asarray(p.drift_stiffness) * off * np.minimum(self.speed / p.drift_speed, 1.0)
-            R, fs, ts = self.reg.X_PM_R, float(self.reg.force_scale), float(self.reg.torque_scale or 1.0)
-            wrench_P = wrench_P + np.concatenate((R @ pull_M[:3] / fs, R @ pull_M[3:] / ts))
-        plane = fb.plane_P
-        if off[:3].any() and plane[7] > 0.0:  # the anchor where the master's tip was: less the drift
-            plane = plane.copy()
-            plane[3:6] -= self.reg.X_PM_R @ off[:3] / float(self.reg.scale)
-        return ContactFeedback(fb.seq, fb.t_s, wrench_P, fb.status, fb.command_seq, self.port.energy_J,
-                               fb.damping_P, fb.twist_P, plane)
+        return ContactFeedback(fb.seq, fb.t_s, out[:6], fb.status, fb.command_seq, self.port.energy_J,
+                               fb.damping_P, fb.twist_P, out[6:])
 
 
 def tdpa_params(link: Any, dt_s: float, mass_kg: float, inertia_kgm2: Any, enabled: bool) -> TdpaParams:
