@@ -2,9 +2,12 @@
 slave's wait for the master's next command, pinning each side to a core of its own, and the link's
 ``last_receive_s`` never later than the frame's arrival."""
 
+import json
 import math
 import os
 import socket
+import subprocess
+import sys
 import time
 
 import numpy as np
@@ -59,6 +62,34 @@ def test_claim_core_pins_master_and_slave_to_different_cores(monkeypatch):
     pinned.clear()
     monkeypatch.setattr(os, "sched_getaffinity", lambda pid: {0})
     assert netrun.claim_core("slave") is None and not pinned  # one core: nothing to share out
+
+
+PIN_CHILD = """
+import json, os, threading
+from teleop.app.netrun import claim_core
+ready, done = threading.Event(), threading.Event()
+def session_thread():  # stands for Zenoh's threads, started with the session before the pin
+    ready.set()
+    done.wait(10)
+t = threading.Thread(target=session_thread)
+t.start()
+ready.wait(10)
+before = sorted(os.sched_getaffinity(0))
+core = claim_core("slave")
+print(json.dumps([before, core, sorted(os.sched_getaffinity(0)), sorted(os.sched_getaffinity(t.native_id))]))
+done.set()
+"""
+
+
+def test_claim_core_pins_the_loop_s_thread_only():
+    """The link's threads, started before the pin, keep every core the process had; the loop's
+    thread alone is pinned (a real process: the affinity is the kernel's)."""
+    out = subprocess.run([sys.executable, "-c", PIN_CHILD], capture_output=True, text=True, timeout=60, check=True)
+    before, core, loop, other = json.loads(out.stdout)
+    if len(before) < 2:
+        assert core is None and loop == other == before
+        return
+    assert loop == [core] and other == before
 
 
 def test_last_receive_s_is_never_later_than_the_frame_s_arrival():
