@@ -161,12 +161,13 @@ class PlaneEstimator:
         """Where along the normal the tip first touched this surface (m)."""
         return float(self.state[_S0])
 
-    def plane(self, anchor_tip: np.ndarray) -> np.ndarray:
+    def plane(self, anchor_tip: np.ndarray, remembered: bool = False) -> np.ndarray:
         """(8,): the normal (3), ``anchor_tip`` (3, m: where the tip is held to be, the model's
         force there being the measured one), the stiffness (N/m) and the confidence; NO_PLANE when
-        not in contact or not confident."""
+        not confident, or not in contact unless ``remembered`` (the last estimate, the tip having
+        left the surface a moment ago)."""
         st = self.state
-        if st[_IN] == 0.0 or st[_C] <= 0.0:
+        if (st[_IN] == 0.0 and not remembered) or st[_C] <= 0.0:
             return NO_PLANE
         out = np.empty(8)
         out[:3], out[3:6], out[6], out[7] = st[_N:_N + 3], anchor_tip, st[_K], st[_C]

@@ -103,6 +103,8 @@ class SlaveSide:
         self._touched_s = -math.inf    # when the tip last touched the surface (s)
         self._surface: tuple[np.ndarray, float, float] | None = None  # located: normal, offset (m), k (N/m)
         self._plane_c: float | None = None  # the surface's offset located with the estimate's stiffness (m)
+        self._still = False  # the target is the pose the arm held as the clutch went out
+        self._wall_N = 0.0  # the master's wall force in the last command followed (N, M)
         if not (math.isfinite(probe_N) and probe_N >= 0.0):
             raise ValueError(f"slave side: probe_N must be a finite force >= 0 N, got {probe_N!r}")
         self.probe_N = float(probe_N)
@@ -131,7 +133,7 @@ class SlaveSide:
         p, R, _, _ = self.reg.target(p_M, R_M, np.zeros(3), np.zeros(3))
         status = self.arm.reset((p, R))
         self._resting = self.arm.limits.at_limit(self.arm.q, self.arm.dt)
-        self._stopped = False
+        self._stopped = self._still = False
         return status
 
     def stats(self) -> dict:
@@ -208,23 +210,41 @@ class SlaveSide:
         elif self._surface is not None:
             n, c, k = self._surface
             self._surface = (n, min(c, s), k)
+            if self._plane_c is not None:
+                self._plane_c = min(self._plane_c, s)
 
-    def _surface_plane(self) -> np.ndarray:
+    def _surface_plane(self, t_s: float) -> np.ndarray:
         """The reply's plane, model-mediated: the estimate anchored on the located surface while
-        in contact (NO_PLANE otherwise)."""
+        in contact, and after the tip left it (never above the tip: see :meth:`_locate_surface`)
+        for as long as the slave's own bound keeps it (:meth:`_forgotten`): a bounce off the
+        surface does not take the master's wall away, which the hand would then push the master
+        through, each bounce deeper (measured: behind a lost link's outages the wall's offset
+        ratcheted to 3 mm and the slave pressed 18 N); NO_PLANE otherwise."""
         est = self.estimator
-        if est is None or self._plane_c is None or not est.in_contact or not est.confidence > 0.0:
+        if est is None or self._plane_c is None or not est.confidence > 0.0:
             return NO_PLANE
-        return est.plane(self._plane_c * est.n)
+        remembered = not est.in_contact
+        if remembered and (self._surface is None or self._forgotten(t_s)):
+            return NO_PLANE
+        return est.plane(self._plane_c * est.n, remembered)
+
+    def _forgotten(self, t_s: float) -> bool:
+        """Model-mediated: the surface the tip left is let go: WALL_MEMORY_S after the last touch,
+        unless the master still presses its wall (the last command's ``wall_N`` > 0). Let go under a
+        master pressing its wall, the bound dropped and the arm plunged to the master's pose, past
+        the wall's offset (measured: 14.6 N on a 100 kN/m wall after an arm hovering 2 um off it
+        for 0.2 s); kept, a surface that is gone is a wall the hand feels until it backs off."""
+        return t_s - self._touched_s > WALL_MEMORY_S and not self._wall_N > 0.0
 
     def _pressed_no_harder(self, target: tuple, wall_N: float, t_s: float) -> tuple:
         """Model-mediated: the target (p, R, v, w) moved out along the surface's normal so that
         the estimated force at its tip is at most the master's wall's (``wall_N``, N in M), or
         the probe force on a surface the master has not felt; its velocity into the surface
-        dropped. Unchanged while the estimate is not confident, and once the tip has been off the
-        surface for WALL_MEMORY_S (a bounce keeps the surface: the target would plunge)."""
+        dropped. Unchanged while the estimate is not confident, and once the surface is let go
+        (:meth:`_forgotten`; a bounce keeps the surface: the target would plunge)."""
         est = self.estimator
-        if est is None or self._surface is None or t_s - self._touched_s > WALL_MEMORY_S:
+        self._wall_N = wall_N
+        if est is None or self._surface is None or self._forgotten(t_s):
             return target
         n, c, k = self._surface
         p, R, v, w = target
@@ -283,7 +303,9 @@ class SlaveSide:
         if hold:
             p, R = self.arm.tool_pose()
             self._target = (p, R, np.zeros(3), np.zeros(3))
+            self._still = False
         elif cmd is not None and cmd.clutch and self._refusing is None:
+            self._still = False
             target = self.reg.target(cmd.p_m, cmd.R, cmd.v_m_s, cmd.w_rad_s)
             self._refusing = self.check.pose_reason(cmd, target[0], target[1])
             if self._refusing is None:
@@ -294,8 +316,10 @@ class SlaveSide:
                 p, R = self.arm.tool_pose()
                 self._target = (p, R, np.zeros(3), np.zeros(3))
         elif cmd is not None or self._target is None:  # clutch out, or nothing yet: hold still
-            p, R = self.arm.tool_pose()
-            self._target = (p, R, np.zeros(3), np.zeros(3))
+            if not (self._still and self.wall):  # model-mediated: where it was as the clutch went
+                p, R = self.arm.tool_pose()  # out, so that a stiff wall pressing on the tool does
+                self._target = (p, R, np.zeros(3), np.zeros(3))  # not push it off, tick by tick (it
+                self._still = True  # came back onto it at 11 N after a held link)
         elif self._target[2].any() or self._target[3].any():  # a lost message: hold the last pose
             self._target = (self._target[0], self._target[1], np.zeros(3), np.zeros(3))
         p_t, R_t, v_t, w_t = self._target
@@ -345,7 +369,7 @@ class SlaveSide:
             if self.wall:
                 self._locate_surface(tip, contact[:3], t_s)
             # anchored where the master asked the tip to be: at rest there, the master feels what is measured
-            plane = (self._surface_plane() if self.wall else
+            plane = (self._surface_plane(t_s) if self.wall else
                      self.estimator.plane(p_t + (R_t @ self.tip_B if not self._tip_at_origin else _Z3)))
         self._seq += 1
         return ContactFeedback(self._seq, t_s, at_origin, s.status, -1 if cmd is None else cmd.seq,
