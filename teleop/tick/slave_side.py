@@ -316,10 +316,13 @@ class SlaveSide:
                 p, R = self.arm.tool_pose()
                 self._target = (p, R, np.zeros(3), np.zeros(3))
         elif cmd is not None or self._target is None:  # clutch out, or nothing yet: hold still
-            if not (self._still and self.wall):  # model-mediated: where it was as the clutch went
-                p, R = self.arm.tool_pose()  # out, so that a stiff wall pressing on the tool does
-                self._target = (p, R, np.zeros(3), np.zeros(3))  # not push it off, tick by tick (it
-                self._still = True  # came back onto it at 11 N after a held link)
+            # model-mediated: held where it was as the clutch went out, so that a stiff wall
+            # pressing on the tool does not push it off tick by tick (it came back onto it at 11 N
+            # after a held link); else where it is, read again
+            if self._target is None or not (self._still and self.wall):
+                p, R = self.arm.tool_pose()
+                self._target = (p, R, np.zeros(3), np.zeros(3))
+                self._still = True
         elif self._target[2].any() or self._target[3].any():  # a lost message: hold the last pose
             self._target = (self._target[0], self._target[1], np.zeros(3), np.zeros(3))
         p_t, R_t, v_t, w_t = self._target
