@@ -243,7 +243,6 @@ class SlaveSide:
         dropped. Unchanged while the estimate is not confident, and once the surface is let go
         (:meth:`_forgotten`; a bounce keeps the surface: the target would plunge)."""
         est = self.estimator
-        self._wall_N = wall_N
         if est is None or self._surface is None or self._forgotten(t_s):
             return target
         n, c, k = self._surface
@@ -310,6 +309,7 @@ class SlaveSide:
             self._refusing = self.check.pose_reason(cmd, target[0], target[1])
             if self._refusing is None:
                 if self.wall:
+                    self._wall_N = cmd.wall_N
                     target = self._pressed_no_harder(target, cmd.wall_N, t_s)
                 self._target = self.project(*target)
             else:  # no real master asks this: hold where the arm is
