@@ -49,6 +49,7 @@ from teleop.app.session import (
     tick_count,
     tick_stats,
 )
+from teleop.link import wire
 from teleop.link.schedule import ScheduleTap, hello_command, hello_reply
 from teleop.scenario.build import build_registration
 from teleop.scenario.schema import Scene
@@ -223,9 +224,10 @@ def _answer_hellos(link, timeout_s: float, stop=()) -> bool:
 class _Bench:
     """A link that goes nowhere, for a side's warm-up twin: sends nothing; to a slave it hands a
     command holding ``pose`` (master frame) with the clutch engaged, to a master (``contact``) a
-    reply in light contact every tick, with a damping and a plane, so that the feedback path's
-    kernels load before the clock starts too (the first real reply loaded them in the master's
-    first ticks: 25 ms late, and the slave's 20 ms heartbeat tripped)."""
+    reply in light contact, with a damping and a plane, two ticks in three (nothing the third), so
+    that the feedback path's kernels and those of a tick without news load before the clock starts
+    too (the first real reply loaded them in the master's first ticks: 25 ms late, and the slave's
+    20 ms heartbeat tripped)."""
 
     def __init__(self, pose=None, contact: bool = False):
         self.pose, self.k, self.contact, self.t = pose, 0, contact, None
@@ -242,17 +244,29 @@ class _Bench:
 
     send_feedback = send_command
 
-    def receive_feedback(self, t_s: float) -> ContactFeedback | None:
-        if not self.contact:
-            return None
+    def _silent(self) -> bool:
+        """Every third tick nothing comes: a side's tick without news loads its kernels too."""
         self.k += 1
-        D = np.diag([5.0, 5.0, 5.0, 0.0, 0.0, 0.0])
-        return ContactFeedback(self.k, t_s, [0.0, 0.0, 0.01, 0.0, 0.0, 0.0], "ok", self.k, np.zeros(6), D,
-                               np.zeros(6), [0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1e3, 0.5])
+        return self.k % 3 == 0
 
-    def receive_command(self, t_s: float) -> ToolCommand:
-        self.k += 1
-        return ToolCommand(self.k, t_s, *self.pose, _Z3, _Z3, True)
+    def receive_feedback(self, t_s: float) -> ContactFeedback | None:
+        if not self.contact or self._silent():
+            return None
+        D = np.diag([5.0, 5.0, 5.0, 0.0, 0.0, 0.0])
+        return _delivered(ContactFeedback(self.k, t_s, [0.0, 0.0, 0.01, 0.0, 0.0, 0.0], "ok", self.k, np.zeros(6),
+                                          D, np.zeros(6), [0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1e3, 0.5]))
+
+    def receive_command(self, t_s: float) -> ToolCommand | None:
+        if self._silent():
+            return None
+        return _delivered(ToolCommand(self.k, t_s, *self.pose, _Z3, _Z3, True))
+
+
+def _delivered(msg):
+    """``msg`` as the link hands it over, through the wire's encoding and back: the twin's kernels
+    then meet the argument types the run's messages bring (a compiled kernel loads once per type
+    signature; tests/integration/test_warm_up.py)."""
+    return wire.decode(wire.encode(msg))
 
 
 def warm_up(scene: Scene, role: str) -> None:

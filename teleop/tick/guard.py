@@ -37,7 +37,14 @@ from teleop.control.mapping import Registration
 from teleop.control.passivity import MasterPassivity, SlavePassivity, TdpaParams
 from teleop.tick.messages import ContactFeedback, ToolCommand
 
-_ZERO3, _EYE3 = np.zeros(3), np.eye(3)
+_ZERO3 = np.zeros(3)  # the reply's normal off a wall: writable, as the estimate's normal is
+# A command with nothing to follow passes these where a command passes its fields, which are
+# read-only (teleop.tick.messages): a compiled kernel loads once per argument type signature, and a
+# writable stand-in loaded guard_command again on the first tick without a command, mid-run
+# (22 ms at 2 kHz, past the master's heartbeat).
+_HOLD_V3, _HOLD_P3, _HOLD_R = np.zeros(3), np.zeros(3), np.eye(3)
+for _a in (_HOLD_V3, _HOLD_P3, _HOLD_R):
+    _a.flags.writeable = False
 _UNUSED3, _UNUSED33 = np.zeros(3), np.zeros((3, 3))  # the pose outputs of a command with nothing to follow
 
 
@@ -143,8 +150,9 @@ class SlaveGuard:
         received, E_remote = port.incoming(None if cmd is None else cmd.energy_J)
         out, v, speed = np.empty((kern.SLAVE_ROWS, 6)), np.empty(6), np.empty(6)
         if live is None:
-            kern.guard_command(port.block, out, False, _ZERO3, _ZERO3, self.f_M, E_remote, received, port.settings,
-                               self.speed, self._speed_gain(), _ZERO3, _EYE3, v, speed, _UNUSED3, _UNUSED33)
+            kern.guard_command(port.block, out, False, _HOLD_V3, _HOLD_V3, self.f_M, E_remote, received,
+                               port.settings, self.speed, self._speed_gain(), _HOLD_P3, _HOLD_R, v, speed, _UNUSED3,
+                               _UNUSED33)
             port.commit(out, t_s)
             self.speed = speed
             return cmd

@@ -12,7 +12,7 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from numba import njit
+from numba import njit, types
 
 from teleop.dynamics.kernels.small import is_positive_definite
 
@@ -86,10 +86,19 @@ def pose_code(Rc, p, center, reach_m, has_last, p0, R0, R, dt_s, speed_m_s, rate
     return 0
 
 
-@njit(cache=True)
+def _read_only(ndim: int) -> types.Array:
+    return types.Array(types.float64, ndim, "C", readonly=True)
+
+
+# Typed once for read-only inputs, which writable arrays convert to: the filter's state and target
+# are each a writable result or a shared read-only zero by turns, and a kernel typed per call loads
+# anew for each mix it meets (5-25 ms, mid-run: tests/integration/test_warm_up.py).
+@njit([types.float64[::1](_read_only(1), _read_only(1), types.float64),
+       types.float64[:, ::1](_read_only(2), _read_only(2), types.float64)], cache=True)
 def lowpass(y, target, alpha):
-    """One step of the first-order low-pass y + alpha (target - y), elementwise (any shape): a
-    new array, the arithmetic of numpy's ``y + alpha * (target - y)``."""
+    """One step of the first-order low-pass y + alpha (target - y), elementwise, for (n,) and
+    (n, m) C-contiguous float arrays: a new array, the arithmetic of numpy's
+    ``y + alpha * (target - y)``."""
     out = np.empty_like(y)
     yf, tf, of = y.ravel(), target.ravel(), out.ravel()
     for i in range(yf.size):
