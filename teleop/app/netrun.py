@@ -86,21 +86,34 @@ def claim_core(role: str) -> int | None:
     return core
 
 
-def _await_command(link, timeout: float, poll_s: float = POLL_S) -> None:
+def _await_command(link, timeout: float, poll_s: float = POLL_S) -> float | None:
     """Slave: wait until a command newer than the last one taken has come, or the wall clock
-    (perf_counter, s) reaches ``timeout``, polling every ``poll_s`` (0: without sleeping). The
-    slave ticks when the master's command arrives, so its reply is back before the master's next
-    tick (one process's timing); the timeout, one period after the tick's nominal start, keeps it
-    ticking (and its heartbeat checked) when no command comes; a slave behind its clock does not
-    wait (it replays the ticks it owes, as before)."""
+    (perf_counter, s) reaches ``timeout``, polling every ``poll_s`` (0: without sleeping). Returns
+    when the command was seen (perf_counter, s; at once when one was already waiting), or None at
+    the timeout. The slave ticks when the master's command arrives, so its reply is back before
+    the master's next tick (one process's timing); the timeout keeps it ticking (and its heartbeat
+    checked) when no command comes."""
     while link.peek() is None:
         left = timeout - time.perf_counter()
         if left <= 0:
-            return
+            return None
         if poll_s > 0:
             time.sleep(min(left, poll_s))
         elif _YIELD:
             os.sched_yield()
+    return time.perf_counter()
+
+
+def _next_slot(slot: float, dt_s: float, waiting: bool, seen: float | None) -> float:
+    """Slave: when its next tick is due (perf_counter, s), after a tick due at ``slot``. The slave
+    keeps the master's phase: a command that came while it waited (``seen``, not ``waiting``)
+    sets the slot; one that was already waiting, or none by the timeout, leaves the slot a period
+    on (the slave is behind, or the command is late or lost). Anchored on its own start alone (the
+    moment it saw the first command), the slave counted the link's latency beyond that first
+    one's as its own lateness and gave up on commands by a clock the master does not keep: at
+    2 kHz over Zenoh, five runs, 106-3140 late ticks of 14000 and 35-519 ticks without a command
+    (the slave idle between ticks); in the master's phase, 44-141 and 23-61."""
+    return seen if seen is not None and not waiting else slot + dt_s
 
 
 def _open_link(role: str, session: str, listen, connect, timeout_s: float, config_json5=None, *, keys,
@@ -156,10 +169,10 @@ def _linked(role: str, stop, session, listen, connect, timeout_s, config_json5, 
     return SideRun(status, 0, 0.0, None, None, False, runner, {})
 
 
-def _lateness(heart, wall0: float, i: int, dt_s: float) -> float:
-    """How late tick ``i`` starts on the wall clock (s, perf_counter from ``wall0``), told to the
+def _lateness(heart, slot: float) -> float:
+    """How late a tick due at ``slot`` (perf_counter, s) starts on the wall clock (s), told to the
     side's heartbeat (a detection's latency is read against it)."""
-    heart.tick_late_s = max(0.0, time.perf_counter() - (wall0 + i * dt_s))
+    heart.tick_late_s = max(0.0, time.perf_counter() - slot)
     return heart.tick_late_s
 
 
@@ -429,7 +442,7 @@ def _run_master(scene, connect, listen, session, timeout_s, config_json5, pin, s
             if stop:
                 status = "interrupted"
                 break
-            behind = max(behind, _lateness(side.heart, wall0, i, dt))
+            behind = max(behind, _lateness(side.heart, wall0 + i * dt))
             status = side.tick(i, i * dt, port)
             say.tick(i)
             ticks[i], steps = side.tick_ns * 1e-3, i + 1
@@ -487,15 +500,15 @@ def _run_slave(scene, listen, connect, session, timeout_s, config_json5, pin, st
         else:
             print("slave: running", flush=True)
         _fine_timer_slack()
-        wall0 = time.perf_counter()
+        wall0 = slot = time.perf_counter()
         say = _Teller("slave", side.heart, dt)
         for i in range(cap if status == "ok" else 0):
             if stop:
                 status = "interrupted"
                 break
-            lateness = _lateness(side.heart, wall0, i, dt)
+            lateness = _lateness(side.heart, slot)
             behind = max(behind, lateness)
-            late += lateness > dt  # past its timeout: a tick owed, run back to back
+            late += lateness > dt  # a period past its slot: a tick owed, or one the timeout ran
             side.tick(i, i * dt, port)
             say.tick(i)
             ticks[i], steps = side.tick_ns * 1e-3, i + 1
@@ -504,7 +517,8 @@ def _run_slave(scene, listen, connect, session, timeout_s, config_json5, pin, st
                 break
             if side.last_seq >= n:
                 break
-            _await_command(link, wall0 + (i + 2) * dt, poll_s)
+            waiting = link.peek() is not None
+            slot = _next_slot(slot, dt, waiting, _await_command(link, slot + 2 * dt, poll_s))
         runner = {"tick_us": tick_stats(ticks[:steps]), "late_ticks": late, "link": {"zenoh_slave": link.stats()},
                   "clock": {"slave": _clock(wall0, steps, dt, behind, core)}}
         if port.refused is not None:

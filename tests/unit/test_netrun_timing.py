@@ -41,15 +41,60 @@ class _Mailbox:
 @pytest.mark.parametrize("poll_s", [0.0, 1e-4])
 def test_the_slave_ticks_when_the_command_comes_not_at_its_timeout(poll_s):
     t0 = time.perf_counter()
-    netrun._await_command(_Mailbox(t0 + 2e-3), t0 + 2.0, poll_s)
+    seen = netrun._await_command(_Mailbox(t0 + 2e-3), t0 + 2.0, poll_s)
     waited = time.perf_counter() - t0
     assert 2e-3 <= waited < 0.5  # returned on the command, far before the 2 s timeout (slack: a loaded core)
+    assert seen is not None and t0 + 2e-3 <= seen <= time.perf_counter()  # when it was seen
 
 
 def test_the_slave_stops_waiting_at_its_timeout_when_no_command_comes():
     t0 = time.perf_counter()
-    netrun._await_command(_Mailbox(math.inf), t0 + 3e-3, 1e-4)
+    assert netrun._await_command(_Mailbox(math.inf), t0 + 3e-3, 1e-4) is None
     assert 3e-3 <= time.perf_counter() - t0 < 0.5  # slack: a loaded core
+
+
+def test_the_slave_keeps_the_master_s_phase():
+    """A command that came while the slave waited sets its next slot; one already waiting (the slave
+    behind) or none by the timeout leaves the slot a period on, so a slow slave or a silent link
+    still shows as late."""
+    dt = 5e-4
+    assert netrun._next_slot(1.0, dt, waiting=False, seen=1.0007) == 1.0007  # a command 0.7 ms on: no timeout next
+    assert netrun._next_slot(1.0, dt, waiting=True, seen=1.002) == 1.0 + dt   # behind: measured from its own slot
+    assert netrun._next_slot(1.0, dt, waiting=False, seen=None) == 1.0 + dt   # nothing came by the timeout
+
+
+def _slave_on(arrivals: list[float], dt: float) -> tuple[int, int]:
+    """The slave's loop on a simulated clock (its slots, timeouts and newest-command box; ticks
+    taking no time), its first command seen at 0: (its ticks without a command plus the commands
+    it skipped, its ticks started more than a period after their slot)."""
+    arrivals_a = np.asarray(arrivals)
+    slot = t = 0.0
+    taken = misses = late = 0
+    for _ in range(len(arrivals) - 1):
+        timeout = slot + 2 * dt
+        nxt = arrivals_a[taken] if taken < len(arrivals) else np.inf
+        waiting = nxt <= t
+        seen = t if waiting else (nxt if nxt < timeout else None)
+        t = timeout if seen is None else seen
+        arrived = int(np.searchsorted(arrivals_a, t, side="right"))
+        misses += arrived - taken - 1 if arrived > taken else 1  # skipped, or a tick without one
+        taken = max(taken, arrived)
+        slot = netrun._next_slot(slot, dt, waiting, seen)
+        late += t - slot > dt
+    return misses, late
+
+
+def test_a_slave_started_early_on_the_commands_takes_each_as_it_comes():
+    """Commands every period, each 0.5 +- 0.2 ms after the slot the slave's start would give it
+    (its first command seen early, the others later by the link's latency, a period at 2 kHz):
+    in the master's phase the slave misses at most the first, then neither times out nor skips,
+    and no tick counts as late; against slots anchored on its start, a quarter would have."""
+    dt = 5e-4
+    jitter = np.random.default_rng(7).uniform(-2e-4, 2e-4, 2000)
+    arrivals = [k * dt + 5e-4 + j for k, j in enumerate(jitter, start=1)]
+    misses, late = _slave_on(arrivals, dt)
+    assert misses <= 1 and late == 0
+    assert sum(a - k * dt > dt for k, a in enumerate(arrivals, start=1)) > len(arrivals) // 4
 
 
 def test_claim_core_pins_master_and_slave_to_different_cores(monkeypatch):
