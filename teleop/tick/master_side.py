@@ -172,7 +172,9 @@ class MasterSide:
         self.tool.hold()
         if self.guard is not None:
             self.guard.drop_force()
-        return self.master.command(state.p, state.R, _Z6, _Z6)
+        # the tool's twist and acceleration as a tick's are (writable arrays): a device's compiled
+        # controller meets no new argument type in the hold (tests/integration/test_warm_up.py)
+        return self.master.command(state.p, state.R, np.zeros(6), np.zeros(6))
 
     def _heard(self, i: int, msg: ContactFeedback | None) -> None:
         if msg is not None and msg.t_s >= 0:

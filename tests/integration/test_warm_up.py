@@ -6,8 +6,9 @@ heartbeat (``link_lost`` in two of three Zenoh runs).
 
 The run after the warm-up is the same two sides in one process over a channel that delays, loses
 in bursts (ticks without a command, replies without contact news, both heartbeats lost and
-regained) and jitters, on a cut and on a stiff wall rendered model-mediated: no kernel may gain a
-signature."""
+regained) and jitters, on a cut, on a stiff wall rendered model-mediated and on the CAN cobot with
+its faults (its held ticks once passed the device's controller read-only twists): no kernel may
+gain a signature."""
 
 import sys
 
@@ -35,9 +36,10 @@ def _signatures() -> dict[str, set]:
 
 
 @pytest.mark.parametrize(("scene", "sets"), [("straight_incision", []),
-                                             ("stiff_contact", ["tissue.stiffness=30000.0"])])
+                                             ("stiff_contact", ["tissue.stiffness=30000.0"]),
+                                             ("can_faults_incision", ["dt_s=0.001"])])
 def test_no_kernel_loads_after_the_warm_up(scene, sets):
-    sc = load_scene(scene, sets=["dt_s=0.0005", "duration_s=1.5", *sets, *ROUGH_LINK])
+    sc = load_scene(scene, sets=["dt_s=0.0005", "duration_s=1.5", *sets, *ROUGH_LINK])  # sets may set dt_s again
     netrun.warm_up(sc, "master")
     netrun.warm_up(sc, "slave")
     before = _signatures()
