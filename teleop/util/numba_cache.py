@@ -67,3 +67,40 @@ def configure() -> Path | None:
 
     numba.core.dispatcher.Dispatcher.enable_caching = lambda self: None
     return folder
+
+
+def load_cached_kernels(prefix: str = "teleop.") -> int:
+    """Load every type signature this machine's cache holds for the compiled kernels of the
+    loaded modules named ``prefix``...: a kernel loads once per signature, 5-130 ms, and one first
+    met mid-run stalls a real-time loop that long (a kernel called only in contact, on the first
+    touch). Reads numba's cache index, which numba keeps per kernel and empties when the kernel's
+    source changes; a cache it cannot read loads nothing. Returns how many signatures it loaded."""
+    from numba.core.registry import CPUDispatcher
+
+    loaded = 0
+    for name, module in list(sys.modules.items()):
+        if not name.startswith(prefix) or module is None:
+            continue
+        for kernel in list(vars(module).values()):
+            if isinstance(kernel, CPUDispatcher):
+                loaded += _load_signatures(kernel)
+    return loaded
+
+
+def _load_signatures(kernel) -> int:
+    """The cached signatures of one kernel that it has not loaded yet, loaded (those numba's own
+    index keys to this machine's code generator and this kernel's code); how many."""
+    try:  # numba's cache internals: another numba version may lay them out otherwise
+        cache, codegen = kernel._cache, kernel.targetctx.codegen()
+        wanted = [key[0] for key in cache._cache_file._load_index()
+                  if key[0] not in kernel.overloads and key == cache._index_key(key[0], codegen)]
+    except Exception:  # a cache it cannot read: nothing to load, the run goes on
+        return 0
+    n = 0
+    for sig in wanted:
+        try:
+            kernel.compile(sig)
+            n += 1
+        except Exception:  # an entry numba can neither load nor compile: met, if ever, when called
+            pass
+    return n
