@@ -50,8 +50,14 @@ class MasterRecorder(Hook):
             "master_tick_us": ((), f),
         }, n)
         self.n = 0
-        self.nan = False
         self._pv = self._Rv = None
+
+    @property
+    def nan(self) -> bool:
+        """True if the reference tool's coordinates or the virtual tool's position went non-finite
+        on any tick logged (read from the log at the end, not checked in the tick)."""
+        n = self.n
+        return not (np.isfinite(self.log["q_r"][:n]).all() and np.isfinite(self.log["q_v_p"][:n]).all())
 
     def before_tick(self, i: int, t_s: float, side: MasterSide) -> None:
         self._pv, self._Rv = side.master.virtual_pose()  # what the encoders measure as it starts
@@ -59,7 +65,6 @@ class MasterRecorder(Hook):
     def after_tick(self, i: int, t_s: float, side: MasterSide) -> None:
         tool, log = side.tool, self.log
         log.ensure(i)
-        self.nan = self.nan or not (np.all(np.isfinite(tool.q)) and np.all(np.isfinite(self._pv)))
         log["t"][i] = tool.t
         log["q_r"][i] = tool.q
         log["q_v_p"][i] = self._pv
