@@ -216,7 +216,9 @@ def test_a_slave_killed_mid_run_leaves_the_masters_summary_link_lost_and_exit_1(
 @pytest.mark.long
 def test_a_second_master_is_refused_in_one_line_and_the_first_keeps_control(tmp_path):
     ep = free_endpoint()
-    slave, master, js, jm = _pair(tmp_path, 4.0, ep=ep, extra=["--set", "link.heartbeat_ms=2000"])
+    # the first pair runs 8 s: the second master's start (interpreter, imports, its warm-up) must
+    # fit in it on a loaded machine, or it finds no slave and ends link_lost instead of refused
+    slave, master, js, jm = _pair(tmp_path, 8.0, ep=ep, extra=["--set", "link.heartbeat_ms=2000"])
     try:
         _wait_line(master, "master: running")
         second = subprocess.run([*PY, "master", "straight_incision", "--connect", ep, "--keys", str(tmp_path / "keys"),
@@ -230,7 +232,7 @@ def test_a_second_master_is_refused_in_one_line_and_the_first_keeps_control(tmp_
     assert len(refusals) == 1 and "already paired" in refusals[0]
     first, slave_s = json.loads(jm.read_text()), json.loads(js.read_text())
     # the first master kept control to the end; both sides name the attempt, refused and counted
-    assert first["steps"] == 4000 and first["heartbeat"]["master"]["lost_ticks"] == 0
+    assert first["steps"] == 8000 and first["heartbeat"]["master"]["lost_ticks"] == 0
     assert slave_s["metrics"]["tip_tracking_max_m"] < 1e-3  # the slave followed it all along
     for s in (first, slave_s):
         assert s["status"] == "link_attacked", s["status_reason"]
