@@ -167,3 +167,29 @@ def test_last_receive_s_is_never_later_than_the_frame_s_arrival():
         # no later than the frame's arrival (so before it was found)
         assert t_empty <= slave.last_receive_s <= t_found
         assert slave.receive_command().seq == 2
+
+
+LOCK = """
+import os
+from teleop.app.netrun import locked_memory
+
+def vmlck_kb():
+    return int(next(l for l in open("/proc/self/status") if l.startswith("VmLck:")).split()[1])
+
+with locked_memory(False) as off:
+    assert off is False and vmlck_kb() == 0
+with locked_memory() as on:
+    inside = vmlck_kb()
+after = vmlck_kb()
+print(on, inside, after, os.geteuid())
+"""
+
+
+@pytest.mark.skipif(not sys.platform.startswith("linux"), reason="mlockall and /proc/self/status are Linux's")
+def test_locked_memory_keeps_every_page_in_while_it_holds_and_lets_go_after():
+    out = subprocess.run([sys.executable, "-c", LOCK], capture_output=True, text=True, timeout=120, check=True)
+    on, inside, after, euid = out.stdout.split()
+    if euid == "0":  # root may lock it all (CI runs as root)
+        assert on == "True" and int(inside) > 100_000 and int(after) == 0  # the process's whole map, then nothing
+    else:  # a user under a small memlock limit: nothing locked, nothing failed
+        assert on in ("True", "False") and int(after) == 0
