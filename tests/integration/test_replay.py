@@ -47,21 +47,23 @@ def test_hold_keeps_the_page_served_until_ctrl_c():
     env = dict(os.environ, PYTHONPATH=os.pathsep.join(sys.path))
     proc = subprocess.Popen([sys.executable, "-m", "teleop", "run", "paper_rolling_disk", "--duration", "0.2",
                              "--viewer", "--hold"], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env)
+    said: list[str] = []  # stderr up to the hold, for the messages below
     try:
         url, deadline = None, time.monotonic() + 120
         while url is None and time.monotonic() < deadline:
             line = proc.stderr.readline()
+            said.append(line)
             if "holds the last frame" in line:
                 url = line.split()[1]
-            assert line or proc.poll() is None, "teleop ended before holding the page"
-        assert url is not None
+            assert line or proc.poll() is None, f"teleop ended before holding the page: {''.join(said)[-2000:]}"
+        assert url is not None, "".join(said)[-2000:]
         time.sleep(1.0)
-        assert proc.poll() is None  # the run is over, the page is still served
+        assert proc.poll() is None, "".join(said)[-2000:]  # the run is over, the page is still served
         assert urllib.request.urlopen(url, timeout=10).status == 200
         proc.send_signal(signal.SIGINT)
         out, err = proc.communicate(timeout=30)
     finally:
         if proc.poll() is None:
             proc.kill()
-    assert proc.returncode in (0, 1) and "Traceback" not in err
-    assert "status" in out  # the summary after Ctrl-C
+    assert proc.returncode in (0, 1) and "Traceback" not in err, (proc.returncode, err[-3000:])
+    assert "status" in out, out[-2000:]  # the summary after Ctrl-C
