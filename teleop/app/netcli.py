@@ -42,7 +42,8 @@ def add_subcommands(sub) -> None:
                        help="DANGEROUS: let a plain tcp/ endpoint off loopback through (frames are "
                             "authenticated but not encrypted: use a tls/ endpoint instead)")
         p.add_argument("--no-pin", dest="pin", action="store_false",
-                       help="do not pin this side to a core of its own (pinned, it spins instead of sleeping)")
+                       help="do not pin this side to a core of its own (pinned, it spins instead of sleeping "
+                            "and locks its memory where allowed)")
         p.add_argument("--record", metavar="PATH", help="every tick of this side to an MCAP file (default with --out: "
                                                          f"OUT/{role}.mcap)")
         p.add_argument("--part", help=argparse_suppress())

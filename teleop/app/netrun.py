@@ -13,11 +13,13 @@ Start-up: each side first runs a twin of itself for a few ticks on a link to now
 kernels' first loads, not the first ticks). The master sends hello commands (``t_s = -1``, clutch
 out) until a reply comes; the slave answers every hello. The master then ticks ``duration_s /
 dt_s`` times on the wall clock; the slave ticks when the master's next command arrives (or one
-period past its own nominal tick start if none comes; when behind, back to back), until it has
+period past the slot it was due in if none comes, :func:`_next_slot`; when behind, back to back), until it has
 followed the master's last command (or, if the master is gone, for as long again plus
 ``GRACE_S``). The master feels the newest reply at the start of its tick, as in one process
 (``reply_lag_ticks`` "0": in step with one process). Each side is pinned to a core of its own and
-waits by spinning (:func:`claim_core`; ``--no-pin``: sleep instead).
+waits by spinning, its memory locked where allowed (:func:`claim_core`, :func:`locked_memory`;
+``--no-pin``: neither, it sleeps instead). Before either side opens its link it loads every
+compiled kernel it will call (:func:`warm_up`), so that none loads mid-run.
 
 Heartbeat and safe states are the sides' own (:mod:`teleop.tick.heartbeat`), on the wall clock
 here. A side that never hears its peer ends with status ``link_lost`` (exit 1), never a traceback.
