@@ -9,11 +9,10 @@ from __future__ import annotations
 import copy
 import math
 from abc import ABC, abstractmethod
-from typing import ClassVar
 
 import numpy as np
 
-from teleop.app.recorders import Columns
+from teleop.app.recorders import Columns, MasterRecorder
 from teleop.dynamics.rotations import cross
 from teleop.dynamics.rows import RowStack
 from teleop.scenario.schema import FixtureSpec
@@ -240,36 +239,34 @@ class MasterMetrics(Hook):
     """A master-side hook: a :class:`MetricSet` fed every tick from the virtual tool as the tick starts, the operator's
     wrench of the tick and the constraint wrench it produced.
 
-    Off the tick: the tick only copies those inputs (six arrays, some 3 µs); the metric set reads
-    them when :meth:`log` or :meth:`result` is asked, tick by tick in order, as it would have
-    in the tick (it cost 15 µs a tick there: nothing in the run reads it before the end)."""
+    Off the tick: the pose and the two wrenches are in the master's log already (``recorder``:
+    its ``q_v_p``, ``R_v``, ``operator_W``, ``constraint_W``), so the tick only copies the virtual
+    tool's twist; the metric set reads them when :meth:`log` or :meth:`result` is asked, tick by
+    tick in order, as it would have in the tick (it cost 15 µs a tick there: nothing in the run
+    reads it before the end)."""
 
-    _INPUTS: ClassVar[dict] = {"p": (3,), "R": (3, 3), "v": (3,), "w": (3,), "hand_W": (6,), "constraint_W": (6,)}
-
-    def __init__(self, metrics: MetricSet, n: int):
-        self.metrics = metrics
-        self.inputs = Columns({k: (shape, float) for k, shape in self._INPUTS.items()}, n)
+    def __init__(self, metrics: MetricSet, recorder: MasterRecorder):
+        self.metrics, self.recorder = metrics, recorder
+        self.twist = Columns({"v": ((3,), float), "w": ((3,), float)}, recorder.log.capacity)
         self.n = 0
         self._fed = 0
-        self._state: tuple = ()
+        self._vw: tuple = ()
 
     def before_tick(self, i, t_s, side) -> None:
-        m = side.master
-        self._state = (*m.virtual_pose(), *m.virtual_twist())
+        self._vw = side.master.virtual_twist()
 
     def after_tick(self, i, t_s, side) -> None:
-        c = self.inputs
+        c = self.twist
         c.ensure(i)
-        p, R, v, w = self._state
-        c["p"][i], c["R"][i], c["v"][i], c["w"][i] = p, R, v, w
-        c["hand_W"][i], c["constraint_W"][i] = side.hand_W, side.tool.constraint_wrench_W
+        c["v"][i], c["w"][i] = self._vw
         self.n = i + 1
 
     def _feed(self) -> None:
         """The metric set fed the ticks recorded since it was last fed."""
-        c = self.inputs
+        c, log = self.twist, self.recorder.log
+        p, R, hand, con = log["q_v_p"], log["R_v"], log["operator_W"], log["constraint_W"]
         for i in range(self._fed, self.n):
-            self.metrics.update(c["p"][i], c["R"][i], c["v"][i], c["w"][i], c["hand_W"][i], c["constraint_W"][i])
+            self.metrics.update(p[i], R[i], c["v"][i], c["w"][i], hand[i], con[i])
         self._fed = self.n
 
     def log(self) -> dict:
