@@ -119,22 +119,24 @@ def locked_memory(on: bool = True):
             libc.munlockall()
 
 
-def _await_command(link, timeout: float, poll_s: float = POLL_S) -> float | None:
+def _await_command(link, timeout: float, poll_s: float = POLL_S) -> tuple[float | None, bool]:
     """Slave: wait until a command newer than the last one taken has come, or the wall clock
     (perf_counter, s) reaches ``timeout``, polling every ``poll_s`` (0: without sleeping). Returns
-    when the command was seen (perf_counter, s; at once when one was already waiting), or None at
-    the timeout. The slave ticks when the master's command arrives, so its reply is back before
-    the master's next tick (one process's timing); the timeout keeps it ticking (and its heartbeat
+    when the command was seen (perf_counter, s; None at the timeout) and whether it was waiting
+    already. The slave ticks when the master's command arrives, so its reply is back before the
+    master's next tick (one process's timing); the timeout keeps it ticking (and its heartbeat
     checked) when no command comes."""
+    waiting = True
     while link.peek() is None:
+        waiting = False
         left = timeout - time.perf_counter()
         if left <= 0:
-            return None
+            return None, False
         if poll_s > 0:
             time.sleep(min(left, poll_s))
         elif _YIELD:
             os.sched_yield()
-    return time.perf_counter()
+    return time.perf_counter(), waiting
 
 
 def _next_slot(slot: float, dt_s: float, waiting: bool, seen: float | None) -> float:
@@ -554,8 +556,8 @@ def _run_slave(scene, listen, connect, session, timeout_s, config_json5, pin, st
                 break
             if side.last_seq >= n:
                 break
-            waiting = link.peek() is not None
-            slot = _next_slot(slot, dt, waiting, _await_command(link, slot + 2 * dt, poll_s))
+            seen, waiting = _await_command(link, slot + 2 * dt, poll_s)
+            slot = _next_slot(slot, dt, waiting, seen)
         runner = {"tick_us": tick_stats(ticks[:steps]), "late_ticks": late, "link": {"zenoh_slave": link.stats()},
                   "clock": {"slave": _clock(wall0, steps, dt, behind, core, locked)}}
         if port.refused is not None:

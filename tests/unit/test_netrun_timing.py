@@ -41,15 +41,18 @@ class _Mailbox:
 @pytest.mark.parametrize("poll_s", [0.0, 1e-4])
 def test_the_slave_ticks_when_the_command_comes_not_at_its_timeout(poll_s):
     t0 = time.perf_counter()
-    seen = netrun._await_command(_Mailbox(t0 + 2e-3), t0 + 2.0, poll_s)
+    seen, waiting = netrun._await_command(_Mailbox(t0 + 2e-3), t0 + 2.0, poll_s)
     waited = time.perf_counter() - t0
     assert 2e-3 <= waited < 0.5  # returned on the command, far before the 2 s timeout (slack: a loaded core)
     assert seen is not None and t0 + 2e-3 <= seen <= time.perf_counter()  # when it was seen
+    assert not waiting  # it came while the slave waited
+    seen, waiting = netrun._await_command(_Mailbox(t0), t0 + 2.0, poll_s)
+    assert waiting and seen is not None  # already there: no wait
 
 
 def test_the_slave_stops_waiting_at_its_timeout_when_no_command_comes():
     t0 = time.perf_counter()
-    assert netrun._await_command(_Mailbox(math.inf), t0 + 3e-3, 1e-4) is None
+    assert netrun._await_command(_Mailbox(math.inf), t0 + 3e-3, 1e-4) == (None, False)
     assert 3e-3 <= time.perf_counter() - t0 < 0.5  # slack: a loaded core
 
 
