@@ -75,16 +75,17 @@ def load_cached_kernels(prefix: str = "teleop.") -> int:
     met mid-run stalls a real-time loop that long (a kernel called only in contact, on the first
     touch). Reads numba's cache index, which numba keeps per kernel and empties when the kernel's
     source changes; a cache it cannot read loads nothing. Returns how many signatures it loaded."""
+    return sum(_load_signatures(kernel) for kernel in compiled_kernels(prefix).values())
+
+
+def compiled_kernels(prefix: str = "teleop.") -> dict[str, object]:
+    """The compiled (numba) kernels of the loaded modules named ``prefix``..., by qualified name
+    (module.attribute; a kernel imported into several modules is listed under each)."""
     from numba.core.registry import CPUDispatcher
 
-    loaded = 0
-    for name, module in list(sys.modules.items()):
-        if not name.startswith(prefix) or module is None:
-            continue
-        for kernel in list(vars(module).values()):
-            if isinstance(kernel, CPUDispatcher):
-                loaded += _load_signatures(kernel)
-    return loaded
+    return {f"{name}.{attr}": obj for name, module in list(sys.modules.items())
+            if name.startswith(prefix) and module is not None
+            for attr, obj in list(vars(module).items()) if isinstance(obj, CPUDispatcher)}
 
 
 def _load_signatures(kernel) -> int:

@@ -10,14 +10,12 @@ regained) and jitters, on a cut, on a stiff wall rendered model-mediated and on 
 its faults (its held ticks once passed the device's controller read-only twists): no kernel may
 gain a signature."""
 
-import sys
-
 import pytest
-from numba.core.registry import CPUDispatcher
 
 from teleop.app import netrun
 from teleop.app.runtime import run_scene
 from teleop.scenario.schema import load_scene
+from teleop.util.numba_cache import compiled_kernels
 
 ROUGH_LINK = ["link.round_trip_ms=6.0", "link.jitter_ms=1.0", "link.loss=0.05", "link.burst_enter=0.01",
               "link.burst_exit=0.02", "link.passivity='tdpa'"]
@@ -25,14 +23,7 @@ ROUGH_LINK = ["link.round_trip_ms=6.0", "link.jitter_ms=1.0", "link.loss=0.05", 
 
 def _signatures() -> dict[str, set]:
     """Every compiled kernel of the package's loaded modules: its signatures so far."""
-    out: dict[str, set] = {}
-    for name, mod in list(sys.modules.items()):
-        if not name.startswith("teleop.") or mod is None:
-            continue
-        for attr, obj in vars(mod).items():
-            if isinstance(obj, CPUDispatcher):
-                out[f"{name}.{attr}"] = set(obj.signatures)
-    return out
+    return {name: set(kernel.signatures) for name, kernel in compiled_kernels().items()}
 
 
 @pytest.mark.parametrize(("scene", "sets"), [("straight_incision", []),
