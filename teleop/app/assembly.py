@@ -16,7 +16,7 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 
 from teleop.app.metrics import EnergyDrift, MasterMetrics, SlaveMetrics, make_metrics, tissue_surface
-from teleop.app.recorders import GuardRecorder, MasterRecorder, SlaveRecorder
+from teleop.app.recorders import MasterRecorder, SlaveRecorder
 from teleop.contact import SurfaceTissue, TissueBlock
 from teleop.contact.cutting import CuttingModel
 from teleop.dynamics.constraints import RemoteCenter
@@ -147,37 +147,33 @@ def _inertia(v) -> np.ndarray:
 
 @dataclass
 class MasterBuild:
-    """The master side of a scene and what records it: ``side``, its ``recorder`` (the log),
-    ``metrics`` (the scene's fixture metrics), ``energy`` (the energy drift on conservative
-    scenes), ``guard_log`` (None: unguarded); ``registration`` master -> patient."""
+    """The master side of a scene and what records it: ``side``, its ``recorder`` (the capture:
+    one row a tick, which the log, the metrics and a record read), ``metrics`` (the scene's
+    fixture metrics), ``energy`` (the energy drift on conservative scenes); ``registration``
+    master -> patient."""
 
     side: MasterSide
     recorder: MasterRecorder
     metrics: MasterMetrics
     energy: EnergyDrift
     registration: object
-    guard_log: GuardRecorder | None = None
 
     def result(self) -> dict:
         """The master's metrics (the names of the scene's fixture, the energy drift)."""
         return {**self.metrics.result(), **self.energy.result()}
 
     def log(self, steps: int) -> dict:
-        out = {**self.recorder.log.trimmed(steps), **self.metrics.log()}
-        if self.guard_log is not None:
-            out.update(self.guard_log.log.trimmed(steps))
-        return out
+        return {**self.recorder.log(steps), **{k: v[:steps] for k, v in self.metrics.log().items()}}
 
 
 @dataclass
 class SlaveBuild:
-    """The slave side of a scene and what records it: ``side``, ``metrics``, ``recorder``,
-    ``guard_log`` (None: unguarded)."""
+    """The slave side of a scene and what records it: ``side``, ``recorder`` (its capture),
+    ``metrics``."""
 
     side: SlaveSide
     metrics: SlaveMetrics
     recorder: SlaveRecorder
-    guard_log: GuardRecorder | None = None
     extra: list = field(default_factory=list)
 
     def result(self) -> dict:
@@ -185,9 +181,7 @@ class SlaveBuild:
 
     def log(self, steps: int) -> dict:
         out = {k: v[:steps] for k, v in self.metrics.log().items()}
-        out.update(self.recorder.log.trimmed(steps))
-        if self.guard_log is not None:
-            out.update(self.guard_log.log.trimmed(steps))
+        out.update(self.recorder.log(steps))
         return out
 
 
@@ -211,18 +205,17 @@ def build_master(scene: Scene, n: int, rng: np.random.Generator, operator=None, 
                                 contact_plane=scene.mapping.feedback_contact_plane, wall=model_mediated(scene))
     guard = make_guard(scene, reg, n, networked)
     master = make_master(scene, tool, rng)
-    recorder = MasterRecorder(tool, n)
-    metrics = MasterMetrics(make_metrics(spec_M, n, tool.body.mass_kg, tool.fixture.constraints), recorder)
     energy = EnergyDrift(tool)
-    glog = GuardRecorder(n, "master") if guard is not None else None
-    hooks = [recorder, metrics, energy] + ([glog] if glog is not None else [])
     side = MasterSide(tool, master, operator, scene.dt_s, feedback, guard[0] if guard else None,
-                      scene.link.heartbeat_ms * 1e-3, hooks)
+                      scene.link.heartbeat_ms * 1e-3)
+    recorder = MasterRecorder(side, n)
+    metrics = MasterMetrics(make_metrics(spec_M, n, tool.body.mass_kg, tool.fixture.constraints), recorder)
+    side.add_hooks(recorder, energy)
     if record is not None:
         from teleop.app.record import MasterRecorderMcap
 
         side.add_hooks(MasterRecorderMcap(record, side=side))
-    return MasterBuild(side, recorder, metrics, energy, reg, glog)
+    return MasterBuild(side, recorder, metrics, energy, reg)
 
 
 def build_slave(scene: Scene, n: int, networked: bool = False, record=None) -> SlaveBuild | None:
@@ -237,15 +230,14 @@ def build_slave(scene: Scene, n: int, networked: bool = False, record=None) -> S
     side = make_slave(scene, reg, constraints_P, guard[1] if guard else None, tool, reg.scale)
     side.reset(*tool.pose())
     rcm = [c for c in constraints_P if isinstance(c, RemoteCenter)]
-    metrics = SlaveMetrics(scene.fixture, n, side.arm.nv, rcm, constraints_P)
-    recorder = SlaveRecorder(n)
-    glog = GuardRecorder(n, "slave") if guard is not None else None
-    side.add_hooks(metrics, recorder, *([glog] if glog is not None else []))
+    recorder = SlaveRecorder(side, n)
+    metrics = SlaveMetrics(scene.fixture, recorder, rcm, constraints_P)
+    side.add_hooks(recorder)
     if record is not None:
         from teleop.app.record import SlaveRecorderMcap
 
         side.add_hooks(SlaveRecorderMcap(record, side=side))
-    return SlaveBuild(side, metrics, recorder, glog)
+    return SlaveBuild(side, metrics, recorder)
 
 
 def exempt_metrics(scene: Scene) -> tuple[str, ...]:

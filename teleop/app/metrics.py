@@ -12,7 +12,7 @@ from abc import ABC, abstractmethod
 
 import numpy as np
 
-from teleop.app.recorders import Columns, MasterRecorder
+from teleop.app.recorders import Columns, MasterRecorder, SlaveRecorder
 from teleop.dynamics.rotations import cross
 from teleop.dynamics.rows import RowStack
 from teleop.scenario.schema import FixtureSpec
@@ -235,39 +235,33 @@ def band_rms(x: np.ndarray, dt: float, lo_hz: float, hi_hz: float) -> float:
     return float(np.sqrt((y**2).sum(axis=1).mean()))
 
 
-class MasterMetrics(Hook):
-    """A master-side hook: a :class:`MetricSet` fed every tick from the virtual tool as the tick starts, the operator's
-    wrench of the tick and the constraint wrench it produced.
+class MasterMetrics:
+    """The scene's fixture metrics (a :class:`MetricSet`) of the master: fed, tick by tick in
+    order, the virtual tool as the tick began, the operator's wrench of the tick and the
+    constraint wrench it produced, all read from the master's rows (``capture``, a
+    :class:`~teleop.app.recorders.MasterRecorder`) when :meth:`log` or :meth:`result` is asked.
+    Nothing of it runs in the tick (it cost 15 µs a tick there, and nothing in the run reads it
+    before the end)."""
 
-    Off the tick: the pose and the two wrenches are in the master's log already (``recorder``:
-    its ``q_v_p``, ``R_v``, ``operator_W``, ``constraint_W``), so the tick only copies the virtual
-    tool's twist; the metric set reads them when :meth:`log` or :meth:`result` is asked, tick by
-    tick in order, as it would have in the tick (it cost 15 µs a tick there: nothing in the run
-    reads it before the end)."""
-
-    def __init__(self, metrics: MetricSet, recorder: MasterRecorder):
-        self.metrics, self.recorder = metrics, recorder
-        self.twist = Columns({"v": ((3,), float), "w": ((3,), float)}, recorder.log.capacity)
-        self.n = 0
+    def __init__(self, metrics: MetricSet, capture: MasterRecorder):
+        self.metrics, self.capture = metrics, capture
         self._fed = 0
-        self._vw: tuple = ()
 
-    def before_tick(self, i, t_s, side) -> None:
-        self._vw = side.master.virtual_twist()
-
-    def after_tick(self, i, t_s, side) -> None:
-        c = self.twist
-        c.ensure(i)
-        c["v"][i], c["w"][i] = self._vw
-        self.n = i + 1
+    @property
+    def n(self) -> int:
+        return self.capture.n
 
     def _feed(self) -> None:
-        """The metric set fed the ticks recorded since it was last fed."""
-        c, log = self.twist, self.recorder.log
-        p, R, hand, con = log["q_v_p"], log["R_v"], log["operator_W"], log["constraint_W"]
-        for i in range(self._fed, self.n):
-            self.metrics.update(p[i], R[i], c["v"][i], c["w"][i], hand[i], con[i])
-        self._fed = self.n
+        """The metric set fed the ticks captured since it was last fed."""
+        rows, k = self.capture.rows, self._fed
+        n = rows.n
+        if n <= k:
+            return
+        p, R, V = rows.column("v_p0"), rows.column("v_R0", shape=(3, 3)), rows.column("v_V0")
+        hand, con = rows.column("hand"), rows.column("con")
+        for i in range(k, n):
+            self.metrics.update(p[i], R[i], V[i, :3], V[i, 3:], hand[i], con[i])
+        self._fed = n
 
     def log(self) -> dict:
         self._feed()
@@ -326,8 +320,8 @@ def tissue_surface(spec):
     return hook() if callable(hook) and hasattr(params, "depth_m") else None
 
 
-class SlaveMetrics(Hook):
-    """A slave-side hook: the slave's accuracy, every tick, in the patient frame (``spec``: the scene's fixture):
+class SlaveMetrics:
+    """The slave's accuracy, every tick, in the patient frame (``spec``: the scene's fixture):
 
     * ``tip_tracking_rms_m``, ``tip_tracking_max_m`` - RMS and largest distance of the slave's tool
       frame from its target;
@@ -342,13 +336,14 @@ class SlaveMetrics(Hook):
     tissue surface (:func:`tissue_surface`: a ``tissue_surface()`` method and a ``depth_m``), against
     which the depth is measured along the normal at the tip's foot.
 
-    Off the tick: the tick copies the slave's pose, target, tip, contact force and joints (some
-    3 µs); the series are derived from them, tick by tick in order, when :meth:`log` or
-    :meth:`result` is asked (15 µs a tick in the tick: nothing in the run reads them before the
-    end). Its rows are its own copies (a warm start of theirs is not the arm's).
+    Off the tick: the series are derived from the slave's rows (``capture``, a
+    :class:`~teleop.app.recorders.SlaveRecorder`: its pose, target, tip, contact force and
+    joints), tick by tick in order, when :meth:`log` or :meth:`result` is asked (15 µs a tick in
+    the tick: nothing in the run reads them before the end). Its constraint rows are its own
+    copies (a warm start of theirs is not the arm's).
     """
 
-    def __init__(self, spec, n: int, nq: int, rcm=(), constraints=()):
+    def __init__(self, spec, capture: SlaveRecorder, rcm=(), constraints=()):
         plane = isinstance(spec, FixtureSpec)
         self.surface = tissue_surface(spec)
         self._foot = None
@@ -359,26 +354,26 @@ class SlaveMetrics(Hook):
         self.rcm = tuple(copy.deepcopy(tuple(rcm)))
         series = ("track_m", "depth_err_m", "dir_err_rad", "contact_N") + (("rcm_m",) if self.rcm else ()) \
             + (("fixture_residual",) if self.rows is not None else ())
-        self.series = Columns({**{k: ((), float) for k in series}, "q": ((nq,), float), "tip": ((3,), float)}, n)
-        self.inputs = Columns({"p": ((3,), float), "R": ((3, 3), float), "p_t": ((3,), float),
-                               "R_t": ((3, 3), float), "f": ((3,), float)}, n)
-        self.n = 0
+        self.capture = capture
+        self.series = Columns({k: ((), float) for k in series}, capture.rows.capacity)
         self._derived = 0
 
-    def after_tick(self, i, t_s, side) -> None:
-        s, log, c = side.state, self.series, self.inputs
-        log.ensure(i)
-        c.ensure(i)
-        c["p"][i], c["R"][i], c["p_t"][i], c["R_t"][i], c["f"][i] = s.p, s.R, s.p_t, s.R_t, s.contact_P[:3]
-        log["q"][i] = side.arm.q
-        log["tip"][i] = s.tip
-        self.n = i + 1
+    @property
+    def n(self) -> int:
+        return self.capture.n
 
     def _derive(self) -> None:
-        """The series of the ticks recorded since they were last derived, in order."""
-        log, c = self.series, self.inputs
-        for i in range(self._derived, self.n):
-            p, R, p_t, R_t, tip = c["p"][i], c["R"][i], c["p_t"][i], c["R_t"][i], log["tip"][i]
+        """The series of the ticks captured since they were last derived, in order."""
+        log, rows, k = self.series, self.capture.rows, self._derived
+        n = rows.n
+        if n <= k:
+            return
+        log.ensure(n - 1)
+        P, Rs = rows.column("p"), rows.column("R", shape=(3, 3))
+        P_t, R_ts = rows.column("p_t"), rows.column("R_t", shape=(3, 3))
+        tips, F = rows.column("tip"), rows.column("contact")
+        for i in range(k, n):
+            p, R, p_t, R_t, tip = P[i], Rs[i], P_t[i], R_ts[i], tips[i]
             if self.surface is not None:
                 sd, _, self._foot = self.surface.signed_distance(tip, self._foot)
                 depth = -sd
@@ -388,18 +383,20 @@ class SlaveMetrics(Hook):
             # error while the blade is in the tissue; a tiny floor marks "inside" for the cut length
             log["depth_err_m"][i] = max(abs(depth - self.depth), 1e-15) if depth > 0 else 0.0
             log["dir_err_rad"][i] = math.acos(float(np.clip(R[:, 0] @ R_t[:, 0], -1.0, 1.0)))
-            log["contact_N"][i] = float(np.linalg.norm(c["f"][i]))
+            log["contact_N"][i] = float(np.linalg.norm(F[i, :3]))
             if self.rcm:
                 log["rcm_m"][i] = max(float(np.linalg.norm(r.residual(p, R))) for r in self.rcm)
             if self.rows is not None and self.rows.m:
                 h = self.rows.evaluate(np.ascontiguousarray(p), np.ascontiguousarray(R))[2]
                 held = h[np.asarray(self.rows.holonomic_mask, bool)]
                 log["fixture_residual"][i] = float(np.abs(held).max(initial=0.0))
-        self._derived = self.n
+        self._derived = n
 
     def log(self) -> dict:
         self._derive()
-        return {f"slave_{k}": v[: self.n] for k, v in self.series.items()}
+        n = self.n
+        out = {f"slave_{k}": v[:n] for k, v in self.series.items()}
+        return {**out, "slave_q": self.capture.rows.column("q", n), "slave_tip": self.capture.rows.column("tip", n)}
 
     def result(self) -> dict:
         self._derive()
@@ -413,7 +410,7 @@ class SlaveMetrics(Hook):
         }
         inside = log["depth_err_m"][:k] > 0  # tip below the surface
         if k > 1:
-            steps = np.linalg.norm(np.diff(log["tip"][:k], axis=0), axis=1)
+            steps = np.linalg.norm(np.diff(self.capture.rows.column("tip", k), axis=0), axis=1)
             out["cut_length_m"] = float(steps[inside[1:] & inside[:-1]].sum())
         if self.rcm:
             out["rcm_error_max_m"] = float(log["rcm_m"][:k].max(initial=0.0))

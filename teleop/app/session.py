@@ -180,8 +180,9 @@ class Session:
         if not (dt_s > 0 and duration_s >= 0 and np.isfinite(dt_s) and np.isfinite(duration_s)):
             raise ConfigError(f"dt_s must be > 0 and duration_s >= 0, both finite, got {dt_s!r}, {duration_s!r}")
         n = tick_count(duration_s, dt_s)
-        recorder = MasterRecorder(tool, n)
-        side = MasterSide(tool, master, operator, dt_s, feedback, heartbeat_s=heartbeat_s, hooks=[recorder])
+        side = MasterSide(tool, master, operator, dt_s, feedback, heartbeat_s=heartbeat_s)
+        recorder = MasterRecorder(side, n)
+        side.add_hooks(recorder)
         if slave is not None and link is None:
             link = LockstepLink()
         self._setup(BilateralLoop(side, slave, link, hooks), n, recorder, realtime, progress)
@@ -264,7 +265,7 @@ class Session:
             runner["link"] = link_stats
         runner.update({k: v for k, v in stats.items() if k != "master_status"})
         ss = loop.slave_side
-        logs = {**self.recorder.log.trimmed(steps), **self.ticks.trimmed(steps)}
+        logs = {**self.recorder.log(steps), **self.ticks.trimmed(steps)}
         return SideRun(status, steps, loop.dt, loop.master_side.summary(), ss.summary() if ss is not None else None,
                        self.recorder.nan, runner, logs)
 

@@ -129,9 +129,9 @@ class MasterSide:
             self._send(i, t_s, link, lost)
         self.tick_ns = perf_counter_ns() - t0
         self.heart.motion(self.state.p, math.hypot(*tool.qd.tolist()))
-        for h in self.hooks:
-            h.after_tick(i, t_s, self)
         self.status = st if st != "ok" else st_m
+        for h in self.hooks:  # they see the tick as it ended, its status too
+            h.after_tick(i, t_s, self)
         return self.status
 
     def _fresh(self) -> bool:

@@ -1,0 +1,134 @@
+"""A side's ticks as rows of numbers: the one capture its log, its metrics and its record read.
+
+Each tick, a side's capture hook (:mod:`teleop.app.recorders`) joins what the tick left (its
+scalars, packed, and its arrays' bytes) into the next row of a :class:`TickRows`: one copy of
+the tick, in the tick. Everything else reads that row, out of the tick: the run's ``log.npz``
+and metrics at the end (:mod:`teleop.app.metrics`), and the MCAP record
+(:mod:`teleop.app.record.hooks`), which hands the row's bytes to its writer as they are. A
+:class:`RowLayout` names the rows' column ranges; the record's writer process lays out its
+messages by the same names.
+
+numpy only: the record's writer process imports this and nothing of the tick.
+"""
+
+from __future__ import annotations
+
+import struct
+
+import numpy as np
+
+#: ticks reserved at first and added each time the rows fill (they grow, never preallocated for a
+#: run of unknown length)
+ROW_CHUNK = 16_384
+_JOIN = b"".join
+#: what joining a part that is not a contiguous buffer of the row's size raises (the row is then
+#: filled with numpy's casting)
+_COPY_ERRORS = (BufferError, ValueError, TypeError, IndexError, struct.error)
+
+
+class RowLayout:
+    """Named column ranges of a row of float64s: ``add(name, n)`` appends n columns (0 allowed)."""
+
+    def __init__(self, at: dict | None = None) -> None:
+        self.at: dict[str, tuple[int, int]] = {k: (int(a), int(b)) for k, (a, b) in (at or {}).items()}
+        self.width = max((b for _, b in self.at.values()), default=0)
+
+    def add(self, name: str, n: int = 1) -> None:
+        if name in self.at:
+            raise ValueError(f"row layout: column {name!r} twice")
+        self.at[name] = (self.width, self.width + int(n))
+        self.width += int(n)
+
+    def __getitem__(self, name: str) -> slice:
+        a, b = self.at[name]
+        return slice(a, b)
+
+    def __contains__(self, name: object) -> bool:
+        return name in self.at
+
+    def col(self, name: str) -> int:
+        return self.at[name][0]
+
+
+class TickRows:
+    """Row i is tick i (float64 columns laid out by ``layout``), growing in chunks of
+    :data:`ROW_CHUNK` rows from ``expected``. :meth:`put` fills a row in one copy;
+    :meth:`column` reads a column range back; :meth:`code` numbers a status string (``names``: the
+    strings by number, in the order first seen)."""
+
+    def __init__(self, layout: RowLayout, expected: int = ROW_CHUNK) -> None:
+        self.layout = layout
+        self.width = layout.width
+        self.row_bytes = 8 * self.width
+        self.capacity = max(1, min(int(expected), ROW_CHUNK))
+        self.data = np.zeros((self.capacity, self.width))
+        self.raw = memoryview(self.data).cast("B")
+        self.n = 0  # rows put: one past the highest
+        self.codes: dict[str, int] = {}
+        self.names: list[str] = []
+        self._typed = False  # the first row's parts checked (see put)
+
+    def ensure(self, i: int) -> None:
+        """Room for row ``i`` (the rows copied to a larger block if not)."""
+        if i < self.capacity:
+            return
+        grown = 2 * self.capacity if self.capacity < 8 * ROW_CHUNK else self.capacity + 8 * ROW_CHUNK
+        cap = max(i + 1, grown)
+        data = np.zeros((cap, self.width))
+        data[: self.capacity] = self.data
+        self.data, self.raw, self.capacity = data, memoryview(data).cast("B"), cap
+
+    def code(self, status: str) -> int:
+        """``status``'s number (a new one is numbered next)."""
+        c = self.codes.get(status)
+        if c is None:
+            c = self.codes[status] = len(self.names)
+            self.names.append(status)
+        return c
+
+    def put(self, i: int, parts: tuple) -> None:
+        """Row ``i`` from ``parts``: packed float64 bytes, then arrays, in the layout's order. In
+        the tick: their bytes joined into the row in one copy. A part that is not a contiguous
+        float64 buffer of its size is cast by numpy instead (the first row checks every part's
+        type, since an int64 buffer of the right size would join as bytes)."""
+        if i >= self.capacity:
+            self.ensure(i)
+        rb = self.row_bytes
+        o = i * rb
+        try:
+            if not self._typed:
+                self._check(parts)
+            self.raw[o:o + rb] = _JOIN(parts)
+        except _COPY_ERRORS:
+            self._cast(i, parts)
+        if i >= self.n:
+            self.n = i + 1
+
+    def _check(self, parts: tuple) -> None:
+        for a in parts[1:]:
+            if not (isinstance(a, np.ndarray) and a.dtype == np.float64):
+                raise TypeError("row part not float64")
+        self._typed = True
+
+    def _cast(self, i: int, parts: tuple) -> None:
+        row = self.data[i]
+        pieces = [np.frombuffer(parts[0], np.float64)] + [np.ravel(np.asarray(a, dtype=float)) for a in parts[1:]]
+        if sum(p.size for p in pieces) != self.width:
+            raise ValueError(f"tick rows: row {i} has {sum(p.size for p in pieces)} numbers, the layout "
+                             f"{self.width}")
+        np.concatenate(pieces, out=row)
+
+    def row(self, i: int) -> bytes | memoryview:
+        """Row ``i``'s bytes (a view: valid until the rows grow)."""
+        rb = self.row_bytes
+        return self.raw[i * rb:(i + 1) * rb]
+
+    def column(self, name: str, n: int | None = None, shape: tuple = ()) -> np.ndarray:
+        """The first ``n`` rows (default: all put) of column range ``name``, as an (n, *shape)
+        array of its own (``shape`` () for one column; default: the range's width)."""
+        n = self.n if n is None else int(n)
+        a, b = self.layout.at[name]
+        out = np.array(self.data[:n, a:b])
+        if shape == () and b - a == 1:
+            return out.reshape(n)
+        return out.reshape(n, *shape) if shape else out
