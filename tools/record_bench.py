@@ -25,12 +25,11 @@ twice each) and their late ticks.
 
 ``--paced``: the same, each tick waiting for its period of the wall clock as a paced run does.
 ``--floor``: where the cost comes from, the same comparison with the recorder's hooks cut down
-step by step (:data:`FLOOR`, each against the loop without hooks, both build orders, the steps
-alternating): ``call`` the hooks called and doing nothing, ``read`` every field of both rows read
-(no copy), ``join`` the rows' bytes joined as the recorder joins them (no ring, nothing
-published), ``full`` the recorder: the floor of copying a tick from Python, and what the ring and
-the writer add to it. ``--probe``: the recorder's own hooks timed inside the tick (median ns,
-``perf_counter_ns`` around each hook: the timers' own cost included).
+(:data:`FLOOR`, each against the loop without hooks, both build orders, the steps alternating):
+``call`` the hooks made and called, doing nothing, ``full`` the recorder (the rows the sides'
+captures hold, handed to the writer every 10 ms of the run). ``--probe``: the recorder's own
+hooks timed inside the tick (median ns, ``perf_counter_ns`` around each hook: the timers' own
+cost included).
 """
 
 from __future__ import annotations
@@ -86,38 +85,21 @@ def _loop(scene, record=None, hooks=None):
 
 def _floor_hooks(step: str) -> tuple:
     """The recorder's hooks cut down to ``step`` (see the module docstring); "full": the recorder's."""
-    import struct
-
     from teleop.app.record import MasterRecorderMcap, SlaveRecorderMcap
 
     if step == "full":
         return MasterRecorderMcap, SlaveRecorderMcap
-    head, join, now = struct.Struct("<9d"), b"".join, time.time
 
-    class Master(MasterRecorderMcap):
+    class Master(MasterRecorderMcap):  # made, its ring laid out, but called for nothing
         def before_tick(self, i, t_s, side):
             pass
 
-        def after_tick(self, i, t_s, side):  # what the recorder's does: the tick noted, the wall clock read
-            self._pend, self._pend_t, self._wall, self._pend_side = i, t_s, now(), side
+        def after_tick(self, i, t_s, side):
+            pass
 
     class Slave(SlaveRecorderMcap):
         def after_tick(self, i, t_s, side):
-            if step == "call":
-                return
-            m = self._master
-            ms = m._pend_side
-            st, s, arm = ms.state, side.state, side.arm
-            if step == "read":
-                (ms.status, ms.gain, ms.heart.lost, ms.peer_lost, ms.tick_ns, ms.command_errors, st.p, st.R, st.V,
-                 ms.hand_W, ms.felt_W, ms.feedback_W, s.status, side.heart.lost, side.tick_ns, side.last_seq,
-                 side.without_command, side.skipped, now(), s.p_t, s.R_t, s.p, s.R, s.v, s.w, s.tip, s.contact_P,
-                 arm.q, arm.qd)
-                return
-            join((head.pack(i, m._pend_t, m._wall, 0, ms.gain, ms.heart.lost, ms.peer_lost, ms.tick_ns,
-                            ms.command_errors), st.p, st.R, st.V, ms.hand_W, ms.felt_W, ms.feedback_W))
-            join((head.pack(i, t_s, now(), 0, side.heart.lost, side.tick_ns, side.last_seq, side.without_command,
-                            side.skipped), s.p_t, s.R_t, s.p, s.R, s.v, s.w, s.tip, s.contact_P, arm.q, arm.qd))
+            pass
 
     return Master, Slave
 
@@ -152,7 +134,7 @@ def _probe_hooks() -> tuple:
 
 
 #: the steps of ``--floor``
-FLOOR = ("call", "read", "join", "full")
+FLOOR = ("call", "full")
 #: ``--probe``: the hooks' time per tick (ns)
 PROBE_NS = np.zeros(0)
 

@@ -30,6 +30,7 @@ from teleop.app.record import (
     schemas,
 )
 from teleop.app.record.emit import JsonTemplate
+from teleop.app.record.hooks import HAND_S
 
 
 def _random_rotations(n, rng):
@@ -119,26 +120,32 @@ def test_json_template_is_json_and_nulls_what_is_not_finite():
                       "other": None}
 
 
-# -- stand-in sides: only what the hooks read ------------------------------------------------------
+# -- stand-in sides: only what the hooks and the captures read --------------------------------------
 
-def _master_side(i, rng):
+def _master_side(i, rng, hooks=None):
     R = cdr.rotation(cdr.quat_xyzw(_random_rotations(1, rng)[:1]))[0]
+    pv, Rv, vv, wv = rng.normal(size=3), np.eye(3), rng.normal(size=3), rng.normal(size=3)
+    hooks = [] if hooks is None else hooks
     return SimpleNamespace(
-        master=SimpleNamespace(joints=lambda: None), guard=None, feedback=None, dt=0.001,
+        master=SimpleNamespace(joints=lambda: None, virtual_pose=lambda: (pv, Rv), virtual_twist=lambda: (vv, wv)),
+        tool=SimpleNamespace(t=i * 0.001, q=rng.normal(size=6), lam=rng.normal(size=2),
+                             constraint_wrench_W=rng.normal(size=6)),
+        guard=None, feedback=None, dt=0.001, hooks=hooks, add_hooks=hooks.extend,
         state=SimpleNamespace(p=rng.normal(size=3), R=R, V=rng.normal(size=6)),
         hand_W=rng.normal(size=6), felt_W=rng.normal(size=6), feedback_W=rng.normal(size=6),
         gain=1.0 - 0.01 * (i % 7), heart=SimpleNamespace(lost=i % 5 == 0), peer_lost=False, tick_ns=1000 + i,
         command_errors=0, status="ok")
 
 
-def _slave_side(i, rng):
+def _slave_side(i, rng, hooks=None):
     R = cdr.rotation(cdr.quat_xyzw(_random_rotations(2, rng)[:2]))
     s = SimpleNamespace(p_t=rng.normal(size=3), R_t=R[0], p=rng.normal(size=3), R=R[1], v=rng.normal(size=3),
                         w=rng.normal(size=3), tip=rng.normal(size=3), contact_P=rng.normal(size=6),
                         status=("ok", "saturated", "link_lost")[i % 3])
+    hooks = [] if hooks is None else hooks
     return SimpleNamespace(
         state=s,
-        arm=SimpleNamespace(q=rng.normal(size=7), qd=rng.normal(size=7), model=None),
+        arm=SimpleNamespace(q=rng.normal(size=7), qd=rng.normal(size=7), model=None, dt=0.001),
         guard=None,
         heart=SimpleNamespace(lost=False),
         tick_ns=2000 + i,
@@ -146,26 +153,50 @@ def _slave_side(i, rng):
         without_command=0,
         skipped=0,
         reg=SimpleNamespace(X_PM_p=np.array([0.5, 0.0, 0.2]), X_PM_R=np.eye(3)),
+        hooks=hooks, add_hooks=hooks.extend,
     )
 
 
-def _drive(writer, n, seed=3, slave=True):
-    """Ticks 0..n-1 of the stand-in sides through side hooks, as MasterSide/SlaveSide call them
-    (the master's status is set after its hooks). Returns what the sides held."""
-    rng = np.random.default_rng(seed)
-    mh, sh = MasterRecorderMcap(writer), SlaveRecorderMcap(writer)
-    held, status = [], "ok"
-    for i in range(n):
+class _Sides:
+    """Stand-in sides ticked as MasterSide and SlaveSide tick their hooks (each tick a side of new
+    random values, the hooks the same): the master's hooks before its tick, its status set, its
+    hooks after; the slave's (status set by its tick) after. The recorder's hooks are made
+    without a side, so each gives its side a capture at its first tick."""
+
+    def __init__(self, writer, slave_writer=None, seed=3):
+        self.rng = np.random.default_rng(seed)
+        self.mh, self.sh = MasterRecorderMcap(writer), SlaveRecorderMcap(slave_writer or writer)
+        self.mhooks, self.shooks = [self.mh], [self.sh]
+
+    def master(self, i, status, prepare=None):
+        ms = _master_side(i, self.rng, self.mhooks)
+        if prepare is not None:
+            prepare(ms)
         t = i * 0.001
-        ms, ss = _master_side(i, rng), _slave_side(i, rng)
-        ms.status = status  # what the side says before tick i: the status tick i - 1 ended in
-        mh.before_tick(i, t, ms)
-        mh.after_tick(i, t, ms)
-        ms.status = status = ("ok", "tracking_error")[i % 2]  # set after the hooks, as MasterSide does
-        if slave:
-            sh.after_tick(i, t, ss)
+        for h in ms.hooks:
+            h.before_tick(i, t, ms)
+        ms.status = status  # the status tick i ends in, set before the hooks after it (MasterSide)
+        for h in ms.hooks:
+            h.after_tick(i, t, ms)
+        return ms
+
+    def slave(self, i, prepare=None):
+        ss = _slave_side(i, self.rng, self.shooks)
+        if prepare is not None:
+            prepare(ss)
+        for h in ss.hooks:
+            h.after_tick(i, i * 0.001, ss)
+        return ss
+
+
+def _drive(writer, n, seed=3, slave=True):
+    """Ticks 0..n-1 of stand-in sides (:class:`_Sides`), the master's status alternating.
+    Returns what the sides held."""
+    sides, held = _Sides(writer, seed=seed), []
+    for i in range(n):
+        ms = sides.master(i, ("ok", "tracking_error")[i % 2])
+        ss = sides.slave(i) if slave else None
         held.append((ms, ss))
-    mh._side = held[-1][0]
     return held
 
 
@@ -246,31 +277,21 @@ def _schedule(kind, n):
 
 @pytest.mark.parametrize("kind", ["loop", "master_ahead", "slave_ahead", "two_writers", "master_alone"])
 def test_every_tick_is_recorded_whatever_order_the_sides_tick_in(tmp_path, kind):
-    """The master's row of tick i is written by the slave's hook when the slave's tick i comes
-    right after it (one writer, the in-process loop), else as the master's tick i + 1 begins, or
-    at close: its values and status are tick i's whichever it was (a lockstep replay's order, each
-    side a writer of its own as two processes have, a master alone)."""
-    n, rng = 120, np.random.default_rng(11)
+    """Each side's rows are handed over in batches as its ticks end, and the rest at close:
+    every tick's values and status are there, whichever order the sides ticked in (a lockstep
+    replay's, each side a writer of its own as two processes have, a master alone)."""
+    n = 120
     w = RecordWriter(tmp_path / "r.mcap")
     ws = RecordWriter(tmp_path / "s.mcap") if kind == "two_writers" else w
-    mh = MasterRecorderMcap(w)
-    sh = SlaveRecorderMcap(ws)
-    masters, slaves, status = [], [], "ok"
+    sides = _Sides(w, ws, seed=11)
+    masters, slaves = [], []
     order = [e for e in _schedule("loop" if kind in ("two_writers", "master_alone") else kind, n)
              if not (kind == "master_alone" and e[0] == "s")]
     for k, i in order:
-        t = i * 0.001
         if k == "m":
-            ms = _master_side(i, rng)
-            ms.status = status
-            mh.before_tick(i, t, ms)
-            mh.after_tick(i, t, ms)
-            ms.status = status = ("ok", "tracking_error", "ok", "joint_limit")[i % 4]
-            masters.append(ms)
+            masters.append(sides.master(i, ("ok", "tracking_error", "ok", "joint_limit")[i % 4]))
         else:
-            ss = _slave_side(i, rng)
-            sh.after_tick(i, t, ss)
-            slaves.append(ss)
+            slaves.append(sides.slave(i))
     w.close()
     ws.close()
     rec = read_record(tmp_path / "r.mcap")
@@ -379,9 +400,11 @@ def test_the_writer_finishes_the_file_when_the_run_is_killed(tmp_path):
     rec = read_record(path)
     assert rec.complete, rec.error
     assert rec.metadata["teleop.record"]["closed_by"] == "end of the run's process"
-    assert len(rec["/slave/state"]) == 250
-    # the master's last row too: the slave's hook wrote it after the slave's tick, its status set by then
-    assert len(rec["/master/state"]) == 250
+    # every row handed over: all but those of the last batch not yet due (HAND_S: 10 ticks here)
+    every = round(HAND_S / 0.001)
+    for topic in ("/slave/state", "/master/state"):
+        assert rec[topic].seq.tolist() == list(range(len(rec[topic])))
+        assert 250 - every < len(rec[topic]) <= 250
 
 
 def test_foxglove_layout_names_what_the_record_holds(tmp_path):
@@ -416,23 +439,22 @@ def test_arrays_of_any_layout_are_recorded_alike(tmp_path):
     """A side whose arrays are not C-contiguous float64 (a transposed rotation, float32, a list)
     takes the slow copy (numpy's casting), with the same values."""
     path = tmp_path / "r.mcap"
-    rng = np.random.default_rng(5)
+
+    def odd_master(ms):
+        ms.state.R = np.asfortranarray(ms.state.R)
+        ms.hand_W = list(ms.hand_W)
+        ms.felt_W = ms.felt_W.astype(np.float32)
+
+    def odd_slave(ss):
+        ss.arm.q = list(ss.arm.q)
+        ss.state.R = ss.state.R.T.copy().T
+
     with RecordWriter(path) as w:
-        mh, sh = MasterRecorderMcap(w), SlaveRecorderMcap(w)
-        sides = []
+        stand, sides = _Sides(w, seed=5), []
         for i in range(30):
-            ms, ss = _master_side(i, rng), _slave_side(i, rng)
-            if i % 2:
-                ms.state.R = np.asfortranarray(ms.state.R)
-                ms.hand_W = list(ms.hand_W)
-                ms.felt_W = ms.felt_W.astype(np.float32)
-                ss.arm.q = list(ss.arm.q)
-                ss.state.R = ss.state.R.T.copy().T
-            mh.before_tick(i, i * 1e-3, ms)
-            mh.after_tick(i, i * 1e-3, ms)
-            sh.after_tick(i, i * 1e-3, ss)
+            ms = stand.master(i, "ok", odd_master if i % 2 else None)
+            ss = stand.slave(i, odd_slave if i % 2 else None)
             sides.append((ms, ss))
-        mh._side = sides[-1][0]
     rec = read_record(path)
     assert np.abs(rec["/master/tool_pose"]["R"] - [m.state.R for m, _ in sides]).max() < 1e-14
     assert np.array_equal(rec["/master/hand_wrench"]["W"], [m.hand_W for m, _ in sides])
@@ -447,6 +469,7 @@ def test_a_killed_spooling_writer_leaves_a_spool_that_recovers(tmp_path):
     w = RecordWriter(path, spool=True)
     try:
         _drive(w, 300)
+        published = [src.ring.w for src in w._sources]  # all but the last batch, not due yet
         time.sleep(0.3)  # a few polls: the rows are in the spool
         os.kill(w.pid, signal.SIGKILL)
     finally:
@@ -457,5 +480,6 @@ def test_a_killed_spooling_writer_leaves_a_spool_that_recovers(tmp_path):
     assert out == path and n > 0
     rec = read_record(path)
     assert rec.complete
-    assert len(rec["/slave/state"]) == 300 and len(rec["/master/state"]) == 300  # the slave's hook wrote the master's
+    assert [len(rec["/master/state"]), len(rec["/slave/state"])] == published  # every row published
+    assert 300 - round(HAND_S / 0.001) < min(published)
     assert rec.metadata["teleop.record"]["closed_by"] == "recovered from its spool"

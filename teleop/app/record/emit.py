@@ -1,6 +1,7 @@
 """What the rows become: the writer process's side of the record (:mod:`teleop.app.record.serve`).
 
-A side's hook fills rows of numbers laid out by :class:`Columns` (:mod:`teleop.app.record.hooks`);
+A side's capture fills rows of numbers laid out by a :class:`~teleop.app.rows.RowLayout`
+(:mod:`teleop.app.recorders`, handed over by :mod:`teleop.app.record.hooks`);
 here each batch of rows becomes the side's messages: the ROS 2 ones laid out by
 :mod:`teleop.app.record.cdr`, the JSON ones by a :class:`JsonTemplate`, all added through the
 ``mcap`` package's writer (:class:`McapOut`), which closes and flushes a chunk whenever it holds
@@ -27,28 +28,10 @@ from teleop.app.record.cdr import (
     tf_message,
     wrench_stamped,
 )
+from teleop.app.rows import RowLayout
 
 #: one CAN frame in its ring: bus time (s), id, rx, fd, error, dlc, payload length, payload
 CAN_ROW = struct.Struct("<dIBBBBB64s")
-
-
-class Columns:
-    """Named column ranges of a ring's row: ``add(name, n)`` appends n columns."""
-
-    def __init__(self, at: dict | None = None) -> None:
-        self.at: dict[str, tuple[int, int]] = dict(at or {})
-        self.width = max((b for _, b in self.at.values()), default=0)
-
-    def add(self, name: str, n: int = 1) -> None:
-        self.at[name] = (self.width, self.width + n)
-        self.width += n
-
-    def __getitem__(self, name: str) -> slice:
-        a, b = self.at[name]
-        return slice(a, b)
-
-    def col(self, name: str) -> int:
-        return self.at[name][0]
 
 
 _JB = ("false", "true")
@@ -263,7 +246,7 @@ class Emitter:
 
     def __init__(self, out: McapOut, meta: dict) -> None:
         self.out, self.meta = out, meta
-        self.cols = Columns(meta["cols"])
+        self.cols = RowLayout(meta["cols"])
         self.prefix = meta["prefix"]
         self.names: dict[int, str] = {}
         reg = meta.get("registration")

@@ -1,4 +1,4 @@
-"""The recorder's hooks: each side's tick copied into its ring, for the writer to write.
+"""The recorder's hooks: each side's captured row handed to the writer, for it to write.
 
     writer = RecordWriter(folder / "record.mcap", metadata={"scene": scene.name})
     master.side.add_hooks(MasterRecorderMcap(writer, side=master.side))    # a master-side hook
@@ -8,13 +8,15 @@
 
 or, on the in-process loop, one loop hook for both: ``run_scene(scene, hooks=[LoopRecorderMcap(writer)])``.
 
-A side's row is its scalars (``struct``) and its arrays' bytes joined and copied into the next row
-of a preallocated ring in memory shared with the writer, once the tick is over; in one process the
-slave's hook writes both sides' rows after the slave's tick, the master's hook only notes that its
-tick ended (``tools/record_bench.py`` measures what it costs the tick). A hook reads, it never
-changes the physics. The channels (frames: ``patient``
-is the slave's world, ``master`` the master's workspace, placed in ``patient`` on ``/tf_static`` by
-the registration's rotation and offset; its scale, master:slave, is not a transform and is left out):
+A side's tick is captured once, by its capture hook (:class:`~teleop.app.recorders.MasterRecorder`,
+:class:`~teleop.app.recorders.SlaveRecorder`: one row of numbers a tick, which the run's log and
+metrics read too; a side without one is given one). Here the rows are handed over as they are:
+every :data:`HAND_S` of the run's time (10 ms), the rows captured since are copied in one copy
+into a preallocated ring in memory shared with the writer, and published
+(``tools/record_bench.py`` measures what it costs the tick). A hook reads, it never changes the
+physics. The channels (frames: ``patient`` is the slave's world, ``master`` the master's
+workspace, placed in ``patient`` on ``/tf_static`` by the registration's rotation and offset;
+its scale, master:slave, is not a transform and is left out):
 
 =========================  ==============================  ============================================
 topic                      schema                          what
@@ -49,25 +51,14 @@ the ``master`` and ``patient`` axes: the wrenches are expressed in those axes an
 from __future__ import annotations
 
 import struct
-import time
 from typing import Any
 
 import numpy as np
 
-from teleop.app.record.emit import Columns
 from teleop.app.record.writer import RecordWriter, Source
+from teleop.app.recorders import MasterRecorder, SlaveRecorder, capture_of
+from teleop.app.rows import RowLayout
 from teleop.tick.ports import Hook
-
-#: a row's first nine numbers (the side's scalars)
-_HEAD = struct.Struct("<9d")
-#: what a non-contiguous array raises when joined (then the row is filled the slow way, with numpy's
-#: casting, as it is when the joined bytes are not the row's size)
-_COPY_ERRORS = (BufferError, ValueError, TypeError, IndexError, struct.error)
-_JOIN = b"".join
-_MASTER_FIXED = ("i", "t", "wall", "status", "gain", "lost", "peer_lost", "tick_ns", "cmd_err", "p", "R", "V",
-                 "hand", "felt", "fb")
-_SLAVE_FIXED = ("i", "t", "wall", "status", "lost", "tick_ns", "last_seq", "without", "skipped", "p_t", "R_t",
-                "p", "R", "v", "w", "tip", "contact")
 
 
 def _names(model: Any, n: int, prefix: str) -> list[str]:
@@ -93,52 +84,68 @@ class _CanTee:
             self.prev.close()
 
 
-def _master_source(writer: RecordWriter, side: Any, prefix: str, can: bool) -> Source:
-    c = Columns()
-    for k in ("i", "t", "wall", "status", "gain", "lost", "peer_lost", "tick_ns", "cmd_err"):
-        c.add(k)
-    for k, n in (("p", 3), ("R", 9), ("V", 6), ("hand", 6), ("felt", 6), ("fb", 6)):
-        c.add(k, n)
-    joints = side.master.joints()
-    nj = 0 if joints is None else len(joints)
-    if nj:
-        c.add("joints", nj)
-        c.add("dev_p", 3)
-        c.add("dev_R", 9)
-    guarded = side.guard is not None
-    if guarded:
-        for k in ("gW", "gE", "gA"):
-            c.add(k, 6)
-    reg = getattr(side.feedback, "reg", None)
-    meta = {"prefix": prefix, "nj": nj, "guarded": guarded, "can_t0": None,
-            "joint_names": _names(getattr(getattr(side.master, "model", None), "model", None), nj, "joint"),
-            "registration": None if reg is None else (np.array(reg.X_PM_p, float), np.array(reg.X_PM_R, float))}
-    return Source(writer, "master", c, meta, can=can)
+#: the run's time (s) a side's captured rows wait before they are handed to the writer together
+HAND_S = 0.01
+
+
+class _Handover:
+    """A capture's rows handed to ``src``'s ring in batches of ``every`` ticks: in the tick, one
+    comparison; every ``every`` ticks, one copy of the rows' bytes as they are (two where the
+    ring wraps). A row is never written again once captured, so a row handed later is the row
+    the tick left. Crash safety: a run killed loses the rows not handed yet, ``every`` ticks at
+    most (:data:`HAND_S` of the run), besides the writer's open chunk."""
+
+    def __init__(self, src: Source, rows: Any, dt_s: float) -> None:
+        self.src, self.rows = src, rows
+        self.every = max(1, min(src.ring.cap // 4, round(HAND_S / max(float(dt_s), 1e-9))))
+        self.done = 0  # rows [0, done) handed over (or dropped)
+
+    def hand(self, upto: int) -> None:
+        """Rows [done, ``upto``) copied into the ring and published (no room, as a run paced to
+        the wall clock may find: dropped and counted)."""
+        a, src = self.done, self.src
+        k = upto - a
+        if k <= 0:
+            return
+        self.done = upto
+        ring = src.ring
+        if not src.live or not ring.room(k):
+            ring.dropped += k * src.live
+            return
+        rows = self.rows
+        if src.told < len(rows.names):
+            src.tell(rows.names)
+        rb, cap, w, raw, region = ring.row_bytes, ring.cap, ring.w, rows.raw, src.region
+        at = w % cap
+        first = min(k, cap - at)
+        o = ring.data + at * rb
+        region[o:o + first * rb] = raw[a * rb:(a + first) * rb]
+        if first < k:
+            region[ring.data:ring.data + (k - first) * rb] = raw[(a + first) * rb:upto * rb]
+        ring.w = w = w + k  # published (Source.publish, inline)
+        ring.hdr[0] = w
+        if src.can_frames:
+            src._publish_can()
+        if w - ring.r >= src.high and not src.realtime:
+            src.high_water()
 
 
 class MasterRecorderMcap(Hook):
     """A master-side hook recording the :class:`~teleop.tick.master_side.MasterSide` into
-    ``writer`` under ``prefix`` (see the module docstring for the channels). The side sets its
-    status after its hooks, so tick i's row is written once the tick is over: by the slave-side
-    hook of the same writer right after the slave's tick i (the in-process loop: one hook, one
-    pass for both rows), else as tick i + 1 begins (before the tick changes anything), or at
-    ``writer.close()``; the wall clock is read as tick i ends either way. ``can``: on a simulated
-    cobot, record the bus's frames (the simulated device's capture point is teed while
-    recording). ``side``: the side, to make the ring now rather than at the first tick (its
-    memory is then laid out before the clock starts)."""
+    ``writer`` under ``prefix`` (see the module docstring for the channels): each tick, the row
+    of the side's capture (:class:`~teleop.app.recorders.MasterRecorder`), handed over as the
+    tick ends. ``can``: on a simulated cobot, record the bus's frames (the simulated device's
+    capture point is teed while recording). ``side``: the side, to make the ring now rather than
+    at the first tick (its memory is then laid out before the clock starts)."""
 
     def __init__(self, writer: RecordWriter, prefix: str = "/master", can: bool = True, side: Any = None) -> None:
         self.writer, self.prefix, self.can = writer, prefix, can
         self.source: Source | None = None
-        self._side: Any = None
-        self._begun = self._tap = self._extra = False
+        self.capture: MasterRecorder | None = None
+        self._begun = self._tap = False
         self._tee: tuple[Any, _CanTee] | None = None
-        #: the tick whose row is not written yet (-1: none): its time (s), the wall clock as it ended
-        #: (Unix time, s) and its side
-        self._pend = -1
-        self._pend_t = self._wall = 0.0
-        self._pend_side: Any = None
-        writer._master_hooks.append(self)
+        self.handover: _Handover | None = None
+        self._due = -1  # the next tick whose end hands rows over
         if side is not None:
             self._make(side)
 
@@ -147,19 +154,24 @@ class MasterRecorderMcap(Hook):
         return 0 if self.source is None else self.source.dropped
 
     def _make(self, side: Any) -> Source:
+        cap = self.capture = capture_of(side, MasterRecorder, before=self)
         sim = getattr(side.master, "sim", None)
         self._tap = bool(self.can and sim is not None and hasattr(sim, "capture") and hasattr(side.master, "t"))
-        src = self.source = _master_source(self.writer, side, self.prefix, self._tap)
-        assert list(src.cols.at)[:len(_MASTER_FIXED)] == list(_MASTER_FIXED) and src.cols.at["fb"][1] == 45
-        self._extra = src.cols.width > 45
+        layout = cap.rows.layout
+        nj = layout.at["joints"][1] - layout.at["joints"][0] if "joints" in layout else 0
+        reg = getattr(side.feedback, "reg", None)
+        meta = {"prefix": self.prefix, "nj": nj, "guarded": "gW" in layout, "can_t0": None,
+                "joint_names": _names(getattr(getattr(side.master, "model", None), "model", None), nj, "joint"),
+                "registration": None if reg is None else (np.array(reg.X_PM_p, float), np.array(reg.X_PM_R, float))}
+        src = self.source = Source(self.writer, "master", layout, meta, can=self._tap)
+        self.handover = _Handover(src, cap.rows, side.dt)
         src.finalize = self.finalize  # type: ignore[method-assign]
-        self._side = side
         return src
 
     def _begin(self, i: int, t_s: float, side: Any, before: bool) -> Source:
         """The first tick: the ring (unless made already), the bus's capture teed."""
         src = self.source or self._make(side)
-        self._begun, self._side = True, side
+        self._begun = True
         sim = getattr(side.master, "sim", None)
         if self._tap and sim is not None:
             tee = _CanTee(sim.capture, src)
@@ -171,88 +183,32 @@ class MasterRecorderMcap(Hook):
         return src
 
     def before_tick(self, i: int, t_s: float, side: Any) -> None:
-        if self._pend >= 0:  # tick i - 1's row, not written by a slave's hook: now, before this tick changes it
-            self._write()
-        elif not self._begun:
+        if not self._begun:
             self._begin(i, t_s, side, before=True)
 
     def after_tick(self, i: int, t_s: float, side: Any) -> None:
+        if i >= self._due:
+            self._hand(i, t_s, side)
+
+    def _hand(self, i: int, t_s: float, side: Any) -> None:
+        """Rows up to tick i's handed over (the first tick: the ring and the capture if need be)."""
         if not self._begun:
             self._begin(i, t_s, side, before=False)
-        elif self._pend >= 0:  # a tick with no before_tick: its predecessor's values are gone, not recorded
-            self._pend = -1
-            if self.source is not None:
-                self.source.ring.dropped += self.source.live
-        self._pend = i
-        self._pend_t = t_s
-        self._wall = time.time()
-        self._pend_side = side
-
-    def _write(self, status: str | None = None) -> None:
-        """The pending tick's row, from its side as the tick left it, with the status it ended in
-        (the side's now, or ``status``), copied into the ring and handed to the writer."""
-        side, src, i = self._pend_side, self.source, self._pend
-        self._pend = -1
-        if src is None:
-            return
-        s = side.status if status is None else status
-        try:
-            code = src._codes[s]
-        except KeyError:
-            code = src.code(s)
-        ring = src.ring
-        w = ring.w
-        if not src.live or (w - ring.r >= ring.cap and not ring.room()):
-            ring.dropped += src.live
-            return
-        st = side.state
-        parts = (_HEAD.pack(i, self._pend_t, self._wall, code, side.gain, side.heart.lost, side.peer_lost,
-                            side.tick_ns, side.command_errors), st.p, st.R, st.V, side.hand_W, side.felt_W,
-                 side.feedback_W)
-        o = ring.data + (w % ring.cap) * ring.row_bytes
-        try:  # the arrays' bytes, joined, into the shared row in one copy (_MASTER_FIXED's order)
-            src.region[o:o + ring.row_bytes] = _JOIN(parts + self._extras(side) if self._extra else parts)
-        except _COPY_ERRORS:  # an array not contiguous float64: numpy's casting
-            self._fill_slow(src.row(w), i, side, code)
-        ring.w = w = w + 1  # published (Source.publish, inline: this is the tick's time)
-        ring.hdr[0] = w
-        if src.can_frames:
-            src._publish_can()
-        if w - ring.r >= src.high and not src.realtime:
-            src.high_water()
-
-    def _extras(self, side: Any) -> tuple:
-        out: tuple = ()
-        if self.source is not None and "joints" in self.source.cols.at:
-            m = side.master
-            pv, Rv = m.virtual_pose()
-            out += (m.joints(), pv, Rv)
-        if side.guard is not None:
-            port = side.guard.port
-            out += (port.W, port.E_diss, port.action)
-        return out
-
-    def _fill_slow(self, row: np.ndarray, i: int, side: Any, code: int) -> None:
-        st = side.state
-        np.concatenate([(i, self._pend_t, self._wall, code, side.gain, side.heart.lost, side.peer_lost, side.tick_ns,
-                         side.command_errors), np.ravel(st.p), np.ravel(st.R), np.ravel(st.V), np.ravel(side.hand_W),
-                        np.ravel(side.felt_W), np.ravel(side.feedback_W), *map(np.ravel, self._extras(side))], out=row)
-
-    def commit(self, status: str) -> None:
-        """Hand the pending row to the writer with the status its tick ended in."""
-        if self._pend >= 0:
-            self._write(status)
-
-    def record(self, i: int, t_s: float, side: Any) -> None:
-        """Tick i's row handed over at once with the side's status as it is now (a loop hook, which
-        runs after the side has set its status)."""
-        self.after_tick(i, t_s, side)
-        self._write()
+        cap, hand = self.capture, self.handover
+        assert cap is not None and hand is not None
+        if cap.rows.n <= i:  # a capture given this tick, after the side's hooks ran: its row now
+            cap.after_tick(i, t_s, side)
+        hand.hand(i + 1)
+        self._due = i + hand.every
 
     def finalize(self) -> None:
-        """The last row (its status as the side holds it now); the bus's capture given back."""
-        if self._pend >= 0:
-            self._write()
+        """The rows not handed over yet, handed over, and the bus's frames since (a device
+        stopped as the run ends: they are on the bus too); the bus's capture given back."""
+        if self.handover is not None and self.capture is not None:
+            self.handover.hand(self.capture.rows.n)
+        src = self.source
+        if src is not None and src.can_frames and src.live:
+            src._publish_can()
         if self._tee is not None:
             sim, tee = self._tee
             if sim.capture is tee:
@@ -260,89 +216,59 @@ class MasterRecorderMcap(Hook):
             self._tee = None
 
 
-def _slave_source(writer: RecordWriter, side: Any, prefix: str) -> Source:
-    c = Columns()
-    for k in ("i", "t", "wall", "status", "lost", "tick_ns", "last_seq", "without", "skipped"):
-        c.add(k)
-    nv = len(side.arm.q)
-    for k, n in (("p_t", 3), ("R_t", 9), ("p", 3), ("R", 9), ("v", 3), ("w", 3), ("tip", 3), ("contact", 6),
-                 ("q", nv), ("qd", nv)):
-        c.add(k, n)
-    guarded = side.guard is not None
-    if guarded:
-        for k in ("gW", "gE", "gD"):
-            c.add(k, 6)
-    reg = side.reg
-    meta = {"prefix": prefix, "guarded": guarded, "joint_names": _names(getattr(side.arm, "model", None), nv, "joint"),
-            "registration": (np.array(reg.X_PM_p, float), np.array(reg.X_PM_R, float))}
-    return Source(writer, "slave", c, meta)
-
-
 class SlaveRecorderMcap(Hook):
     """A slave-side hook recording the :class:`~teleop.tick.slave_side.SlaveSide` into
-    ``writer`` under ``prefix`` (see the module docstring for the channels); ``side`` as for
-    :class:`MasterRecorderMcap`. When the writer has one master-side hook and its tick i is over
-    but not written (the in-process loop: the master's tick i, then the slave's), this hook
-    writes the master's row of tick i too, in the same pass: the master's side is not touched
-    between its tick and the slave's. A writer's hooks are called from one thread, as the runs
-    do."""
+    ``writer`` under ``prefix`` (see the module docstring for the channels): each tick, the row
+    of the side's capture (:class:`~teleop.app.recorders.SlaveRecorder`), handed over as the
+    tick ends; ``side`` as for :class:`MasterRecorderMcap`."""
 
     def __init__(self, writer: RecordWriter, prefix: str = "/slave", side: Any = None) -> None:
         self.writer, self.prefix = writer, prefix
         self.source: Source | None = None
-        self._master: MasterRecorderMcap | None = None
+        self.capture: SlaveRecorder | None = None
+        self.handover: _Handover | None = None
+        self._due = -1  # the next tick whose end hands rows over
         if side is not None:
             self._make(side)
 
     def _make(self, side: Any) -> Source:
-        src = self.source = _slave_source(self.writer, side, self.prefix)
-        assert list(src.cols.at)[:len(_SLAVE_FIXED)] == list(_SLAVE_FIXED) and src.cols.col("q") == 48
-        masters = self.writer._master_hooks
-        self._master = masters[0] if len(masters) == 1 else None
+        cap = self.capture = capture_of(side, SlaveRecorder, before=self)
+        layout = cap.rows.layout
+        reg = side.reg
+        meta = {"prefix": self.prefix, "guarded": "gW" in layout,
+                "joint_names": _names(getattr(side.arm, "model", None), len(side.arm.q), "joint"),
+                "registration": (np.array(reg.X_PM_p, float), np.array(reg.X_PM_R, float))}
+        src = self.source = Source(self.writer, "slave", layout, meta)
+        self.handover = _Handover(src, cap.rows, side.arm.dt)
+        src.finalize = self.finalize  # type: ignore[method-assign]
         return src
+
+    def finalize(self) -> None:
+        """The rows not handed over yet, handed over."""
+        if self.handover is not None and self.capture is not None:
+            self.handover.hand(self.capture.rows.n)
 
     @property
     def dropped(self) -> int:
         return 0 if self.source is None else self.source.dropped
 
     def after_tick(self, i: int, t_s: float, side: Any) -> None:
-        src = self.source or self._make(side)
-        m = self._master
-        if m is not None and m._pend == i:  # the master's tick i, over and not written yet
-            m._write()
-        ring = src.ring
-        w = ring.w
-        if not src.live or (w - ring.r >= ring.cap and not ring.room()):
-            ring.dropped += src.live
+        if i < self._due:
             return
-        s, arm, guard = side.state, side.arm, side.guard
-        try:
-            code = src._codes[s.status]
-        except KeyError:
-            code = src.code(s.status)
-        parts = (_HEAD.pack(i, t_s, time.time(), code, side.heart.lost, side.tick_ns, side.last_seq,
-                            side.without_command, side.skipped),
-                 s.p_t, s.R_t, s.p, s.R, s.v, s.w, s.tip, s.contact_P, arm.q, arm.qd)
-        o = ring.data + (w % ring.cap) * ring.row_bytes
-        try:  # the arrays' bytes, joined, into the shared row in one copy (_SLAVE_FIXED's order)
-            src.region[o:o + ring.row_bytes] = _JOIN(
-                parts if guard is None else (*parts, guard.port.W, guard.port.E_diss, guard.port.offset))
-        except _COPY_ERRORS:  # an array not contiguous float64: numpy's casting
-            slow = [(i, t_s, time.time(), code, side.heart.lost, side.tick_ns, side.last_seq, side.without_command,
-                     side.skipped), s.p_t, s.R_t, s.p, s.R, s.v, s.w, s.tip, s.contact_P, arm.q, arm.qd]
-            if guard is not None:
-                slow += (guard.port.W, guard.port.E_diss, guard.port.offset)
-            np.concatenate([np.ravel(a) for a in slow], out=src.row(w))
-        ring.w = w = w + 1  # published (Source.publish, inline: this is the tick's time)
-        ring.hdr[0] = w
-        if w - ring.r >= src.high and not src.realtime:
-            src.high_water()
+        if self.source is None:
+            self._make(side)
+        cap, hand = self.capture, self.handover
+        assert cap is not None and hand is not None
+        if cap.rows.n <= i:  # a capture given this tick, after the side's hooks ran: its row now
+            cap.after_tick(i, t_s, side)
+        hand.hand(i + 1)
+        self._due = i + hand.every
 
 
 class LoopRecorderMcap(Hook):
     """A loop hook for the in-process :class:`~teleop.tick.loop.BilateralLoop`: both sides into
-    one ``writer`` (the master's row handed over at once: the loop's hooks run after the side has
-    set its status). ``loop``: the loop, to make the rings now rather than at the first tick."""
+    one ``writer``, their rows handed over once both sides' ticks are over. ``loop``: the loop,
+    to make the rings now rather than at the first tick."""
 
     def __init__(self, writer: RecordWriter, can: bool = True, loop: Any = None) -> None:
         self.writer = writer
@@ -354,11 +280,9 @@ class LoopRecorderMcap(Hook):
         self.master.before_tick(i, t_s, loop.master_side)
 
     def after_tick(self, i: int, t_s: float, loop: Any) -> None:
+        self.master.after_tick(i, t_s, loop.master_side)
         if loop.slave_side is not None:
-            self.master.after_tick(i, t_s, loop.master_side)
-            self.slave.after_tick(i, t_s, loop.slave_side)  # the master's row too
-        else:
-            self.master.record(i, t_s, loop.master_side)
+            self.slave.after_tick(i, t_s, loop.slave_side)
 
 
 _LINK_ROW = struct.Struct("<13d")
@@ -373,7 +297,7 @@ class LinkRecorderMcap(Hook):
     def __init__(self, writer: RecordWriter, tap: Any, prefix: str) -> None:
         from teleop.link.schedule import COLUMNS
 
-        c = Columns()
+        c = RowLayout()
         c.add("i")
         c.add("t")
         for k in COLUMNS[:5]:

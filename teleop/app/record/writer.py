@@ -68,7 +68,8 @@ from typing import Any, Self
 
 import numpy as np
 
-from teleop.app.record.emit import CAN_ROW, Columns
+from teleop.app.record.emit import CAN_ROW
+from teleop.app.rows import RowLayout
 
 #: the chunk in progress is closed and flushed once it holds this much of the run's time, or has
 #: been open this long on the wall clock (s)
@@ -139,7 +140,7 @@ class Source:
     in :attr:`region`, or :meth:`slot` a numpy view of it; then :meth:`publish`). ``kind`` names
     the writer's emitter ("master", "slave"); ``meta`` (picklable) is what the emitter needs."""
 
-    def __init__(self, writer: RecordWriter, kind: str, cols: Columns, meta: dict, can: bool = False) -> None:
+    def __init__(self, writer: RecordWriter, kind: str, cols: RowLayout, meta: dict, can: bool = False) -> None:
         self.writer, self.cols, self.kind = writer, cols, kind
         cap = writer.capacity
         self.ring = ring = _Ring(writer, 8 * cols.width, cap)
@@ -151,7 +152,7 @@ class Source:
         self.waits = 0
         self.waited_s = 0.0
         self._stalled = False
-        self._codes: dict[str, int] = {}
+        self.told = 0  # status names told to the writer (tell)
         self.live = writer.live
         self.can = _Ring(writer, CAN_ROW.size, CAN_CAPACITY) if can else None
         self.can_frames: list[tuple] = []
@@ -167,13 +168,12 @@ class Source:
     def dropped(self) -> int:
         return self.ring.dropped
 
-    def code(self, s: str) -> int:
-        """The status string's code (a new one is told to the writer first)."""
-        c = self._codes.get(s)
-        if c is None:
-            c = self._codes[s] = len(self._codes)
-            self.writer._send(("name", self.sid, c, s))
-        return c
+    def tell(self, names: list[str]) -> None:
+        """The status strings by code (a capture's :attr:`~teleop.app.rows.TickRows.names`) that
+        the writer has not been told yet, told (before a row with their code is published)."""
+        for c in range(self.told, len(names)):
+            self.writer._send(("name", self.sid, c, names[c]))
+        self.told = len(names)
 
     def next_row(self) -> int:
         """The byte offset in :attr:`region` of the next row to fill, or -1 (the ring is full: the
@@ -298,9 +298,6 @@ class RecordWriter:
         self.closed = False
         self.result: dict = {}
         self._sources: list[Source] = []
-        #: the master-side hooks recording into this writer (a slave-side hook writes the master's
-        #: row of its tick when there is exactly one: :class:`~teleop.app.record.hooks.SlaveRecorderMcap`)
-        self._master_hooks: list = []
         self._size, self._used = int(region_bytes), 0
         self._lock = threading.Lock()
         self._proc: subprocess.Popen | None = None
