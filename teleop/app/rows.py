@@ -51,32 +51,46 @@ class RowLayout:
 
 
 class TickRows:
-    """Row i is tick i (float64 columns laid out by ``layout``), growing in chunks of
-    :data:`ROW_CHUNK` rows from ``expected``. :meth:`put` fills a row in one copy;
-    :meth:`column` reads a column range back; :meth:`code` numbers a status string (``names``: the
-    strings by number, in the order first seen)."""
+    """Row i is tick i (float64 columns laid out by ``layout``), kept in blocks: the first of
+    ``expected`` rows (at most :data:`ROW_CHUNK`), then blocks of :data:`ROW_CHUNK` added as the
+    ticks come, so the rows never move and a long run never stops to copy them. :meth:`put`
+    fills a row in one copy; :meth:`column` reads a column range back, :meth:`segments` the raw
+    bytes of a run of rows; :meth:`code` numbers a status string (``names``: the strings by
+    number, in the order first seen)."""
 
     def __init__(self, layout: RowLayout, expected: int = ROW_CHUNK) -> None:
         self.layout = layout
         self.width = layout.width
         self.row_bytes = 8 * self.width
-        self.capacity = max(1, min(int(expected), ROW_CHUNK))
-        self.data = np.zeros((self.capacity, self.width))
-        self.raw = memoryview(self.data).cast("B")
+        first = max(1, min(int(expected), ROW_CHUNK))
+        self.blocks: list[np.ndarray] = [np.zeros((first, self.width))]
+        self.starts: list[int] = [0]
         self.n = 0  # rows put: one past the highest
         self.codes: dict[str, int] = {}
         self.names: list[str] = []
         self._typed = False  # the first row's parts checked (see put)
+        self._lo, self._hi = 0, first  # the block rows are put into: its first row and one past its last
+        self._raw = memoryview(self.blocks[0]).cast("B")
 
-    def ensure(self, i: int) -> None:
-        """Room for row ``i`` (the rows copied to a larger block if not)."""
-        if i < self.capacity:
-            return
-        grown = 2 * self.capacity if self.capacity < 8 * ROW_CHUNK else self.capacity + 8 * ROW_CHUNK
-        cap = max(i + 1, grown)
-        data = np.zeros((cap, self.width))
-        data[: self.capacity] = self.data
-        self.data, self.raw, self.capacity = data, memoryview(data).cast("B"), cap
+    @property
+    def capacity(self) -> int:
+        """Rows the blocks hold now."""
+        return self.starts[-1] + len(self.blocks[-1])
+
+    def _block(self, i: int) -> int:
+        """The block holding row ``i`` (blocks added up to it)."""
+        while i >= self.capacity:
+            self.starts.append(self.capacity)
+            self.blocks.append(np.zeros((ROW_CHUNK, self.width)))
+        k = len(self.starts) - 1
+        while self.starts[k] > i:
+            k -= 1
+        return k
+
+    def at(self, i: int) -> np.ndarray:
+        """Row ``i`` (a view; blocks added up to it)."""
+        k = self._block(i)
+        return self.blocks[k][i - self.starts[k]]
 
     def code(self, status: str) -> int:
         """``status``'s number (a new one is numbered next)."""
@@ -91,14 +105,16 @@ class TickRows:
         the tick: their bytes joined into the row in one copy. A part that is not a contiguous
         float64 buffer of its size is cast by numpy instead (the first row checks every part's
         type, since an int64 buffer of the right size would join as bytes)."""
-        if i >= self.capacity:
-            self.ensure(i)
+        if not self._lo <= i < self._hi:
+            k = self._block(i)
+            self._lo, self._hi = self.starts[k], self.starts[k] + len(self.blocks[k])
+            self._raw = memoryview(self.blocks[k]).cast("B")
         rb = self.row_bytes
-        o = i * rb
+        o = (i - self._lo) * rb
         try:
             if not self._typed:
                 self._check(parts)
-            self.raw[o:o + rb] = _JOIN(parts)
+            self._raw[o:o + rb] = _JOIN(parts)
         except _COPY_ERRORS:
             self._cast(i, parts)
         if i >= self.n:
@@ -111,24 +127,32 @@ class TickRows:
         self._typed = True
 
     def _cast(self, i: int, parts: tuple) -> None:
-        row = self.data[i]
         pieces = [np.frombuffer(parts[0], np.float64)] + [np.ravel(np.asarray(a, dtype=float)) for a in parts[1:]]
         if sum(p.size for p in pieces) != self.width:
             raise ValueError(f"tick rows: row {i} has {sum(p.size for p in pieces)} numbers, the layout "
                              f"{self.width}")
-        np.concatenate(pieces, out=row)
+        np.concatenate(pieces, out=self.at(i))
 
-    def row(self, i: int) -> bytes | memoryview:
-        """Row ``i``'s bytes (a view: valid until the rows grow)."""
+    def segments(self, a: int, b: int) -> list[memoryview]:
+        """Rows [a, b)'s bytes as they are, one view per block they span (valid while the rows
+        live: blocks never move)."""
+        out = []
         rb = self.row_bytes
-        return self.raw[i * rb:(i + 1) * rb]
+        while a < b:
+            k = self._block(a)
+            lo, blk = self.starts[k], self.blocks[k]
+            end = min(b, lo + len(blk))
+            out.append(memoryview(blk).cast("B")[(a - lo) * rb:(end - lo) * rb])
+            a = end
+        return out
 
     def column(self, name: str, n: int | None = None, shape: tuple = ()) -> np.ndarray:
         """The first ``n`` rows (default: all put) of column range ``name``, as an (n, *shape)
         array of its own (``shape`` () for one column; default: the range's width)."""
         n = self.n if n is None else int(n)
         a, b = self.layout.at[name]
-        out = np.array(self.data[:n, a:b])
+        parts = [blk[: max(0, min(len(blk), n - lo)), a:b] for lo, blk in zip(self.starts, self.blocks) if lo < n]
+        out = np.concatenate(parts) if parts else np.zeros((0, b - a))
         if shape == () and b - a == 1:
             return out.reshape(n)
         return out.reshape(n, *shape) if shape else out

@@ -40,7 +40,8 @@ from teleop.util.errors import ConfigError
 
 log = logging.getLogger(__name__)
 
-#: the longest run, ticks: its log (about 0.5 kB a tick) stays under about 1 GB
+#: the longest run, ticks: the sides' captured rows (1.1 kB a tick on the cut: 81 and 62 numbers)
+#: stay under about 2.3 GB
 MAX_TICKS = 2_000_000
 #: --realtime: warn when the loop falls this far behind the wall clock, s (then once a second)
 LAG_WARN_S = 0.05

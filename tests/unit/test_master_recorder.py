@@ -17,10 +17,10 @@ def test_nan_is_read_from_the_ticks_captured(column, nan_at):
     rows.n = 5  # five ticks captured, all finite (zeros)
     assert mb.recorder.nan is False
     if column is not None:
-        rows.data[nan_at, rows.layout.col(column)] = np.nan
+        rows.at(nan_at)[rows.layout.col(column)] = np.nan
         assert mb.recorder.nan is True
-        rows.data[nan_at, rows.layout.col(column)] = 0.0
-    rows.data[7, rows.layout.col("q_r")] = np.inf  # past the ticks captured: not read
+        rows.at(nan_at)[rows.layout.col(column)] = 0.0
+    rows.at(7)[rows.layout.col("q_r")] = np.inf  # past the ticks captured: not read
     assert mb.recorder.nan is False
 
 
@@ -57,4 +57,4 @@ def test_the_log_reads_each_tick_as_the_side_left_it():
         assert np.array_equal(log["R_r"][i], R) and np.array_equal(log["operator_W"][i], hand)
         assert np.array_equal(log["felt_W"][i], felt)
         rows = mb.recorder.rows
-        assert rows.names[int(rows.data[i, rows.layout.col("status")])] == status
+        assert rows.names[int(rows.at(i)[rows.layout.col("status")])] == status

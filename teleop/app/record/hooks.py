@@ -115,14 +115,17 @@ class _Handover:
         rows = self.rows
         if src.told < len(rows.names):
             src.tell(rows.names)
-        rb, cap, w, raw, region = ring.row_bytes, ring.cap, ring.w, rows.raw, src.region
-        at = w % cap
-        first = min(k, cap - at)
-        o = ring.data + at * rb
-        region[o:o + first * rb] = raw[a * rb:(a + first) * rb]
-        if first < k:
-            region[ring.data:ring.data + (k - first) * rb] = raw[(a + first) * rb:upto * rb]
-        ring.w = w = w + k  # published (Source.publish, inline)
+        rb, cap, w, region = ring.row_bytes, ring.cap, ring.w, src.region
+        for seg in rows.segments(a, upto):  # one, or two where the rows span two of their blocks
+            m = len(seg) // rb
+            at = w % cap
+            first = min(m, cap - at)
+            o = ring.data + at * rb
+            region[o:o + first * rb] = seg[:first * rb]
+            if first < m:  # the ring wraps
+                region[ring.data:ring.data + (m - first) * rb] = seg[first * rb:]
+            w += m
+        ring.w = w  # published (Source.publish, inline)
         ring.hdr[0] = w
         if src.can_frames:
             src._publish_can()
