@@ -95,10 +95,19 @@ class _Handover:
     the tick left. Crash safety: a run killed loses the rows not handed yet, ``every`` ticks at
     most (:data:`HAND_S` of the run), besides the writer's open chunk."""
 
-    def __init__(self, src: Source, rows: Any, dt_s: float) -> None:
-        self.src, self.rows = src, rows
+    def __init__(self, src: Source, capture: Any, dt_s: float) -> None:
+        self.src, self.capture, self.rows = src, capture, capture.rows
         self.every = max(1, min(src.ring.cap // 4, round(HAND_S / max(float(dt_s), 1e-9))))
         self.done = 0  # rows [0, done) handed over (or dropped)
+
+    def tick_ended(self, i: int, t_s: float, side: Any) -> int:
+        """Tick ``i`` of ``side`` is over: its row (captured now if the capture was given this
+        tick, after the side's hooks ran) and those before it handed over. Returns the next tick
+        whose end hands rows over."""
+        if self.rows.n <= i:
+            self.capture.after_tick(i, t_s, side)
+        self.hand(i + 1)
+        return i + self.every
 
     def hand(self, upto: int) -> None:
         """Rows [done, ``upto``) copied into the ring and published (no room, as a run paced to
@@ -167,7 +176,7 @@ class MasterRecorderMcap(Hook):
                 "joint_names": _names(getattr(getattr(side.master, "model", None), "model", None), nj, "joint"),
                 "registration": None if reg is None else (np.array(reg.X_PM_p, float), np.array(reg.X_PM_R, float))}
         src = self.source = Source(self.writer, "master", layout, meta, can=self._tap)
-        self.handover = _Handover(src, cap.rows, side.dt)
+        self.handover = _Handover(src, cap, side.dt)
         src.finalize = self.finalize  # type: ignore[method-assign]
         return src
 
@@ -197,18 +206,14 @@ class MasterRecorderMcap(Hook):
         """Rows up to tick i's handed over (the first tick: the ring and the capture if need be)."""
         if not self._begun:
             self._begin(i, t_s, side, before=False)
-        cap, hand = self.capture, self.handover
-        assert cap is not None and hand is not None
-        if cap.rows.n <= i:  # a capture given this tick, after the side's hooks ran: its row now
-            cap.after_tick(i, t_s, side)
-        hand.hand(i + 1)
-        self._due = i + hand.every
+        assert self.handover is not None
+        self._due = self.handover.tick_ended(i, t_s, side)
 
     def finalize(self) -> None:
         """The rows not handed over yet, handed over, and the bus's frames since (a device
         stopped as the run ends: they are on the bus too); the bus's capture given back."""
-        if self.handover is not None and self.capture is not None:
-            self.handover.hand(self.capture.rows.n)
+        if self.handover is not None:
+            self.handover.hand(self.handover.rows.n)
         src = self.source
         if src is not None and src.can_frames and src.live:
             src._publish_can()
@@ -242,14 +247,14 @@ class SlaveRecorderMcap(Hook):
                 "joint_names": _names(getattr(side.arm, "model", None), len(side.arm.q), "joint"),
                 "registration": (np.array(reg.X_PM_p, float), np.array(reg.X_PM_R, float))}
         src = self.source = Source(self.writer, "slave", layout, meta)
-        self.handover = _Handover(src, cap.rows, side.arm.dt)
+        self.handover = _Handover(src, cap, side.arm.dt)
         src.finalize = self.finalize  # type: ignore[method-assign]
         return src
 
     def finalize(self) -> None:
         """The rows not handed over yet, handed over."""
-        if self.handover is not None and self.capture is not None:
-            self.handover.hand(self.capture.rows.n)
+        if self.handover is not None:
+            self.handover.hand(self.handover.rows.n)
 
     @property
     def dropped(self) -> int:
@@ -260,12 +265,8 @@ class SlaveRecorderMcap(Hook):
             return
         if self.source is None:
             self._make(side)
-        cap, hand = self.capture, self.handover
-        assert cap is not None and hand is not None
-        if cap.rows.n <= i:  # a capture given this tick, after the side's hooks ran: its row now
-            cap.after_tick(i, t_s, side)
-        hand.hand(i + 1)
-        self._due = i + hand.every
+        assert self.handover is not None
+        self._due = self.handover.tick_ended(i, t_s, side)
 
 
 class LoopRecorderMcap(Hook):

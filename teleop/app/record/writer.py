@@ -14,10 +14,11 @@ Three ways to run it, for three kinds of run (measured on this 2-core machine, s
 * ``RecordWriter(path, mode="thread")``: the same writer as a thread of the run's process.
 
 The tick never serialises or writes. A side's hook (:mod:`teleop.app.record.hooks`) copies the
-few numbers it records into the next row of a preallocated ring (:class:`Source`, one per side)
-in memory shared with the writer process (:mod:`teleop.app.record.serve`), and publishes the row
-by advancing a counter there; the writer process takes the published rows in batches, lays out
-their messages with numpy and adds them to the file through the ``mcap`` package's writer
+rows its side's capture holds (:mod:`teleop.app.rows`), every 10 ms of the run, as they are into
+the next rows of a preallocated ring (:class:`Source`, one per side) in memory shared with the
+writer process (:mod:`teleop.app.record.serve`), and publishes them by advancing a counter
+there; the writer process takes the published rows in batches, lays out their messages with
+numpy and adds them to the file through the ``mcap`` package's writer
 (:mod:`teleop.app.record.emit`). The writer's work (some 50-100 us a tick a side, most of it
 inside ``mcap``'s own Python) runs on another core, not under the tick's GIL: as a thread it
 shares the tick's interpreter lock (a run faster than real time never releases it, and a thread
