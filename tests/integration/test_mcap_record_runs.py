@@ -155,14 +155,15 @@ CHILD = textwrap.dedent("""
     out, progress, spool = sys.argv[1], sys.argv[2], sys.argv[3] == "spool"
     mm = np.memmap(progress, dtype=np.int64, mode="r+", shape=(2,))
 
-    class Progress(Hook):  # the ticks whose rows the recorder has published
+    class Progress(Hook):  # the ticks whose rows the recorder has published (every 10 ms of the run)
         def after_tick(self, i, t_s, loop):
-            mm[0] = i + 1
+            mm[0] = min(rec.master.handover.done, rec.slave.handover.done)
 
     scene = load_scene("straight_incision", sets=["duration_s=10.0"])
     w = RecordWriter(out, realtime=True, spool=spool)
     mm[1] = w.pid
-    run_scene(scene, realtime=True, hooks=[LoopRecorderMcap(w), Progress()])
+    rec = LoopRecorderMcap(w)
+    run_scene(scene, realtime=True, hooks=[rec, Progress()])
     w.close()
 """)
 
