@@ -21,7 +21,7 @@ built first and second in turn (of two loops built alike, the first built ticks 
 this machine: one order alone biases the figure), and the median of the runs' differences. Also
 the writer process's CPU time per simulated second, and the record's size. ``--realtime S``: then
 S seconds paced to the wall clock with and without (``run_scene(realtime=True)``, alternating,
-twice each) and their late ticks.
+``--repeats`` times each, at least twice) and their late ticks.
 
 ``--paced``: the same, each tick waiting for its period of the wall clock as a paced run does.
 ``--floor``: where the cost comes from, the same comparison with the recorder's hooks cut down
@@ -202,15 +202,17 @@ def interleaved(scene_name: str, seconds: float, block: int, folder: Path, with_
     return out
 
 
-def realtime(scene_name: str, seconds: float, folder: Path, **opts) -> dict:
+def realtime(scene_name: str, seconds: float, folder: Path, repeats: int = 2, **opts) -> dict:
+    """``repeats`` runs of ``seconds`` paced to the wall clock with the recorder and as many
+    without, alternating, each pair in turn with the recorder first and second."""
     from teleop.app.record import RecordWriter
     from teleop.app.runtime import run_scene
     from teleop.scenario.schema import load_scene
 
     scene = load_scene(scene_name, sets=[f"duration_s={seconds}"])
     out: dict = {"seconds": seconds, "with": [], "without": []}
-    for rep in range(2):
-        for k in ("with", "without"):
+    for rep in range(max(1, repeats)):
+        for k in (("with", "without") if rep % 2 == 0 else ("without", "with")):
             if k == "with":
                 with RecordWriter(folder / f"rt{rep}.mcap", realtime=True, **opts) as w:
                     s = run_scene(scene, realtime=True, record=w).summary
@@ -227,7 +229,7 @@ def main(argv=None) -> int:
     ap.add_argument("--seconds", type=float, default=5.0, help="simulated seconds (default 5)")
     ap.add_argument("--block", type=int, default=250, help="ticks per interleaved block (default 250)")
     ap.add_argument("--realtime", type=float, default=0.0, metavar="S",
-                    help="also S seconds paced to the wall clock, with and without, twice each")
+                    help="also S seconds paced to the wall clock, with and without, --repeats times each (at least twice)")
     ap.add_argument("--mode", choices=["process", "thread"], default="process", help="the writer's (default process)")
     ap.add_argument("--spool", action="store_true", help="the writer spools, and writes the MCAP file after the run")
     ap.add_argument("--repeats", type=int, default=2,
@@ -248,7 +250,7 @@ def main(argv=None) -> int:
                             paced=args.paced, **kw) for k in range(max(1, args.repeats))]
         res: dict = {"interleaved": runs}
         if args.realtime > 0:
-            res["realtime"] = realtime(args.scene, args.realtime, Path(tmp), **kw)
+            res["realtime"] = realtime(args.scene, args.realtime, Path(tmp), max(2, args.repeats), **kw)
     for r in runs:
         print(f"{r['scene']}: {r['ticks']} ticks, interleaved blocks of {r['block']}, writer {r['writer']}, the loop "
               f"with it built {'first' if r['with_first'] else 'second'}, load average {r['load'][0]:.1f}"
