@@ -229,7 +229,7 @@ def main(argv=None) -> int:
     ap.add_argument("--seconds", type=float, default=5.0, help="simulated seconds (default 5)")
     ap.add_argument("--block", type=int, default=250, help="ticks per interleaved block (default 250)")
     ap.add_argument("--realtime", type=float, default=0.0, metavar="S",
-                    help="also S seconds paced to the wall clock, with and without, --repeats times each (at least twice)")
+                    help="also S seconds paced to the wall clock, with and without, --repeats times each (at least 2)")
     ap.add_argument("--mode", choices=["process", "thread"], default="process", help="the writer's (default process)")
     ap.add_argument("--spool", action="store_true", help="the writer spools, and writes the MCAP file after the run")
     ap.add_argument("--repeats", type=int, default=2,
