@@ -3,8 +3,8 @@ computed in the tick.
 
 The fixture metrics evaluated the tool's and the arm's own constraint rows, whose curved surface
 keeps its foot point as a warm start, so on ``curved_surface_incision`` the run's joints differed
-in the last bits with and without them. Both metric hooks now copy their inputs in the tick and
-derive the series at the end, from rows of their own."""
+in the last bits with and without them. The metrics now derive their series at the end from the
+sides' captured rows (teleop.app.recorders), with constraint rows of their own."""
 
 import numpy as np
 import pytest
@@ -16,7 +16,7 @@ from teleop.tick.ports import Hook
 
 
 class _NoMetrics(Hook):
-    """Stands in for a metric hook: records nothing, reports nothing."""
+    """Stands in for the metrics: reads nothing, reports nothing."""
 
     def __init__(self, *args, **kwargs):
         pass
