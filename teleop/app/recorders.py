@@ -3,8 +3,9 @@ by a hook of the side, read by the run's log, its metrics and its record. Each i
 side it captures, so one process and two keep the same columns.
 
 :class:`MasterRecorder` and :class:`SlaveRecorder` join their side's tick into a row in one
-copy (the master's about 2 µs, the slave's about 1.5 µs); the log's columns, the metrics and the
-MCAP record are read from the rows, never from the side again.
+copy (in the tick, some 6 µs the master's, reading its virtual tool as the tick begins included,
+and 2.5 µs the slave's); the log's columns, the metrics and the MCAP record are read from the
+rows, never from the side again.
 """
 
 from __future__ import annotations
@@ -117,7 +118,7 @@ class MasterRecorder(Hook):
             lost = m.stats().get("can_frames_lost", 0)
             dev = (m.joints(), *m.virtual_pose())
         if self._guard:
-            port = side.guard.port  # type: ignore[union-attr]
+            port = side.guard.port  # type: ignore[union-attr]  # _guard: the side has one
             dev += (port.W, port.E_diss, port.action)
         rows.put(i, (_MASTER_HEAD.pack(i, t_s, _now(), code, side.gain, side.heart.lost, side.peer_lost,
                                        side.tick_ns, side.command_errors, tool.t, lost),
@@ -190,7 +191,7 @@ class SlaveRecorder(Hook):
                                   side.without_command, side.skipped),
                  s.p_t, s.R_t, s.p, s.R, s.v, s.w, s.tip, s.contact_P, arm.q, arm.qd)
         if self._guard:
-            port = side.guard.port  # type: ignore[union-attr]
+            port = side.guard.port  # type: ignore[union-attr]  # _guard: the side has one
             parts += (port.W, port.E_diss, port.offset)
         rows.put(i, parts)
 

@@ -177,7 +177,7 @@ class MasterRecorderMcap(Hook):
                 "registration": None if reg is None else (np.array(reg.X_PM_p, float), np.array(reg.X_PM_R, float))}
         src = self.source = Source(self.writer, "master", layout, meta, can=self._tap)
         self.handover = _Handover(src, cap, side.dt)
-        src.finalize = self.finalize  # type: ignore[method-assign]
+        src.finalize = self.finalize  # type: ignore[method-assign]  # the ring's last rows are this hook's to hand over
         return src
 
     def _begin(self, i: int, t_s: float, side: Any, before: bool) -> Source:
@@ -248,7 +248,7 @@ class SlaveRecorderMcap(Hook):
                 "registration": (np.array(reg.X_PM_p, float), np.array(reg.X_PM_R, float))}
         src = self.source = Source(self.writer, "slave", layout, meta)
         self.handover = _Handover(src, cap, side.arm.dt)
-        src.finalize = self.finalize  # type: ignore[method-assign]
+        src.finalize = self.finalize  # type: ignore[method-assign]  # the ring's last rows are this hook's to hand over
         return src
 
     def finalize(self) -> None:
