@@ -1,4 +1,4 @@
-"""The run's status (teleop.tick.verdict.verdict): one test holds each status of the README's table."""
+"""The run's status (teleop.tick.verdict.verdict): one test holds each status of the table in docs/design/tick.md (a run's status)."""
 
 import logging
 
