@@ -1,4 +1,5 @@
-"""The run's status (teleop.tick.verdict.verdict): one test holds each status of the table in docs/design/tick.md (a run's status)."""
+"""The run's status (teleop.tick.verdict.verdict): one test holds each status of the table in
+docs/design/tick.md ("A run's status covers both sides")."""
 
 import logging
 
