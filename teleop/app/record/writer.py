@@ -67,8 +67,6 @@ from collections import deque
 from pathlib import Path
 from typing import Any, Self
 
-import numpy as np
-
 from teleop.app.record.emit import CAN_ROW
 from teleop.app.rows import RowLayout
 
@@ -138,7 +136,8 @@ class _Ring:
 class Source:
     """One side's ring: ``capacity`` rows of ``cols.width`` float64s in the memory shared with the
     writer process, written by the tick's thread (:meth:`next_row` gives the next row's byte offset
-    in :attr:`region`, or :meth:`slot` a numpy view of it; then :meth:`publish`). ``kind`` names
+    in :attr:`region`, then :meth:`publish`; or rows copied in and ``ring.w`` advanced, as the
+    side hooks' hand-over does). ``kind`` names
     the writer's emitter ("master", "slave"); ``meta`` (picklable) is what the emitter needs."""
 
     def __init__(self, writer: RecordWriter, kind: str, cols: RowLayout, meta: dict, can: bool = False) -> None:
@@ -146,9 +145,6 @@ class Source:
         cap = writer.capacity
         self.ring = ring = _Ring(writer, 8 * cols.width, cap)
         self.region = writer._region
-        self.buf = np.frombuffer(writer._region, np.float64, count=cap * cols.width,
-                                 offset=ring.data).reshape(cap, cols.width)
-        self.cap = cap
         self.high, self.low, self.realtime = writer.high_water, writer.low_water, writer.realtime
         self.waits = 0
         self.waited_s = 0.0
@@ -184,18 +180,6 @@ class Source:
             return ring.data + (ring.w % ring.cap) * ring.row_bytes
         ring.dropped += 1
         return -1
-
-    def slot(self) -> np.ndarray | None:
-        """The next row to fill as a numpy view, or None (see :meth:`next_row`)."""
-        ring = self.ring
-        if ring.room():
-            return self.buf[ring.w % ring.cap]
-        ring.dropped += 1
-        return None
-
-    def row(self, k: int) -> np.ndarray:
-        """Row ``k`` (counting from the first) as a numpy view."""
-        return self.buf[k % self.cap]
 
     def publish(self) -> None:
         """The next row is filled: hand it to the writer."""
