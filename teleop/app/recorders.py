@@ -16,7 +16,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from teleop.app.rows import RowLayout, TickRows
+from teleop.app.rows import ROW_CHUNK, RowLayout, TickRows
 from teleop.tick.ports import Hook
 
 if TYPE_CHECKING:  # the record's writer process imports this module, and nothing of the tick
@@ -24,7 +24,7 @@ if TYPE_CHECKING:  # the record's writer process imports this module, and nothin
     from teleop.tick.slave_side import SlaveSide
 
 #: ticks of log reserved at first and added each time it fills (the log grows, never preallocated)
-LOG_CHUNK = 16_384
+LOG_CHUNK = ROW_CHUNK
 #: the master row's scalars: tick, run time (s), wall clock (Unix s), status code, gain, heartbeat
 #: lost, peer lost, tick CPU (ns), command errors, the tool's own time (s), CAN frames lost
 _MASTER_HEAD = struct.Struct("<11d")
@@ -109,9 +109,7 @@ class MasterRecorder(Hook):
     def after_tick(self, i: int, t_s: float, side: MasterSide) -> None:
         st, tool, m, rows = side.state, side.tool, side.master, self.rows
         v0 = self._v0 or (*m.virtual_pose(), *m.virtual_twist())  # (made after the tick began: as it ends)
-        code = rows.codes.get(side.status)
-        if code is None:
-            code = rows.code(side.status)
+        code = rows.code(side.status)
         dev: tuple = ()
         lost = 0
         if self._device:
@@ -184,9 +182,7 @@ class SlaveRecorder(Hook):
 
     def after_tick(self, i: int, t_s: float, side: SlaveSide) -> None:
         s, arm, rows = side.state, side.arm, self.rows
-        code = rows.codes.get(s.status)
-        if code is None:
-            code = rows.code(s.status)
+        code = rows.code(s.status)
         parts = (_SLAVE_HEAD.pack(i, t_s, _now(), code, side.heart.lost, side.tick_ns, side.last_seq,
                                   side.without_command, side.skipped),
                  s.p_t, s.R_t, s.p, s.R, s.v, s.w, s.tip, s.contact_P, arm.q, arm.qd)
@@ -214,9 +210,9 @@ def capture_of(side: Any, kind: type, before: Any = None) -> Any:
         if isinstance(h, kind):
             return h
     cap = kind(side)
-    hooks = side.hooks
-    if before is not None and any(h is before for h in hooks):
-        hooks.insert(next(k for k, h in enumerate(hooks) if h is before), cap)
-    else:
+    at = next((k for k, h in enumerate(side.hooks) if h is before), None)
+    if at is None:
         side.add_hooks(cap)
+    else:
+        side.hooks.insert(at, cap)
     return cap

@@ -14,6 +14,7 @@ import json
 import math
 import struct
 import time
+from abc import ABC, abstractmethod
 from typing import Any
 
 import numpy as np
@@ -241,7 +242,7 @@ def _eye_q(n: int) -> np.ndarray:
     return q
 
 
-class Emitter:
+class Emitter(ABC):
     """A side's rows into its channels; ``meta`` is what its hook said at its first tick."""
 
     def __init__(self, out: McapOut, meta: dict) -> None:
@@ -253,8 +254,9 @@ class Emitter:
         if reg is not None:
             out.static_tf("patient", "master", *reg)
 
+    @abstractmethod
     def emit(self, rows: np.ndarray) -> None:
-        raise NotImplementedError
+        """A batch of rows (one per tick, the layout's columns) as the side's messages."""
 
 
 class MasterEmitter(Emitter):
